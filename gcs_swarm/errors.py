@@ -1,0 +1,73 @@
+"""The one exception tree of gcs_swarm.
+
+::
+
+    SwarmError                      anything the command line prints as one line
+     +-- MissionError(ValueError)   a mission file is malformed or inconsistent
+     +-- ExpressionError(ValueError) a leader-force expression does not parse or
+     |                               uses a name that is not allowed
+     +-- LinkError(OSError)         a MAVLink connection string or transport failed
+     +-- VehicleError               a vehicle refused or did not answer (names the
+     |    |                          vehicle and carries its own STATUSTEXT)
+     |    +-- StartupError          the swarm could not be readied in time
+     +-- InfeasibleError            the safety filter cannot satisfy its constraints
+
+The command line (``gcs_swarm.cli``) catches ``SwarmError``, prints ``str(err)``
+as a single line and exits non-zero. Any other exception is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ExpressionError",
+    "InfeasibleError",
+    "LinkError",
+    "MissionError",
+    "StartupError",
+    "SwarmError",
+    "VehicleError",
+]
+
+
+class SwarmError(Exception):
+    """Base of every error the command line reports as one line."""
+
+
+class MissionError(SwarmError, ValueError):
+    """A mission file is malformed or inconsistent.
+
+    ``str()`` is a single line naming file, line, key path, what was expected
+    and what was found, e.g.
+    ``mission.yaml:14: vehicles[2].sysid: expected an integer 1..255, got "x"``.
+    When the loader finds several problems, ``problems`` lists them (one line
+    each, file order) and ``str()`` joins them with newlines.
+    """
+
+    def __init__(self, message: str, problems: tuple[str, ...] | list[str] = ()) -> None:
+        super().__init__(message)
+        self.problems: tuple[str, ...] = tuple(problems) if problems else (message,)
+
+
+class ExpressionError(SwarmError, ValueError):
+    """A leader-force expression does not parse or uses a forbidden name."""
+
+
+class LinkError(SwarmError, OSError):
+    """A MAVLink connection string is malformed or its transport failed."""
+
+
+class VehicleError(SwarmError):
+    """A vehicle refused a command or stopped answering.
+
+    The message names the vehicle (system id) and, where there is one, quotes
+    the vehicle's own STATUSTEXT.
+    """
+
+
+class StartupError(VehicleError):
+    """The swarm could not be readied within the start-up timeout."""
+
+
+class InfeasibleError(SwarmError):
+    """The safety filter's constraints conflict and no command satisfies them all."""
