@@ -1,0 +1,164 @@
+"""Cost of the formation law (gcs_swarm.control), single-threaded.
+
+Run from the repository root:
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+        python benchmarks/bench_law.py
+
+(the script also sets these itself before numpy is imported). Prints a
+markdown table; the figures in benchmarks/README.md come from it.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from functools import partial  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from gcs_swarm.control import (  # noqa: E402
+    Avoidance,
+    Box,
+    ConstantForce,
+    LawConfig,
+    Leader,
+    SwarmController,
+    law_accelerations,
+    repulsion_force,
+)
+from gcs_swarm.control.supervisor import Mode  # noqa: E402
+from gcs_swarm.simulation import simulate  # noqa: E402
+
+
+def _median_ms(fn: Callable[[], object], repeats: int, inner: int = 1) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(inner):
+            fn()
+        times.append((time.perf_counter() - t0) / inner)
+    return 1e3 * statistics.median(times)
+
+
+def _naive_repulsion(p: np.ndarray, q: np.ndarray, k_r: float) -> np.ndarray:
+    d = p[:, None, :] - p[None, :, :]
+    r = np.linalg.norm(d, axis=-1)
+    np.fill_diagonal(r, np.inf)
+    out: np.ndarray = k_r * q[:, None] * np.sum((q[None, :] / r**3)[..., None] * d, axis=1)
+    return out
+
+
+def bench_law_eval() -> list[str]:
+    rng = np.random.default_rng(1)
+    cfg = LawConfig()
+    centre = np.zeros(3)
+    rows = ["| N | law evaluation (ms) | of which repulsion (ms) | naive N x N x 3 (ms) |",
+            "|---|---|---|---|"]  # fmt: skip
+    for n in (10, 100, 1000, 3000):
+        # Vehicles spread over a ball whose size grows with N (~2 m spacing).
+        p = rng.normal(size=(n, 3)) * (n ** (1 / 3))
+        v = rng.normal(size=(n, 3))
+        q = np.full(n, 10.0)
+        mode = Mode(
+            behaviour="formation",
+            episode=0,
+            ids=tuple(range(n)),
+            targets_m=None,
+            vertical=np.zeros((n, 0), dtype=bool),
+            sense_h=np.ones((n, 0)),
+            sense_v=np.ones((n, 0)),
+            repulsion=True,
+        )
+        obs = SwarmController(cfg).obstacles
+        reps = 200 if n <= 100 else (30 if n <= 1000 else 15)
+        inner = 20 if n <= 100 else 1
+        law = partial(law_accelerations, cfg, mode, p, v, q, centre, obs)
+        t_law = _median_ms(law, reps, inner)
+        t_rep = _median_ms(partial(repulsion_force, p, q, 0.2), reps, inner)
+        naive = (
+            f"{_median_ms(partial(_naive_repulsion, p, q, 0.2), 5):.3f}"
+            if n <= 1000
+            else "(not run)"
+        )
+        rows.append(f"| {n} | {t_law:.3f} | {t_rep:.3f} | {naive} |")
+    return rows
+
+
+def _episode_config() -> LawConfig:
+    return LawConfig(
+        leader=Leader(force=ConstantForce((10.0, 0.0, 0.0))),
+        obstacles=(Box((40.0, 0.5, 0.3), (3.0, 2.0, 1.0)),),
+        avoidance=Avoidance(),
+    )
+
+
+def bench_station_path() -> list[str]:
+    """SwarmController.step costs for the Example 1 swarm at 50 Hz, and the
+    look-ahead of one episode (6 vehicles, Scenario-3-like box pass)."""
+    starts = [(2, 1, 2), (-1, -1, -1), (3, 4, 2), (4, 2, 2), (3, 3, 3), (-2, -2, -2)]
+    cfg = _episode_config()
+    res = simulate(cfg, starts, duration=40.0, dt=0.02)
+    k0 = int(np.flatnonzero(res.behaviour == "avoidance")[0])
+    ids = list(range(1, 7))
+    q = np.full(6, 10.0)
+    rows = ["| step (N = 6) | ms |", "|---|---|"]
+
+    def formation_step() -> None:
+        ctl = SwarmController(cfg)
+        for k in range(0, 200):
+            ctl.step(res.times_s[k], ids, res.pos_m[k], res.vel_mps[k], q)
+
+    per_step = _median_ms(formation_step, 7) / 200
+    rows.append(f"| `SwarmController.step`, formation | {per_step:.3f} |")
+
+    prepared = [SwarmController(cfg, defer_lookahead=True) for _ in range(9)]
+    for ctl in prepared:
+        ctl.step(res.times_s[k0 - 1], ids, res.pos_m[k0 - 1], res.vel_mps[k0 - 1], q)
+    starts_ms = []
+    for ctl in prepared:
+        t0 = time.perf_counter()
+        ctl.step(res.times_s[k0], ids, res.pos_m[k0], res.vel_mps[k0], q)
+        starts_ms.append(1e3 * (time.perf_counter() - t0))
+    rows.append(
+        f"| `step` at episode start (slot targets; look-ahead deferred) | "
+        f"{statistics.median(starts_ms):.3f} |"
+    )
+    ctl = prepared[0]
+    job = ctl.pending_lookahead()
+    assert job is not None
+
+    def avoid_step() -> None:
+        for k in range(k0 + 1, k0 + 201):
+            ctl.step(res.times_s[k], ids, res.pos_m[k], res.vel_mps[k], q)
+
+    rows.append(f"| `step`, avoidance | {_median_ms(avoid_step, 3) / 200:.3f} |")
+    rows.append(f"| look-ahead job, one episode (6 vehicles x 2 planes) | "
+                f"{_median_ms(job, 5):.1f} |")  # fmt: skip
+    return rows
+
+
+def main() -> None:
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, "
+          f"Python {platform.python_version()}, numpy {np.__version__}, "
+          f"OMP/OPENBLAS/MKL threads = {os.environ['OPENBLAS_NUM_THREADS']}")  # fmt: skip
+    print()
+    print("\n".join(bench_law_eval()))
+    print()
+    print("\n".join(bench_station_path()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,144 @@
+"""The vehicle model (Eq. 1) and the formation force (Eqs. 7-12), vectorised over vehicles.
+
+Shapes: ``pos_m``/``vel_mps`` are ``(N, 3)`` float64 arrays in the mission
+frame (x east, y north, z up); ``charges`` is ``(N,)``; forces are newtons,
+accelerations m/s^2. Every printed-variant switch is read from
+``gcs_swarm.control.params.Readings``.
+
+The all-pairs repulsion (Eqs. 8-9) never builds an ``N x N x 3`` array: with
+``W_ni = 1/|p_n - p_i|^3`` (zero diagonal) it is
+
+    F_n = k_r q_n (p_n (W q)_n - (W (q p))_n),
+
+i.e. matrix products on blocks of ``W`` (each symmetric block computed once),
+with ``|p_n - p_i|^2`` taken from an augmented Gram product of the centred
+positions. N = 1000 takes about 3 ms on one core (benchmarks/README.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gcs_swarm.control.params import Gains, Readings
+
+__all__ = [
+    "R_MIN_M",
+    "eq1_acceleration",
+    "formation_force",
+    "repulsion_force",
+    "sphere_attraction",
+]
+
+F64 = NDArray[np.float64]
+
+#: Lower clamp of the inter-vehicle distance in Eq. 9 [m]. Below it the pair
+#: force grows linearly with the distance (like the field inside a uniformly
+#: charged ball of this radius) instead of as 1/r^2, and coincident vehicles
+#: (r = 0) push each other with exactly zero force: finite, never NaN. Any two
+#: real vehicles this close have already collided.
+R_MIN_M = 0.01
+
+#: Rows of the N x N weight matrix processed at once (keeps the block in cache).
+_BLOCK_ROWS = 256
+
+
+def eq1_acceleration(force_n: F64, vel_mps: F64, gains: Gains) -> F64:
+    """Eq. 1: ``a = (f - (D + k) v) / M`` [m/s^2] from force ``f`` [N] and
+    measured velocity ``v`` [m/s]; any shape ``(..., 3)``."""
+    out: F64 = (force_n - (gains.D + gains.k) * vel_mps) / gains.M
+    return out
+
+
+def sphere_attraction(pos_m: F64, centre_m: F64, gains: Gains, readings: Readings) -> F64:
+    """Eq. 7: ``f_s,n = -k_s (p_n - c)(|p_n - c|^2 - alpha^2)`` [N], ``(N, 3)``.
+
+    READING: alpha^2 is kept. ``readings.eq12_printed`` gives Eq. 12 as
+    printed, ``-k_s (p_n - c)|p_n - c|^2``. A vehicle at the centre gets zero.
+    """
+    d = pos_m - centre_m
+    r2 = np.einsum("ni,ni->n", d, d)
+    if not readings.eq12_printed:
+        r2 = r2 - gains.alpha**2
+    out: F64 = -gains.k_s * d * r2[:, None]
+    return out
+
+
+def repulsion_force(
+    pos_m: F64, charges: F64, k_r: float, *, q_n_twice: bool = False, r_min_m: float = R_MIN_M
+) -> F64:
+    """Eqs. 8-9: ``F_n = sum_{i != n} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3`` [N].
+
+    READING: one q_n (Eqs. 8-9). ``q_n_twice=True`` is Eq. 10 as printed
+    (``q_n q_n`` in place of ``q_n q_i``). Distances are clamped from below at
+    ``r_min_m`` (see :data:`R_MIN_M`). ``pos_m (N, 3)``, ``charges (N,)`` ->
+    ``(N, 3)``. Cost: O(N^2) scalar work in blocks of rows, O(N * block) memory.
+    """
+    n = pos_m.shape[0]
+    out = np.zeros((n, 3))
+    if n < 2:
+        return out
+    p = pos_m - pos_m.mean(axis=0)  # centred: smaller Gram cancellation error
+    sq = np.einsum("ni,ni->n", p, p)
+    # |p_n - p_i|^2 = [p_n, |p_n|^2, 1] . [-2 p_i, 1, |p_i|^2]: one product per block.
+    left = np.empty((n, 5))
+    left[:, :3] = p
+    left[:, 3] = sq
+    left[:, 4] = 1.0
+    right = np.empty((n, 5))
+    right[:, :3] = -2.0 * p
+    right[:, 3] = 1.0
+    right[:, 4] = sq
+    q = np.asarray(charges, dtype=np.float64)
+    qw = np.ones(n) if q_n_twice else q
+    rhs = np.empty((n, 4))
+    rhs[:, 0] = qw
+    rhs[:, 1:] = qw[:, None] * p
+    acc = np.zeros((n, 4))
+    r2_min = r_min_m * r_min_m
+    nb = -(-n // _BLOCK_ROWS)
+    # W is symmetric: each off-diagonal block is computed once and used for both
+    # its rows and its columns, so the pair forces are exactly equal and opposite.
+    for bi in range(nb):
+        i0, i1 = bi * _BLOCK_ROWS, min(n, (bi + 1) * _BLOCK_ROWS)
+        for bj in range(bi, nb):
+            j0, j1 = bj * _BLOCK_ROWS, min(n, (bj + 1) * _BLOCK_ROWS)
+            w = left[i0:i1] @ right[j0:j1].T  # |r|^2, (bi, bj)
+            np.maximum(w, r2_min, out=w)  # clamp |r| from below at r_min_m
+            s = np.sqrt(w)
+            w *= s  # |r|^3
+            np.divide(1.0, w, out=w)
+            if bi == bj:
+                np.fill_diagonal(w, 0.0)  # no self-interaction
+                acc[i0:i1] += w @ rhs[j0:j1]
+            else:
+                acc[i0:i1] += w @ rhs[j0:j1]
+                acc[j0:j1] += w.T @ rhs[i0:i1]
+    qn = q * q if q_n_twice else q
+    np.multiply(p, acc[:, 0:1], out=out)
+    out -= acc[:, 1:]
+    out *= (k_r * qn)[:, None]
+    return out
+
+
+def formation_force(
+    pos_m: F64,
+    charges: F64,
+    centre_m: F64,
+    gains: Gains,
+    readings: Readings,
+    *,
+    with_repulsion: bool = True,
+) -> F64:
+    """Eqs. 11-12: the formation force ``f_n(vs) = F_n + f_s,n`` [N], ``(N, 3)``,
+    around the virtual leader ``centre_m (3,)``.
+
+    READING: ``F + f_s`` (Eq. 7's minus sign already pulls inward).
+    ``readings.eq11_printed`` gives Eq. 11 literally, ``F - f_s`` (diverges).
+    """
+    fs = sphere_attraction(pos_m, centre_m, gains, readings)
+    if readings.eq11_printed:
+        fs = -fs
+    if not with_repulsion:
+        return fs
+    return fs + repulsion_force(pos_m, charges, gains.k_r, q_n_twice=readings.eq10_printed)

@@ -1,0 +1,203 @@
+"""Parameters of the formation law: frozen dataclasses, the contract between
+the mission file (``gcs_swarm.mission``) and the law (``gcs_swarm.control``).
+
+Every quantity is SI (metres, seconds, kilograms, newtons) in the mission
+frame: x east, y north, z up (formation-law.md section 1). NED never appears
+here.
+
+The printed-variant switches of formation-law.md live in one place,
+``Readings``: each field is False for the spec's READING and True for the
+equation as printed in the paper.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+__all__ = [
+    "AvoidMethod",
+    "Avoidance",
+    "Box",
+    "ConstantForce",
+    "ExpressionForce",
+    "Gains",
+    "HeadingSource",
+    "LawConfig",
+    "Leader",
+    "LeaderForce",
+    "Limits",
+    "Plane",
+    "Readings",
+    "Safety",
+    "Sense",
+    "Vec3",
+    "WaypointForce",
+]
+
+Vec3 = tuple[float, float, float]
+AvoidMethod = Literal["rotational", "classic", "none"]
+Plane = Literal["auto", "horizontal", "vertical"]
+Sense = Literal["auto", "cw", "ccw", "up", "down"]
+HeadingSource = Literal["velocity", "desired"]
+
+
+@dataclass(frozen=True)
+class Readings:
+    """Printed-variant switches (formation-law.md). False = the spec's READING.
+
+    - ``eq10_printed``: Eq. 10 as printed, q_n twice in the repulsion
+      (READING: Eqs. 8-9, one q_n).
+    - ``eq11_printed``: Eq. 11 literal ``F - f`` (diverges; READING: ``F + f_s``).
+    - ``eq12_printed``: Eq. 12 without alpha^2 (READING: keep alpha^2).
+    - ``eq27_printed``: Eq. 27 per-component form (READING: vector form).
+    - ``repulsion_in_avoidance``: keep inter-vehicle repulsion during an
+      avoidance episode. False is the paper mode (Eq. 29 as printed drops it).
+    """
+
+    eq10_printed: bool = False
+    eq11_printed: bool = False
+    eq12_printed: bool = False
+    eq27_printed: bool = False
+    repulsion_in_avoidance: bool = False
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Gains of Eqs. 1, 7, 9 (paper defaults of Example 1).
+
+    M [kg] mass, D and k [N s/m] damping (total D + k), k_s [N/m^3] sphere
+    spring (Eq. 7), k_r [N m^2/C^2] repulsion (Eq. 9), alpha [m] sphere
+    parameter (Eq. 7), q_default [C] charge of a vehicle that names none.
+    """
+
+    M: float = 1.0
+    D: float = 1.0
+    k: float = 9.0
+    k_s: float = 1.0
+    k_r: float = 0.2
+    alpha: float = 2.0
+    q_default: float = 10.0
+
+
+@dataclass(frozen=True)
+class Box:
+    """Axis-aligned box obstacle (Eq. 14): centre p_0 [m] and half-extents
+    (v1, v2, v3) [m], mission frame."""
+
+    centre: Vec3
+    half_extents: Vec3
+
+
+@dataclass(frozen=True)
+class Avoidance:
+    """Obstacle avoidance settings (Eqs. 19-28).
+
+    - ``method``: ``rotational`` (the paper), ``classic`` (radial baseline
+      field), ``none`` (obstacles ignored by the law).
+    - ``plane``: ``auto`` picks by look-ahead (rule after Eq. 25), or forced.
+    - ``sense``: ``auto`` is the acute-angle rule latched at field entry, or
+      forced (``cw``/``ccw`` horizontal, ``up``/``down`` vertical).
+    - ``r0``: field range in ellipsoidal-radius units (formation-law.md s5).
+    - ``F_D`` [N]: size of the desired force of Eq. 28.
+    - ``target_margin``: slot targets lie at rho >= r0 + target_margin (s8).
+    - ``heading``: phi of the vertical field (Eqs. 20/23). ``velocity`` is the
+      spec's reading (azimuth of the velocity, of the desired force when
+      nearly at rest); ``desired`` always takes the desired force's azimuth
+      (Eq. 28), which stays steady when a safety filter holds a vehicle
+      against a face and its velocity direction swings.
+    """
+
+    method: AvoidMethod = "rotational"
+    plane: Plane = "auto"
+    sense: Sense = "auto"
+    r0: float = 2.0
+    F_D: float = 10.0
+    target_margin: float = 0.5
+    heading: HeadingSource = "velocity"
+
+
+@dataclass(frozen=True)
+class ConstantForce:
+    """Leader force f_v [N], constant (Eq. 13)."""
+
+    force: Vec3
+
+
+@dataclass(frozen=True)
+class ExpressionForce:
+    """Leader force f_v [N] as three expressions in x, y, z, vx, vy, vz, t
+    (the leader's own state, mission frame), e.g. ``("10", "10*sin(x/8)", "2")``.
+    Evaluated by the safe evaluator in ``gcs_swarm.control.expr``."""
+
+    exprs: tuple[str, str, str]
+
+
+@dataclass(frozen=True)
+class WaypointForce:
+    """Leader flies through ``waypoints`` [m] at ``cruise_speed`` [m/s]; the
+    force is chosen so that Eq. 13's terminal speed is the cruise speed.
+
+    ``accept_radius`` [m]: the leader heads for the next waypoint once it is
+    this close to the current one; it slows to a stop at the last one
+    (``gcs_swarm.control.leader``)."""
+
+    waypoints: tuple[Vec3, ...]
+    cruise_speed: float
+    accept_radius: float = 0.5
+
+
+LeaderForce = ConstantForce | ExpressionForce | WaypointForce
+
+
+@dataclass(frozen=True)
+class Leader:
+    """Virtual leader (Eq. 13): initial position [m], velocity [m/s], force law."""
+
+    start: Vec3 = (0.0, 0.0, 0.0)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    force: LeaderForce = ConstantForce((0.0, 0.0, 0.0))
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Hard limits applied to every commanded acceleration (formation-law.md s11).
+
+    a_max [m/s^2] bound on |a|; v_max [m/s] bound on |v| (the command is
+    limited so the speed does not grow past it); z_floor [m] altitude floor,
+    mission frame; geofence_min/max [m] corners of an axis-aligned fence, or None.
+    """
+
+    a_max: float = math.inf
+    v_max: float = math.inf
+    z_floor: float = -math.inf
+    geofence_min: Vec3 | None = None
+    geofence_max: Vec3 | None = None
+
+
+@dataclass(frozen=True)
+class Safety:
+    """Safety filter settings (control-barrier-function filter).
+
+    enabled: on for real autopilots, off reproduces the paper exactly;
+    clearance [m] minimum signed distance to every box; separation [m]
+    minimum distance between vehicles.
+    """
+
+    enabled: bool = False
+    clearance: float = 0.5
+    separation: float = 1.0
+
+
+@dataclass(frozen=True)
+class LawConfig:
+    """Everything the law needs apart from the vehicles' own states and charges."""
+
+    gains: Gains = field(default_factory=Gains)
+    leader: Leader = field(default_factory=Leader)
+    obstacles: tuple[Box, ...] = ()
+    avoidance: Avoidance = field(default_factory=Avoidance)
+    readings: Readings = field(default_factory=Readings)
+    limits: Limits = field(default_factory=Limits)
+    safety: Safety = field(default_factory=Safety)

@@ -1,0 +1,463 @@
+"""Safety filter between the formation law and the setpoint (issue 10).
+
+Pure numpy, no I/O, no logging. Every control cycle, per vehicle, it returns the
+acceleration closest (least squares) to the law's ``a_des`` [m/s^2, mission
+frame x east / y north / z up] that keeps
+
+  (a) signed distance to every box >= ``Safety.clearance``,
+  (b) distance to every other vehicle >= ``Safety.separation``,
+  (c) z >= ``Limits.z_floor`` and the position inside the geofence,
+  (d) |a| <= ``Limits.a_max`` and |v| <= ``Limits.v_max``.
+
+(a) and (b) are the filter proper (``Safety.enabled``); (c) and (d) are
+``Limits`` and apply always, also in the paper mode, so an infinite-limits,
+disabled filter is the identity, bit for bit.
+
+Barrier. For a distance d(p) with unit gradient n, margin d_min, closing speed
+s = -n.v and a braking budget a_b, the braking-distance barrier is
+
+    H(d, s) = d - d_min - max(s, 0)^2 / (2 a_b)                       (B1)
+
+i.e. "the vehicle can still stop before the margin while braking at a_b". The
+filter demands, for the exact zero-order-hold step of a double integrator
+(d+ = d - s dt + u dt^2/2, s+ = s - u dt, u = n.a),
+
+    H(d+, s+) >= (1 - gamma dt) H(d, s)                                (B2)
+
+H(d+, s+) is concave and increasing in u, so (B2) is exactly one half-space
+``n.a >= u_min`` (``limits.braking_bound``). At the boundary (H = 0, s > 0) it asks
+for u = a_b, never more, so with a_b = brake_fraction * a_max the constraint
+set stays inside the |a| <= a_max ball, unlike an ordinary second-order CBF
+whose demand grows with speed. For a plane (floor, fence) (B2) is exact; for a
+box or a pair the distance is convex, so the supporting plane used here
+under-estimates the next distance (conservative); only the turning of n within
+one step (O(dt^2)) is not modelled.
+
+Pairs share the work: the relative barrier uses 2 a_b and each vehicle takes
+half of u_min (n_ij.a_i >= u_min/2, n_ji.a_j >= u_min/2). Coincident vehicles
+use the fixed direction +x (the lower index is pushed to -x).
+
+The per-vehicle projection is ``gcs_swarm.control.limits.project`` (exact).
+When the rows conflict the filter returns a best effort and flags the vehicle
+infeasible: it drops the speed row, then the separation rows, then relaxes the
+environment rows uniformly by the least amount that is feasible, and always
+keeps |a| <= a_max. ``strict=True`` raises ``InfeasibleError`` instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gcs_swarm.control.limits import (
+    FEAS_TOL,
+    BoolArray,
+    FloatArray,
+    box_signed_distance,
+    braking_bound,
+    project,
+    speed_rows,
+)
+from gcs_swarm.control.params import Box, Limits, Safety
+from gcs_swarm.errors import InfeasibleError
+
+__all__ = [
+    "SafetyFilter",
+    "SafetyHook",
+    "SafetyReport",
+    "SafetyStats",
+    "SafetySummary",
+    "SafetyTuning",
+    "box_signed_distance",
+]
+
+_ENV, _PAIR, _SPEED = 0, 1, 2  # row classes, in the order the best effort keeps them
+_RELAX_STEPS = 40  # bisection steps of the best-effort relaxation (2^-40 of the range)
+
+
+@dataclass(frozen=True)
+class SafetyTuning:
+    """Filter settings not in the mission contract (``params.Safety``/``Limits``).
+
+    brake_fraction: a_b = brake_fraction * a_max, the deceleration each barrier
+    may count on (0.5 leaves room for three orthogonal walls at once:
+    sqrt(3) * 0.5 < 1). brake_unbounded_mps2: a_b when a_max is infinite.
+    gamma_per_s [1/s]: how fast a barrier may be approached (B2); larger is
+    later and harder; gamma*dt is capped at 1 (one-step invariance).
+    """
+
+    brake_fraction: float = 0.5
+    brake_unbounded_mps2: float = 5.0
+    gamma_per_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.brake_fraction <= 1.0:
+            raise ValueError(f"brake_fraction must be in (0, 1], got {self.brake_fraction}")
+        if not 0.0 < self.brake_unbounded_mps2 < math.inf:
+            raise ValueError(f"brake_unbounded_mps2 must be > 0, got {self.brake_unbounded_mps2}")
+        if not 0.0 < self.gamma_per_s < math.inf:
+            raise ValueError(f"gamma_per_s must be > 0, got {self.gamma_per_s}")
+
+
+@dataclass(frozen=True, eq=False)
+class SafetyReport:
+    """What one ``SafetyFilter.filter`` call did, per vehicle (arrays of length N).
+
+    correction_mps2 |a - a_des|; active: constraints met with equality (the
+    |a| ball counts as one); infeasible: constraints conflicted and a best
+    effort was returned; violation_mps2: the worst residual b - n.a of any row
+    after the best effort (0 when feasible); min_clearance_m: signed distance
+    to the nearest box (inf without boxes); min_separation_m: distance to the
+    nearest other vehicle (inf when alone). Distances are at the input state.
+    """
+
+    correction_mps2: FloatArray
+    active: NDArray[np.int64]
+    infeasible: BoolArray
+    violation_mps2: FloatArray
+    min_clearance_m: FloatArray
+    min_separation_m: FloatArray
+
+    @property
+    def intervened(self) -> BoolArray:
+        """Vehicles whose command was changed."""
+        return np.asarray(self.correction_mps2 > 0.0)
+
+
+@dataclass(frozen=True)
+class SafetySummary:
+    """A run's totals (``SafetyStats.summary``), for the run summary and report."""
+
+    cycles: int
+    vehicle_cycles: int
+    interventions: int
+    infeasible: int
+    max_correction_mps2: float
+    mean_correction_mps2: float
+    min_clearance_m: float
+    min_separation_m: float
+
+    def __str__(self) -> str:
+        share = self.interventions / self.vehicle_cycles if self.vehicle_cycles else 0.0
+        return (
+            f"safety filter: intervened {self.interventions}/{self.vehicle_cycles} "
+            f"vehicle-cycles ({100.0 * share:.1f} %), max |a - a_des| "
+            f"{self.max_correction_mps2:.3g} m/s^2, mean when active "
+            f"{self.mean_correction_mps2:.3g} m/s^2, infeasible {self.infeasible}, "
+            f"min clearance {self.min_clearance_m:.3f} m, "
+            f"min separation {self.min_separation_m:.3f} m"
+        )
+
+
+@dataclass
+class SafetyStats:
+    """Accumulates ``SafetyReport``s over a run (mutable, owned by one caller)."""
+
+    cycles: int = 0
+    vehicle_cycles: int = 0
+    interventions: int = 0
+    infeasible: int = 0
+    max_correction_mps2: float = 0.0
+    sum_correction_mps2: float = 0.0
+    min_clearance_m: float = math.inf
+    min_separation_m: float = math.inf
+
+    def update(self, report: SafetyReport) -> None:
+        """Add one cycle."""
+        corr = report.correction_mps2
+        self.cycles += 1
+        self.vehicle_cycles += int(corr.size)
+        self.interventions += int(np.count_nonzero(corr > 0.0))
+        self.infeasible += int(np.count_nonzero(report.infeasible))
+        if corr.size:
+            self.max_correction_mps2 = max(self.max_correction_mps2, float(corr.max()))
+            self.sum_correction_mps2 += float(corr.sum())
+            self.min_clearance_m = min(self.min_clearance_m, float(report.min_clearance_m.min()))
+            self.min_separation_m = min(self.min_separation_m, float(report.min_separation_m.min()))
+
+    def summary(self) -> SafetySummary:
+        """The totals so far."""
+        mean = self.sum_correction_mps2 / self.interventions if self.interventions else 0.0
+        return SafetySummary(
+            cycles=self.cycles,
+            vehicle_cycles=self.vehicle_cycles,
+            interventions=self.interventions,
+            infeasible=self.infeasible,
+            max_correction_mps2=self.max_correction_mps2,
+            mean_correction_mps2=mean,
+            min_clearance_m=self.min_clearance_m,
+            min_separation_m=self.min_separation_m,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class _Geometry:
+    """Per-cycle distances: box clearance (N, K) [m] and normals (N, K, 3),
+    nearest-vehicle distance (N,) [m], pair distances (N, N) [m] (inf on the
+    diagonal and for unusable vehicles) and unit directions j -> i (N, N, 3)."""
+
+    clearance: FloatArray
+    box_n: FloatArray
+    separation: FloatArray
+    pair_d: FloatArray
+    pair_n: FloatArray
+
+
+class SafetyFilter:
+    """Per-vehicle projection of the law's acceleration onto the safe set.
+
+    limits, safety: the mission's ``Limits`` and ``Safety``; boxes: the
+    obstacles; dt [s]: the control period (one zero-order-hold step).
+    ``strict=True`` raises ``InfeasibleError`` when any vehicle's constraints
+    conflict (after computing the best effort).
+    """
+
+    def __init__(
+        self,
+        limits: Limits,
+        safety: Safety,
+        boxes: Sequence[Box],
+        *,
+        dt: float,
+        tuning: SafetyTuning | None = None,
+        strict: bool = False,
+    ) -> None:
+        if not 0.0 < dt < math.inf:
+            raise ValueError(f"dt must be a positive period in seconds, got {dt}")
+        if not limits.a_max > 0.0 or not limits.v_max > 0.0:
+            raise ValueError(f"a_max and v_max must be > 0, got {limits.a_max}, {limits.v_max}")
+        if not (safety.clearance >= 0.0 and safety.separation >= 0.0):
+            raise ValueError("clearance and separation must be >= 0")
+        self.limits = limits
+        self.safety = safety
+        self.dt = dt
+        self.tuning = tuning if tuning is not None else SafetyTuning()
+        self.strict = strict
+        self._centres = np.array([b.centre for b in boxes], dtype=np.float64).reshape(-1, 3)
+        self._halves = np.array([b.half_extents for b in boxes], dtype=np.float64).reshape(-1, 3)
+        a_max = limits.a_max
+        self._a_b = (
+            self.tuning.brake_fraction * a_max
+            if math.isfinite(a_max)
+            else self.tuning.brake_unbounded_mps2
+        )
+        # (c) as planes sign * p[axis] >= offset [m].
+        planes: list[tuple[int, float, float]] = []
+        if math.isfinite(limits.z_floor):
+            planes.append((2, 1.0, limits.z_floor))
+        if limits.geofence_min is not None:
+            planes.extend((k, 1.0, float(limits.geofence_min[k])) for k in range(3))
+        if limits.geofence_max is not None:
+            planes.extend((k, -1.0, -float(limits.geofence_max[k])) for k in range(3))
+        self._plane_axis = np.array([p[0] for p in planes], dtype=np.intp)
+        self._plane_sign = np.array([p[1] for p in planes], dtype=np.float64)
+        self._plane_offset = np.array([p[2] for p in planes], dtype=np.float64)
+        self._plane_n = np.zeros((len(planes), 3))
+        self._plane_n[np.arange(len(planes)), self._plane_axis] = self._plane_sign
+
+    def filter(
+        self,
+        pos_m: FloatArray,
+        vel_mps: FloatArray,
+        accel_des_mps2: FloatArray,
+        *,
+        ids: Sequence[object] | None = None,
+    ) -> tuple[FloatArray, SafetyReport]:
+        """Filter one cycle. pos_m, vel_mps, accel_des_mps2: (N, 3), mission frame.
+
+        Returns the safe accelerations (N, 3) [m/s^2] and a ``SafetyReport``.
+        Never returns NaN: a non-finite ``a_des`` row is treated as zero; a
+        vehicle with a non-finite position or velocity gets a = 0 and is
+        flagged infeasible. ``ids`` only names vehicles in ``InfeasibleError``.
+        """
+        pos = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3)
+        vel = np.asarray(vel_mps, dtype=np.float64).reshape(-1, 3)
+        a_des = np.asarray(accel_des_mps2, dtype=np.float64).reshape(-1, 3)
+        if not pos.shape == vel.shape == a_des.shape:
+            raise ValueError(f"shape mismatch: {pos.shape}, {vel.shape}, {a_des.shape}")
+        state_ok: BoolArray = np.asarray(
+            np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1)
+        )
+        des_ok: BoolArray = np.asarray(np.isfinite(a_des).all(axis=1))
+        a0 = np.where(des_ok[:, None], a_des, 0.0)
+        pos = np.where(state_ok[:, None], pos, 0.0)
+        vel = np.where(state_ok[:, None], vel, 0.0)
+        geo = self._geometry(pos, state_ok)
+        normals, bounds, classes = self._rows(pos, vel, a0, geo, state_ok)
+        rows = np.ones(bounds.shape, dtype=bool)
+        a_max = self.limits.a_max
+        accel, feasible = project(a0, normals, bounds, rows, a_max)
+        if not feasible.all():
+            accel = self._best_effort(accel, feasible, a0, normals, bounds, classes)
+        accel[~state_ok] = 0.0
+        infeasible = ~feasible | ~state_ok
+
+        scale = np.maximum(1.0, np.linalg.norm(a0, axis=-1))
+        if math.isfinite(a_max):
+            scale = np.maximum(scale, a_max)
+        resid = bounds - np.einsum("nkj,nj->nk", normals, accel)
+        active = np.count_nonzero(np.abs(resid) <= FEAS_TOL * scale[:, None], axis=1)
+        if math.isfinite(a_max):
+            active += np.abs(np.linalg.norm(accel, axis=-1) - a_max) <= FEAS_TOL * scale
+        violation = np.where(infeasible, np.maximum(resid.max(axis=1, initial=0.0), 0.0), 0.0)
+        report = SafetyReport(
+            correction_mps2=np.linalg.norm(accel - a0, axis=-1),
+            active=active.astype(np.int64),
+            infeasible=infeasible,
+            violation_mps2=violation,
+            # A vehicle whose position is unknown has no clearance figure.
+            min_clearance_m=np.where(
+                state_ok, geo.clearance.min(axis=1, initial=math.inf), math.inf
+            ),
+            min_separation_m=geo.separation,
+        )
+        if self.strict and infeasible.any():
+            bad = np.flatnonzero(infeasible)
+            names = [ids[int(i)] if ids is not None else int(i) for i in bad]
+            raise InfeasibleError(
+                f"safety filter: constraints conflict for vehicle(s) {names} "
+                f"(worst residual {float(violation.max()):.3g} m/s^2)"
+            )
+        return accel, report
+
+    def _geometry(self, pos: FloatArray, ok: BoolArray) -> _Geometry:
+        """Distances and normals at the current positions (vehicles not ``ok`` have
+        no pairs)."""
+        nv = pos.shape[0]
+        clearance, box_n = box_signed_distance(pos, self._centres, self._halves)
+        rel = pos[:, None, :] - pos[None, :, :]
+        dist = np.linalg.norm(rel, axis=-1)
+        coincident = dist < 1e-9
+        # Coincident vehicles: fixed direction +x, antisymmetric (lower index to -x).
+        upper = np.triu(np.ones((nv, nv), dtype=bool), 1)
+        fixed = np.where(upper, -1.0, 1.0)[..., None] * np.array([1.0, 0.0, 0.0])
+        direction = np.where(
+            coincident[..., None], fixed, rel / np.where(coincident, 1.0, dist)[..., None]
+        )
+        other = ~np.eye(nv, dtype=bool) & ok[:, None] & ok[None, :]
+        pair_d = np.where(other, dist, math.inf)
+        return _Geometry(clearance, box_n, pair_d.min(axis=1, initial=math.inf), pair_d, direction)
+
+    def _rows(
+        self,
+        pos: FloatArray,
+        vel: FloatArray,
+        a0: FloatArray,
+        geo: _Geometry,
+        ok: BoolArray,
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """All half-space rows n.a >= b: normals (N, m, 3), bounds (N, m), class (m,)."""
+        nv = pos.shape[0]
+        dt, a_b, gamma = self.dt, self._a_b, self.tuning.gamma_per_s
+        normals: list[FloatArray] = []
+        bounds: list[FloatArray] = []
+        classes: list[int] = []
+        if self.safety.enabled and self._centres.shape[0]:
+            # (a) boxes: (B1)-(B2) on the signed distance, supporting-plane normal.
+            closing = -np.einsum("nkj,nj->nk", geo.box_n, vel)
+            u = braking_bound(geo.clearance - self.safety.clearance, closing, a_b, dt, gamma)
+            normals.append(geo.box_n)
+            bounds.append(u)
+            classes += [_ENV] * geo.box_n.shape[1]
+        if self._plane_axis.size:
+            # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
+            gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset
+            closing = -self._plane_sign * vel[:, self._plane_axis]
+            normals.append(np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape)))
+            bounds.append(braking_bound(gap, closing, a_b, dt, gamma))
+            classes += [_ENV] * self._plane_axis.size
+        if self.safety.enabled and nv > 1:
+            # (b) pairs: relative barrier with 2 a_b, each vehicle takes half.
+            off = ~np.eye(nv, dtype=bool)
+            rel_v = vel[:, None, :] - vel[None, :, :]
+            closing = -np.einsum("ijk,ijk->ij", geo.pair_n, rel_v)
+            real = np.isfinite(geo.pair_d)
+            gap = np.where(real, geo.pair_d, 0.0) - self.safety.separation
+            u = np.where(real, 0.5 * braking_bound(gap, closing, 2.0 * a_b, dt, gamma), -math.inf)
+            normals.append(geo.pair_n[off].reshape(nv, nv - 1, 3))
+            bounds.append(u[off].reshape(nv, nv - 1))
+            classes += [_PAIR] * (nv - 1)
+        if math.isfinite(self.limits.v_max):
+            # (d) speed: tangent planes of |v_next| = v_max (limits.speed_rows).
+            n, b = speed_rows(vel, a0, self.limits.v_max, dt, a_b)
+            normals.append(n)
+            bounds.append(b)
+            classes += [_SPEED, _SPEED]
+        if not normals:
+            return np.zeros((nv, 0, 3)), np.zeros((nv, 0)), np.zeros(0, dtype=np.int64)
+        bnd = np.concatenate(bounds, axis=1)
+        bnd[~ok] = -math.inf
+        return np.concatenate(normals, axis=1), bnd, np.array(classes, dtype=np.int64)
+
+    def _best_effort(
+        self,
+        accel: FloatArray,
+        feasible: BoolArray,
+        a0: FloatArray,
+        normals: FloatArray,
+        bounds: FloatArray,
+        classes: NDArray[np.int64],
+    ) -> FloatArray:
+        """Best command for infeasible vehicles: drop speed, then pairs, then
+        relax the environment rows by the least uniform amount t >= 0."""
+        a_max = self.limits.a_max
+        out = accel.copy()
+        bad = np.flatnonzero(~feasible)
+        for keep in (_PAIR, _ENV):
+            rows = np.broadcast_to(classes <= keep, bounds[bad].shape)
+            x, ok = project(a0[bad], normals[bad], bounds[bad], rows, a_max)
+            out[bad[ok]] = x[ok]
+            bad = bad[~ok]
+            if bad.size == 0:
+                return out
+        rows = np.broadcast_to(classes == _ENV, bounds[bad].shape)
+        env_b = np.where(rows, bounds[bad], -math.inf)
+        lo = np.zeros(bad.size)
+        hi = np.maximum(env_b.max(axis=1), 0.0) * (1.0 + 1e-12) + 1e-12  # a = 0 meets b - hi
+        for _ in range(_RELAX_STEPS):
+            mid = 0.5 * (lo + hi)
+            _, ok = project(a0[bad], normals[bad], env_b - mid[:, None], rows, a_max)
+            hi = np.where(ok, mid, hi)
+            lo = np.where(ok, lo, mid)
+        x, _ = project(a0[bad], normals[bad], env_b - hi[:, None], rows, a_max)
+        out[bad] = x
+        return out
+
+
+@dataclass
+class SafetyHook:
+    """Adaptor for the simulator's acceleration hook: ``hook(t, ids, p, v, a) -> a``.
+
+    Filters every call. A simulator may call it several times per step (RK4
+    stages), so ``stats`` and ``last_report`` take one report per control
+    period ``dt``: the first call at or after each period boundary (a time
+    going back by more than dt starts a new run).
+    """
+
+    safety_filter: SafetyFilter
+    stats: SafetyStats = field(default_factory=SafetyStats)
+    last_report: SafetyReport | None = None
+    _next_t: float = -math.inf
+    _last_t: float = -math.inf
+
+    def __call__(
+        self,
+        t: float,
+        ids: Sequence[object],
+        pos_m: FloatArray,
+        vel_mps: FloatArray,
+        accel_mps2: FloatArray,
+    ) -> FloatArray:
+        """Return the filtered accelerations (N, 3); ``t`` [s] only paces ``stats``."""
+        accel, report = self.safety_filter.filter(pos_m, vel_mps, accel_mps2, ids=ids)
+        dt = self.safety_filter.dt
+        if t >= self._next_t - 1e-6 * dt or t < self._last_t - dt:
+            self.last_report = report
+            self.stats.update(report)
+            self._next_t = t + dt
+        self._last_t = t
+        return accel
