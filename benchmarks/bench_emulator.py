@@ -1,0 +1,171 @@
+"""Benchmark of the emulator: vehicles kept in real time, and lockstep speed.
+
+Run from the repository root: ``python benchmarks/bench_emulator.py`` (about a
+minute). The emulator runs in this process (single-threaded asyncio: at most
+one core); the ground-station side is a separate process (this file with
+``--sink``) so its cost is not counted. Both are pinned to different cores
+when the machine has two.
+
+1. Real time: N airborne vehicles, each on its own UDP endpoint, streaming
+   LOCAL_POSITION_NED at 50 Hz (plus 1 Hz HEARTBEAT); ``open`` mode only
+   drains telemetry, ``closed`` mode answers every report with an
+   acceleration setpoint (so the inbound path is measured too). Reported:
+   real-time factor (sim s per wall s), emulator CPU (fraction of one core),
+   telemetry delivered (fraction of N x 50 Hz), late steps.
+2. Lockstep: N = 6 at 50 Hz, the sink answering each report at once; reported
+   as steps per wall second and sim seconds per wall second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
+
+RATE_HZ = 50.0
+
+
+def _pin(core: int) -> None:
+    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
+        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
+
+
+def sink(ports: list[int], seconds: float, answer: bool) -> None:
+    """Ground-station stand-in: one socket, asks every vehicle for 50 Hz reports, drains."""
+    _pin(1)
+    enc = mav.MAVLink(None, 255, 190)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+    sock.bind(("127.0.0.1", 0))
+    setpoints: dict[int, bytes] = {}
+    for i, port in enumerate(ports):
+        sysid = i % 250 + 1  # system ids repeat across endpoints beyond 250 vehicles
+        addr = ("127.0.0.1", port)
+        sock.sendto(enc.heartbeat_encode(6, 8, 0, 0, 0).pack(enc), addr)
+        cmd = enc.command_long_encode(sysid, 1, 511, 0, 32, int(1e6 / RATE_HZ), 0, 0, 0, 0, 0)
+        sock.sendto(cmd.pack(enc), addr)
+        sp = enc.set_position_target_local_ned_encode(
+            0, sysid, 1, 1, 3135, 0, 0, 0, 0, 0, 0, 0.1, 0.0, 0.0, 0, 0
+        )
+        setpoints[sysid] = sp.pack(enc)
+    sock.settimeout(0.5)
+    count = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            data, addr = sock.recvfrom(65536)
+        except TimeoutError:
+            continue
+        i = 0
+        while i + 12 <= len(data) and data[i] == 0xFD:  # walk the MAVLink 2 frames
+            length, sysid, msgid = data[i + 1], data[i + 5], data[i + 7]
+            if msgid == 32:
+                count += 1
+                if answer:
+                    sock.sendto(setpoints[sysid], addr)
+            i += 12 + length
+    print(count, flush=True)
+
+
+async def realtime(n: int, seconds: float, answer: bool) -> dict[str, float]:
+    specs = tuple(
+        VehicleSpec(sysid=i % 250 + 1, vid=i + 1, start_ned_m=(0.0, 0.0, -10.0), airborne=True)
+        for i in range(n)
+    )
+    cfg = EmulatorConfig(vehicles=specs, rate_hz=RATE_HZ)
+    async with Emulator(cfg) as emu:
+        ports = [emu.endpoints[i + 1][1] for i in range(n)]
+        warm = 2.0
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, __file__, "--sink", str(warm + seconds), "1" if answer else "0",
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        )  # fmt: skip
+        assert proc.stdin is not None and proc.stdout is not None
+        proc.stdin.write((" ".join(map(str, ports)) + "\n").encode())
+        await proc.stdin.drain()
+        proc.stdin.close()
+        await asyncio.sleep(warm)
+        s0, c0, w0, late0 = emu.step_count, time.process_time(), time.monotonic(), 0
+        late0 = emu.stats.late_steps
+        await asyncio.sleep(seconds)
+        s1, c1, w1 = emu.step_count, time.process_time(), time.monotonic()
+        late = emu.stats.late_steps - late0
+        out = await proc.stdout.read()
+        await proc.wait()
+        delivered = int(out.split()[-1]) / (n * RATE_HZ * (warm + seconds))
+    wall = w1 - w0
+    return {
+        "rt_factor": (s1 - s0) / RATE_HZ / wall,
+        "cpu": (c1 - c0) / wall,
+        "delivered": delivered,
+        "late": late,
+    }
+
+
+async def lockstep(n: int, seconds: float) -> dict[str, float]:
+    specs = tuple(
+        VehicleSpec(sysid=i + 1, start_ned_m=(0.0, 2.0 * i, -10.0), airborne=True) for i in range(n)
+    )
+    cfg = EmulatorConfig(vehicles=specs, rate_hz=RATE_HZ, clock="lockstep")
+    async with Emulator(cfg) as emu:
+        ports = [emu.endpoints[i + 1][1] for i in range(n)]
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, __file__, "--sink", str(seconds + 1.0), "1",
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        )  # fmt: skip
+        assert proc.stdin is not None and proc.stdout is not None
+        proc.stdin.write((" ".join(map(str, ports)) + "\n").encode())
+        await proc.stdin.drain()
+        proc.stdin.close()
+        await emu.wait_steps(50)
+        s0, w0 = emu.step_count, time.monotonic()
+        await asyncio.sleep(seconds)
+        s1, w1 = emu.step_count, time.monotonic()
+        timeouts = emu.stats.lockstep_timeouts
+        await proc.stdout.read()
+        await proc.wait()
+    rate = (s1 - s0) / (w1 - w0)
+    return {"steps_per_s": rate, "speedup": rate / RATE_HZ, "timeouts": timeouts}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sink", nargs=2, metavar=("SECONDS", "ANSWER"))
+    ap.add_argument("--counts", default="100,250,500,750,1000")
+    ap.add_argument("--seconds", type=float, default=5.0)
+    args = ap.parse_args()
+    if args.sink:
+        ports = [int(p) for p in sys.stdin.readline().split()]
+        sink(ports, float(args.sink[0]), args.sink[1] == "1")
+        return
+    _pin(0)
+    print(f"emulator benchmark, {RATE_HZ:g} Hz telemetry, one emulator process (one core)")
+    print(f"{'mode':>6} {'N':>5} {'rt factor':>9} {'cpu':>6} {'delivered':>9} {'late':>5}")
+    for mode in ("open", "closed"):
+        for n in (int(c) for c in args.counts.split(",")):
+            r = asyncio.run(realtime(n, args.seconds, answer=mode == "closed"))
+            print(
+                f"{mode:>6} {n:5d} {r['rt_factor']:9.3f} {r['cpu']:6.2f} "
+                f"{r['delivered']:9.3f} {int(r['late']):5d}",
+                flush=True,
+            )
+    r = asyncio.run(lockstep(6, args.seconds))
+    print(
+        f"lockstep N=6: {r['steps_per_s']:.0f} steps/s = {r['speedup']:.1f}x real time "
+        f"({int(r['timeouts'])} timeouts)"
+    )
+
+
+if __name__ == "__main__":
+    main()

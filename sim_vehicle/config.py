@@ -1,0 +1,164 @@
+"""Configuration of the emulator: frozen dataclasses, validated on construction.
+
+Owns ``EmulatorConfig`` (one emulator process), ``VehicleSpec`` (one vehicle)
+and ``Impairment`` (one direction of a link). Nothing here does I/O.
+Positions are local NED metres relative to the vehicle's own EKF origin
+(x north, y east, z down: ``z = -10`` is 10 m above the origin), the frame of
+``LOCAL_POSITION_NED``; origins are (latitude deg, longitude deg, altitude m AMSL).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+__all__ = [
+    "DEFAULT_ORIGIN",
+    "EmulatorConfig",
+    "Impairment",
+    "VehicleSpec",
+]
+
+#: ArduPilot SITL's default location (Canberra model flying club), lat deg, lon deg, alt m AMSL.
+DEFAULT_ORIGIN: tuple[float, float, float] = (-35.363261, 149.165230, 584.0)
+
+
+def _check(cond: bool, what: str) -> None:
+    if not cond:
+        raise ValueError(what)
+
+
+@dataclass(frozen=True)
+class Impairment:
+    """Seeded impairment of one link direction (applied per datagram).
+
+    ``loss``: probability a datagram is dropped; ``duplicate``: probability it
+    is delivered twice; ``delay_s`` + uniform ``[0, jitter_s)``: extra latency,
+    measured on the emulator clock (sim seconds) and released at step
+    boundaries, so it is quantised to the physics step. Jitter can reorder.
+    """
+
+    loss: float = 0.0
+    delay_s: float = 0.0
+    jitter_s: float = 0.0
+    duplicate: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.loss <= 1.0, f"loss: expected 0..1, got {self.loss}")
+        _check(0.0 <= self.duplicate <= 1.0, f"duplicate: expected 0..1, got {self.duplicate}")
+        _check(self.delay_s >= 0.0, f"delay_s: expected >= 0, got {self.delay_s}")
+        _check(self.jitter_s >= 0.0, f"jitter_s: expected >= 0, got {self.jitter_s}")
+
+    @property
+    def active(self) -> bool:
+        """True when any impairment is configured."""
+        return bool(self.loss or self.delay_s or self.jitter_s or self.duplicate)
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """One emulated vehicle.
+
+    ``port``: ``None`` -> ``base_port + 10 * index`` (or an ephemeral port when
+    ``base_port`` is 0); ``0`` -> ephemeral; ignored when the emulator shares one
+    endpoint. ``start_ned_m``: start position relative to ``origin`` (NED m,
+    z <= 0). ``airborne``: start EKF-ready, armed, in GUIDED, hovering at
+    ``start_ned_m`` (z must then be < 0), home on the ground below it.
+    ``vid``: the key of this vehicle in the ``Emulator`` API (default: ``sysid``);
+    set it to host more than 254 vehicles, each on its own endpoint, with
+    repeated system ids (as separate SITL instances may all be SYSID 1).
+    """
+
+    sysid: int
+    port: int | None = None
+    origin: tuple[float, float, float] = DEFAULT_ORIGIN
+    start_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    airborne: bool = False
+    compid: int = 1
+    vid: int | None = None
+
+    def __post_init__(self) -> None:
+        _check(1 <= self.sysid <= 254, f"sysid: expected an integer 1..254, got {self.sysid}")
+        _check(1 <= self.compid <= 255, f"compid: expected 1..255, got {self.compid}")
+        if self.port is not None:
+            _check(0 <= self.port <= 65535, f"port: expected 0..65535, got {self.port}")
+        lat, lon, _alt = self.origin
+        _check(-90.0 < lat < 90.0 and -180.0 <= lon <= 180.0, f"origin: bad lat/lon {self.origin}")
+        _check(all(math.isfinite(v) for v in self.start_ned_m), "start_ned_m: not finite")
+        _check(
+            self.start_ned_m[2] <= 0.0,
+            "start_ned_m: z is down (NED) and must be <= 0 (above ground), "
+            f"got {self.start_ned_m[2]}",
+        )
+        if self.airborne:
+            _check(self.start_ned_m[2] < 0.0, "start_ned_m: an airborne start needs z < 0 (NED)")
+
+    @property
+    def key(self) -> int:
+        """The vehicle's key in the ``Emulator`` API: ``vid`` if set, else ``sysid``."""
+        return self.sysid if self.vid is None else self.vid
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """One emulator process.
+
+    ``clock``: ``"realtime"`` (paced at ``speedup`` x wall clock) or
+    ``"lockstep"`` (see ``sim_vehicle`` docstring for the exact rule).
+    ``dynamics``: ``"ardupilot"`` (first-order lag ``accel_tau_s`` default
+    0.2 s on the acceleration command) or ``"ideal"`` (no lag, exact
+    kinematics). ``shared_port``: not ``None`` -> every vehicle is multiplexed
+    on that one endpoint (0 = ephemeral), told apart by system id.
+    ``streams``: message id -> Hz streamed from the start (default: none but
+    HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
+    vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
+    address from the start (like SITL ``--out``), in addition to peers heard.
+    """
+
+    vehicles: tuple[VehicleSpec, ...] = ()
+    host: str = "127.0.0.1"
+    base_port: int = 0
+    shared_port: int | None = None
+    out: tuple[str, int] | None = None
+    rate_hz: float = 50.0
+    clock: Literal["realtime", "lockstep"] = "realtime"
+    speedup: float = 1.0
+    lockstep_timeout_s: float = 0.5
+    dynamics: Literal["ardupilot", "ideal"] = "ardupilot"
+    accel_tau_s: float | None = None
+    ekf_ready_s: float = 2.0
+    noise_pos_m: float = 0.0
+    noise_vel_m_s: float = 0.0
+    seed: int = 0
+    uplink: Impairment = field(default_factory=Impairment)
+    downlink: Impairment = field(default_factory=Impairment)
+    streams: Mapping[int, float] = field(default_factory=dict)
+    params: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _check(self.rate_hz > 0.0, f"rate_hz: expected > 0, got {self.rate_hz}")
+        _check(self.speedup > 0.0, f"speedup: expected > 0, got {self.speedup}")
+        _check(self.clock in ("realtime", "lockstep"), f"clock: unknown {self.clock!r}")
+        _check(self.dynamics in ("ardupilot", "ideal"), f"dynamics: unknown {self.dynamics!r}")
+        _check(self.lockstep_timeout_s > 0.0, "lockstep_timeout_s: expected > 0")
+        _check(self.ekf_ready_s >= 0.0, "ekf_ready_s: expected >= 0")
+        _check(self.noise_pos_m >= 0.0 and self.noise_vel_m_s >= 0.0, "noise: expected >= 0")
+        if self.accel_tau_s is not None:
+            _check(self.accel_tau_s >= 0.0, "accel_tau_s: expected >= 0")
+        _check(0 <= self.base_port <= 65535, f"base_port: expected 0..65535, got {self.base_port}")
+        keys = [v.key for v in self.vehicles]
+        _check(len(set(keys)) == len(keys), f"vehicles: duplicate system ids / vids {keys}")
+        if self.shared_port is not None:
+            sysids = [v.sysid for v in self.vehicles]
+            _check(len(set(sysids)) == len(sysids), "vehicles: duplicate sysids on one endpoint")
+        for msgid, hz in self.streams.items():
+            _check(hz >= 0.0, f"streams[{msgid}]: expected Hz >= 0, got {hz}")
+
+    @property
+    def tau_s(self) -> float:
+        """Acceleration lag time constant in seconds (preset unless overridden)."""
+        if self.accel_tau_s is not None:
+            return self.accel_tau_s
+        return 0.2 if self.dynamics == "ardupilot" else 0.0

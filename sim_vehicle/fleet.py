@@ -1,0 +1,147 @@
+"""The vectorised rows of every hosted vehicle. No I/O.
+
+Owns the numpy arrays the hot path runs on: kinematic state, tracking targets
+(dynamics Eq. D3), dynamics limits, the LOCAL_POSITION_NED schedule, the
+MAVLink sequence counters and the lockstep ``awaiting`` flags, one row per
+vehicle. Rows are compacted on removal (rare); callers keep their row index
+up to date through ``rows``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_vehicle import dynamics
+from sim_vehicle.autopilot import ControlTarget
+from sim_vehicle.codec import encode_local_position_ned
+from sim_vehicle.dynamics import DynParams, KinState, Targets
+
+__all__ = ["KP_1_S", "KV_1_S", "Fleet"]
+
+#: Gains of Eq. D3 (ArduCopter PSC_POSXY_P = 1, PSC_VELXY_P = 2).
+KP_1_S = 1.0
+KV_1_S = 2.0
+_V3 = ("pos", "vel", "acc", "a_ff", "p_t", "v_t", "wp")
+_V1 = (
+    "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
+    "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
+)  # fmt: skip
+_I1 = ("seq", "sysid", "compid")
+_B1 = ("landed", "awaiting", "holding")
+
+
+class Fleet:
+    """Arrays of N vehicles (see module docstring). All positions local NED m."""
+
+    pos: NDArray[np.float64]
+    vel: NDArray[np.float64]
+    acc: NDArray[np.float64]
+    a_ff: NDArray[np.float64]
+    p_t: NDArray[np.float64]
+    v_t: NDArray[np.float64]
+    wp: NDArray[np.float64]
+    wv: NDArray[np.float64]
+    vmax_xy: NDArray[np.float64]
+    vmax_up: NDArray[np.float64]
+    vmax_dn: NDArray[np.float64]
+    acc_lim: NDArray[np.float64]
+    tau: NDArray[np.float64]
+    acc_max: NDArray[np.float64]
+    ground: NDArray[np.float64]
+    lpn_interval: NDArray[np.float64]
+    lpn_next: NDArray[np.float64]
+    noise_pos: NDArray[np.float64]
+    noise_vel: NDArray[np.float64]
+    seq: NDArray[np.int64]
+    sysid: NDArray[np.int64]
+    compid: NDArray[np.int64]
+    deadline: NDArray[np.float64]
+    boot: NDArray[np.float64]
+    landed: NDArray[np.bool_]
+    awaiting: NDArray[np.bool_]
+    holding: NDArray[np.bool_]
+
+    def __init__(self) -> None:
+        self.n = 0
+        for name in _V3:
+            setattr(self, name, np.zeros((0, 3)))
+        for name in _V1:
+            setattr(self, name, np.zeros(0))
+        for name in _I1:
+            setattr(self, name, np.zeros(0, dtype=np.int64))
+        for name in _B1:
+            setattr(self, name, np.zeros(0, dtype=bool))
+
+    def add(self, sysid: int, compid: int, pos: tuple[float, float, float], landed: bool) -> int:
+        """Append a row at rest at ``pos``; returns its index."""
+        for name in _V3:
+            arr = getattr(self, name)
+            row = np.array([pos]) if name == "pos" else np.zeros((1, 3))
+            setattr(self, name, np.concatenate([arr, row]))
+        for name in _V1:
+            setattr(
+                self,
+                name,
+                np.append(getattr(self, name), np.inf if name == "lpn_interval" else 0.0),
+            )
+        for name, val in (("seq", 0), ("sysid", sysid), ("compid", compid)):
+            setattr(self, name, np.append(getattr(self, name), np.int64(val)))
+        self.landed = np.append(self.landed, landed)
+        self.awaiting = np.append(self.awaiting, False)
+        self.holding = np.append(self.holding, False)
+        self.n += 1
+        return self.n - 1
+
+    def remove(self, row: int) -> None:
+        """Delete a row (later rows shift down by one)."""
+        for name in (*_V3, *_V1, *_I1, *_B1):
+            setattr(self, name, np.delete(getattr(self, name), row, axis=0))
+        self.n -= 1
+
+    def set_target(self, row: int, tg: ControlTarget) -> None:
+        """Copy one autopilot target into the row (Eq. D3 inputs, dynamics limits)."""
+        self.a_ff[row] = tg.a_ff
+        self.p_t[row] = tg.p_t
+        self.v_t[row] = tg.v_t
+        self.wp[row] = tg.wp
+        self.wv[row] = tg.wv
+        self.vmax_xy[row] = tg.vmax_xy
+        self.vmax_up[row] = tg.vmax_up
+        self.vmax_dn[row] = tg.vmax_dn
+        self.acc_lim[row] = tg.acc_lim
+        self.acc_max[row] = tg.acc_max
+        self.tau[row] = tg.tau_s
+
+    def step(self, dt: float) -> None:
+        """Advance every vehicle by ``dt`` s: Eq. D3 then ``dynamics.step`` (D1, D2, D4)."""
+        if self.n == 0:
+            return
+        st = KinState(self.pos, self.vel, self.acc, self.landed)
+        tg = Targets(
+            self.a_ff, self.p_t, self.v_t, self.wp, self.wv,
+            self.vmax_xy, self.vmax_up, self.vmax_dn, self.acc_lim,
+        )  # fmt: skip
+        cmd = dynamics.tracking_accel(st, tg, KP_1_S, KV_1_S)
+        params = DynParams(self.tau, self.acc_max, self.ground)
+        new = dynamics.step(st, cmd, dt, params)
+        self.pos, self.vel, self.acc, self.landed = (
+            new.pos_ned_m,
+            new.vel_ned_m_s,
+            new.acc_ned_m_s2,
+            new.landed,
+        )
+
+    def encode_lpn(
+        self,
+        rows: NDArray[np.intp],
+        time_boot_ms: NDArray[np.int64],
+        pos: NDArray[np.float64],
+        vel: NDArray[np.float64],
+    ) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
+        """LOCAL_POSITION_NED frames for ``rows`` (values given, e.g. with noise); bumps seq."""
+        buf, lens = encode_local_position_ned(
+            time_boot_ms, pos, vel, self.seq[rows], self.sysid[rows], self.compid[rows]
+        )
+        self.seq[rows] = (self.seq[rows] + 1) & 0xFF
+        return buf, lens

@@ -1,0 +1,90 @@
+"""The parameter table of one emulated vehicle (ArduCopter names and units).
+
+Owns the names, defaults, MAVLink types and the PARAM_VALUE builder. The
+ArduCopter parameters keep ArduCopter's units (RTL_ALT in cm, RTL_LOIT_TIME in
+ms, WPNAV_* in cm/s); the emulator's own limits are ``SIM_*`` in SI units.
+No I/O.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+__all__ = ["PARAM_TABLE", "ParamStore"]
+
+_R32 = mav.MAV_PARAM_TYPE_REAL32
+_I8 = mav.MAV_PARAM_TYPE_INT8
+_I16 = mav.MAV_PARAM_TYPE_INT16
+_I32 = mav.MAV_PARAM_TYPE_INT32
+
+#: name -> (default, MAV_PARAM_TYPE, meaning). Order is the PARAM_VALUE index order.
+PARAM_TABLE: dict[str, tuple[float, int, str]] = {
+    "SYSID_THISMAV": (1, _I16, "system id (takes effect at reboot, i.e. never here)"),
+    "GUID_TIMEOUT": (3.0, _R32, "s, guided accel/velocity target timeout (min 0.1 applied)"),
+    "WP_YAW_BEHAVIOR": (2, _I8, "0 never change yaw, 1/2/3 face the direction of travel"),
+    "DISARM_DELAY": (10, _I8, "s, auto-disarm armed on the ground without takeoff (0 off)"),
+    "RTL_ALT": (1500, _I32, "cm above home for the RTL return leg"),
+    "RTL_LOIT_TIME": (5000, _I32, "ms hovering above home before the RTL descent"),
+    "LAND_SPEED": (50, _I16, "cm/s final descent speed"),
+    "LAND_ALT_LOW": (1000, _I16, "cm above ground where LAND slows to LAND_SPEED"),
+    "WPNAV_SPEED": (1000, _R32, "cm/s horizontal speed for position targets and RTL"),
+    "WPNAV_SPEED_UP": (250, _R32, "cm/s climb speed (takeoff, position targets)"),
+    "WPNAV_SPEED_DN": (150, _R32, "cm/s descent speed"),
+    "WPNAV_ACCEL_Z": (100, _R32, "cm/s/s vertical acceleration limit during takeoff"),
+    "FS_GCS_ENABLE": (0, _I8, "GCS heartbeat failsafe: 0 off, 5 LAND, other RTL"),
+    "FS_GCS_TIMEOUT": (5.0, _R32, "s without GCS HEARTBEAT before the GCS failsafe"),
+    "SIM_ACC_MAX": (5.0, _R32, "m/s/s, norm clamp of the acceleration command"),
+    "SIM_ACC_TAU": (0.2, _R32, "s, first-order lag on the acceleration (0 = ideal)"),
+    "SIM_BRAKE_ACC": (2.0, _R32, "m/s/s braking deceleration (fits the sheet's 18.7 m)"),
+    "SIM_TKOFF_DLY": (3.3, _R32, "s spool-up before a takeoff climbs (fits the sheet's 9.4 s)"),
+    "SIM_EKF_DELAY": (2.0, _R32, "s after boot before the EKF is ready and arming passes"),
+    "SIM_NOISE_POS": (0.0, _R32, "m, std of noise added to LOCAL_POSITION_NED position"),
+    "SIM_NOISE_VEL": (0.0, _R32, "m/s, std of noise added to LOCAL_POSITION_NED velocity"),
+}
+_NAMES = list(PARAM_TABLE)
+_INT_TYPES = (_I8, _I16, _I32)
+
+
+class ParamStore:
+    """Values of one vehicle's parameters; typed rounding on set."""
+
+    def __init__(self, overrides: dict[str, float] | None = None) -> None:
+        self.values: dict[str, float] = {k: float(v[0]) for k, v in PARAM_TABLE.items()}
+        for name, value in (overrides or {}).items():
+            if not self.set(name, value):
+                raise ValueError(f"params: unknown parameter {name!r}")
+
+    def __getitem__(self, name: str) -> float:
+        return self.values[name]
+
+    def set(self, name: str, value: float) -> bool:
+        """Set ``name``; False if unknown. Integer types are rounded, as ArduPilot stores them."""
+        if name not in PARAM_TABLE:
+            return False
+        if PARAM_TABLE[name][1] in _INT_TYPES:
+            value = float(round(value))
+        self.values[name] = float(value)
+        return True
+
+    def index(self, name: str) -> int:
+        """Index of ``name`` in PARAM_VALUE order."""
+        return _NAMES.index(name)
+
+    @staticmethod
+    def name_at(index: int) -> str | None:
+        """Name at ``index``, or None when out of range."""
+        return _NAMES[index] if 0 <= index < len(_NAMES) else None
+
+    def message(self, name: str) -> mav.MAVLink_param_value_message:
+        """PARAM_VALUE for ``name`` (value as float, its MAV_PARAM_TYPE, count, index)."""
+        return mav.MAVLink_param_value_message(
+            param_id=name.encode(),
+            param_value=self.values[name],
+            param_type=PARAM_TABLE[name][1],
+            param_count=len(_NAMES),
+            param_index=_NAMES.index(name),
+        )
+
+    def all_messages(self) -> list[mav.MAVLink_param_value_message]:
+        """Every PARAM_VALUE, in index order (the answer to PARAM_REQUEST_LIST)."""
+        return [self.message(n) for n in _NAMES]

@@ -1,0 +1,536 @@
+"""The emulator process: asyncio endpoints hosting many vehicles, the clock, lockstep.
+
+Owns ``Emulator`` (an ``async with`` lifetime owning one ``asyncio.TaskGroup``
+and every endpoint), ``VehicleState`` and ``EmulatorStats``. The hot path per
+physics step is vectorised: one ``Fleet.step`` for every vehicle, autopilots
+polled only when their deadline is due, LOCAL_POSITION_NED encoded for every
+due vehicle at once (``codec``), frames batched per peer. The lockstep rule is
+written in the ``sim_vehicle`` package docstring and implemented in
+``_lockstep_wait``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from sim_vehicle.autopilot import Autopilot
+from sim_vehicle.config import EmulatorConfig, VehicleSpec
+from sim_vehicle.fleet import Fleet
+from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, bind_udp
+from sim_vehicle.params import ParamStore
+from sim_vehicle.telemetry import Kin, Vec3
+
+__all__ = ["Emulator", "EmulatorStats", "VehicleState"]
+
+_EPS = 1e-9
+_MAX_PEERS = 8
+_SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """Snapshot of one vehicle (local NED relative to its origin; SI units)."""
+
+    sysid: int
+    mode: int
+    mode_name: str
+    armed: bool
+    landed: bool
+    ekf_ready: bool
+    holding: bool
+    pos_ned_m: Vec3
+    vel_ned_m_s: Vec3
+    accel_ned_m_s2: Vec3
+    sim_time_s: float
+    origin: Vec3
+    home_ned_m: Vec3
+    endpoint: Addr
+    params: dict[str, float]
+
+
+@dataclass
+class EmulatorStats:
+    """Counters: steps taken, lockstep timeouts, late real-time steps, link counters."""
+
+    steps: int = 0
+    lockstep_timeouts: int = 0
+    late_steps: int = 0
+    link: LinkStats = field(default_factory=LinkStats)
+
+
+@dataclass
+class _Vehicle:
+    spec: VehicleSpec
+    ap: Autopilot
+    enc: Any  # pymavlink MAVLink encoder (sysid/compid); seq kept in Fleet.seq
+    ep: Endpoint
+    row: int
+    noise_rng: np.random.Generator
+    initial: bool
+    contacted: bool = False
+    seen_version: int = -1
+
+
+class Emulator:
+    """Many emulated ArduCopters in one process. Use as ``async with Emulator(cfg) as emu``."""
+
+    def __init__(self, config: EmulatorConfig) -> None:
+        self.config = config
+        self.dt = 1.0 / config.rate_hz
+        self.sim_time_s = 0.0
+        self.step_count = 0
+        self.stats = EmulatorStats()
+        self.fleet = Fleet()
+        self._vehicles: dict[int, _Vehicle] = {}
+        self._rows: list[_Vehicle] = []
+        self._endpoints: list[Endpoint] = []
+        self._shared: Endpoint | None = None
+        self._added = 0
+        self._tie = itertools.count()
+        self._delayed_in: list[tuple[float, int, Endpoint, list[Any]]] = []
+        self._delayed_out: list[tuple[float, int, Endpoint, Addr, bytes, list[int]]] = []
+        self._waiters: list[tuple[Callable[[], bool], asyncio.Future[None]]] = []
+        self._wake = asyncio.Event()
+        self._tg: asyncio.TaskGroup | None = None
+        self._clock_task: asyncio.Task[None] | None = None
+
+    # ------------------------------------------------------------ lifetime
+    async def __aenter__(self) -> Emulator:
+        self._tg = asyncio.TaskGroup()
+        await self._tg.__aenter__()
+        try:
+            cfg = self.config
+            if cfg.shared_port is not None:
+                self._shared = await self._open_endpoint(cfg.shared_port, shared=True, key=0)
+            for spec in cfg.vehicles:
+                await self._add(spec, initial=True)
+            self._clock_task = self._tg.create_task(self._clock())
+        except BaseException as exc:
+            self._close_all()
+            await self._tg.__aexit__(type(exc), exc, exc.__traceback__)
+            raise
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        assert self._tg is not None
+        try:
+            if self._clock_task is not None:
+                self._clock_task.cancel()
+        finally:
+            self._close_all()
+            # An error of the body propagates as itself, not wrapped in an ExceptionGroup;
+            # a cancellation is passed on so the TaskGroup can account for it.
+            if exc_type is not None and issubclass(exc_type, asyncio.CancelledError):
+                await self._tg.__aexit__(exc_type, exc, tb)
+            else:
+                await self._tg.__aexit__(None, None, None)
+
+    def _close_all(self) -> None:
+        for ep in self._endpoints:
+            ep.close()
+        self._endpoints.clear()
+        for _pred, fut in self._waiters:
+            if not fut.done():
+                fut.set_exception(RuntimeError("emulator stopped"))
+        self._waiters.clear()
+
+    async def _open_endpoint(self, port: int, shared: bool, key: int) -> Endpoint:
+        cfg = self.config
+        ss = np.random.SeedSequence([cfg.seed, key, 7])
+        up, down = (np.random.default_rng(s) for s in ss.spawn(2))
+        sock = bind_udp(cfg.host, port)
+        ep = Endpoint(
+            sock=sock,
+            shared=shared,
+            uplink=Impairer(cfg.uplink, up),
+            downlink=Impairer(cfg.downlink, down),
+            on_datagram=self._on_datagram,
+            stats=self.stats.link,
+            out=cfg.out,
+        )
+        loop = asyncio.get_running_loop()
+        await loop.create_datagram_endpoint(lambda: ep, sock=sock)
+        self._endpoints.append(ep)
+        return ep
+
+    # ------------------------------------------------------------ vehicles
+    @property
+    def endpoints(self) -> dict[int, Addr]:
+        """Vehicle key (its system id unless ``VehicleSpec.vid`` is set) -> (host, port)."""
+        return {s: v.ep.address for s, v in self._vehicles.items()}
+
+    async def add_vehicle(self, spec: VehicleSpec) -> Addr:
+        """Add a vehicle while running; returns the address it is served on."""
+        return (await self._add(spec, initial=False)).ep.address
+
+    async def _add(self, spec: VehicleSpec, initial: bool) -> _Vehicle:
+        cfg = self.config
+        key = spec.key
+        if key in self._vehicles:
+            raise ValueError(f"vehicle {key} is already hosted")
+        if self._shared is not None and spec.sysid in self._shared.sysids:
+            raise ValueError(f"sysid {spec.sysid} is already served on the shared endpoint")
+        index = self._added
+        self._added += 1
+        if self._shared is not None:
+            ep = self._shared
+        else:
+            port = spec.port
+            if port is None:
+                port = cfg.base_port + 10 * index if cfg.base_port else 0
+            ep = await self._open_endpoint(port, shared=False, key=key)
+        overrides: dict[str, float] = {
+            "SIM_ACC_TAU": cfg.tau_s,
+            "SIM_EKF_DELAY": cfg.ekf_ready_s,
+            "SIM_NOISE_POS": cfg.noise_pos_m,
+            "SIM_NOISE_VEL": cfg.noise_vel_m_s,
+            **cfg.params,
+        }
+        now = self.sim_time_s
+        start = spec.start_ned_m
+        ap = Autopilot(
+            spec.sysid,
+            spec.origin,
+            ParamStore(overrides),
+            now,
+            compid=spec.compid,
+            airborne_at=start if spec.airborne else None,
+            streams=dict(cfg.streams),
+        )
+        row = self.fleet.add(spec.sysid, spec.compid, start, landed=not spec.airborne)
+        self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
+        self.fleet.boot[row] = now
+        noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
+        enc = mav.MAVLink(None, spec.sysid, spec.compid)
+        v = _Vehicle(spec, ap, enc, ep, row, noise_rng, initial)
+        self._vehicles[key] = v
+        self._rows.append(v)
+        ep.sysids[spec.sysid] = key
+        self._sync(v, now)
+        return v
+
+    def remove_vehicle(self, sysid: int) -> None:
+        """Stop serving ``sysid`` (its own endpoint is closed)."""
+        v = self._vehicle(sysid)
+        del self._vehicles[sysid]
+        self.fleet.remove(v.row)
+        del self._rows[v.row]
+        for i, other in enumerate(self._rows):
+            other.row = i
+        del v.ep.sysids[v.spec.sysid]
+        if not v.ep.shared:
+            v.ep.close()
+            self._endpoints.remove(v.ep)
+        self._wake.set()
+
+    def _vehicle(self, sysid: int) -> _Vehicle:
+        try:
+            return self._vehicles[sysid]
+        except KeyError:
+            raise KeyError(f"no vehicle with sysid {sysid}") from None
+
+    def _kin(self, v: _Vehicle) -> Kin:
+        f, r = self.fleet, v.row
+        return Kin(
+            (float(f.pos[r, 0]), float(f.pos[r, 1]), float(f.pos[r, 2])),
+            (float(f.vel[r, 0]), float(f.vel[r, 1]), float(f.vel[r, 2])),
+            (float(f.acc[r, 0]), float(f.acc[r, 1]), float(f.acc[r, 2])),
+            bool(f.landed[r]),
+        )
+
+    def vehicle_state(self, sysid: int) -> VehicleState:
+        """Snapshot of one vehicle."""
+        v = self._vehicle(sysid)
+        k, ap = self._kin(v), v.ap
+        return VehicleState(
+            sysid=sysid,
+            mode=ap.mode,
+            mode_name=ap.mode_name,
+            armed=ap.armed,
+            landed=k.landed,
+            ekf_ready=ap.ekf_ready,
+            holding=ap.holding,
+            pos_ned_m=k.pos,
+            vel_ned_m_s=k.vel,
+            accel_ned_m_s2=k.acc,
+            sim_time_s=self.sim_time_s,
+            origin=v.spec.origin,
+            home_ned_m=ap.home,
+            endpoint=v.ep.address,
+            params=dict(ap.params.values),
+        )
+
+    def set_param(self, sysid: int, name: str, value: float) -> None:
+        """Set a parameter directly (as PARAM_SET would, without a reply)."""
+        v = self._vehicle(sysid)
+        if not v.ap.params.set(name, value):
+            raise KeyError(f"unknown parameter {name!r}")
+        v.ap.refresh(self.sim_time_s, self._kin(v))
+        self._sync(v, self.sim_time_s)
+
+    # ------------------------------------------------------------- waiting
+    async def wait_until(self, predicate: Callable[[], bool]) -> None:
+        """Return once ``predicate()`` is true (checked now and after every step)."""
+        if predicate():
+            return
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._waiters.append((predicate, fut))
+        await fut
+
+    async def wait_steps(self, n: int) -> None:
+        """Return after ``n`` more physics steps."""
+        target = self.step_count + n
+        await self.wait_until(lambda: self.step_count >= target)
+
+    def _notify(self) -> None:
+        keep = []
+        for pred, fut in self._waiters:
+            if fut.done():
+                continue
+            if pred():
+                fut.set_result(None)
+            else:
+                keep.append((pred, fut))
+        self._waiters = keep
+
+    # ------------------------------------------------------------ inbound
+    def _on_datagram(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
+        self.stats.link.rx_datagrams += 1
+        self._wake.set()
+        new_peer = addr not in ep.peers
+        if new_peer:
+            ep.peers[addr] = None
+            if len(ep.peers) > _MAX_PEERS:
+                ep.peers.pop(next(iter(ep.peers)))
+        msgs = ep.parse(data)
+        for m in msgs:  # lockstep rule 3: an answer counts even if the link then loses it
+            if m.get_msgId() == _SETPOINT_ID:
+                ts = m.target_system
+                for sysid in ep.sysids if ts == 0 else (ts,):
+                    v = self._vehicles.get(ep.sysids.get(sysid, -1))
+                    if v is not None and v.ep is ep:
+                        self.fleet.awaiting[v.row] = False
+        if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
+            for sysid in sorted(ep.sysids):
+                v = self._vehicles[ep.sysids[sysid]]
+                v.contacted = True
+                self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
+        delays = ep.uplink.delivery_delays()
+        if not delays:
+            self.stats.link.rx_lost += 1
+            return
+        if len(delays) > 1:
+            self.stats.link.duplicated += 1
+        for d in delays:
+            if d <= 0.0:
+                self._deliver(ep, msgs)
+            else:
+                item = (self.sim_time_s + d, next(self._tie), ep, msgs)
+                heapq.heappush(self._delayed_in, item)
+
+    def _deliver(self, ep: Endpoint, msgs: list[Any]) -> None:
+        now = self.sim_time_s
+        for m in msgs:
+            ts = getattr(m, "target_system", 0)
+            if ts == 0:
+                targets = [ep.sysids[s] for s in sorted(ep.sysids)]
+            elif ts in ep.sysids:
+                targets = [ep.sysids[ts]]
+            else:
+                continue
+            for key in targets:
+                v = self._vehicles[key]
+                replies = v.ap.handle(m, now, self._kin(v))
+                if replies:
+                    self._transmit(ep, [(self._pack(v, r), 0) for r in replies])
+                self._sync(v, now)
+
+    # ------------------------------------------------------------ outbound
+    def _pack(self, v: _Vehicle, msg: Any) -> bytes:
+        row = v.row
+        v.enc.seq = int(self.fleet.seq[row])
+        frame: bytes = msg.pack(v.enc)
+        self.fleet.seq[row] = (v.enc.seq + 1) & 0xFF
+        return frame
+
+    def _transmit(
+        self, ep: Endpoint, frames: list[tuple[bytes, int]], only: Addr | None = None
+    ) -> None:
+        """Send frames now through the downlink impairment to every peer (or ``only``)."""
+        peers = [only] if only is not None else list(ep.peers)
+        for data, lpn in ep.batch(frames):
+            for peer in peers:
+                delays = ep.downlink.delivery_delays()
+                if not delays:
+                    self.stats.link.tx_lost += 1
+                    continue
+                if len(delays) > 1:
+                    self.stats.link.duplicated += 1
+                for d in delays:
+                    if d <= 0.0:
+                        ep.sendto(data, peer)
+                        self._lpn_left(lpn)
+                    else:
+                        item = (self.sim_time_s + d, next(self._tie), ep, peer, data, lpn)
+                        heapq.heappush(self._delayed_out, item)
+
+    def _lpn_left(self, keys: list[int]) -> None:
+        for key in keys:
+            v = self._vehicles.get(key)
+            if v is not None:
+                self.fleet.awaiting[v.row] = True
+
+    def _sync(self, v: _Vehicle, now: float) -> None:
+        """Copy an autopilot's published state into its fleet row (after handle/poll)."""
+        ap, f, row = v.ap, self.fleet, v.row
+        f.deadline[row] = ap.deadline
+        f.holding[row] = ap.holding
+        if ap.version == v.seen_version:
+            return
+        v.seen_version = ap.version
+        f.set_target(row, ap.target)
+        f.noise_pos[row] = ap.params["SIM_NOISE_POS"]
+        f.noise_vel[row] = ap.params["SIM_NOISE_VEL"]
+        iv = ap.lpn_interval_s
+        f.lpn_interval[row] = iv if iv is not None else np.inf
+        if iv is None:
+            f.lpn_next[row] = np.inf
+        elif ap.lpn_kick:  # rule 1: a newly enabled stream sends its first message at once
+            ap.lpn_kick = False
+            f.lpn_next[row] = now + iv
+            if v.ep.peers:
+                rows = np.array([row], dtype=np.intp)
+                self._transmit(v.ep, self._lpn_frames(rows, now))
+
+    def _lpn_frames(self, rows: NDArray[np.intp], now: float) -> list[tuple[bytes, int]]:
+        f = self.fleet
+        t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)
+        pos, vel = f.pos[rows], f.vel[rows]
+        noisy = (f.noise_pos[rows] > 0) | (f.noise_vel[rows] > 0)
+        if noisy.any():
+            pos, vel = pos.copy(), vel.copy()
+            for i in np.flatnonzero(noisy):
+                v = self._rows[rows[i]]
+                z = v.noise_rng.standard_normal(6)
+                pos[i] += f.noise_pos[rows[i]] * z[:3]
+                vel[i] += f.noise_vel[rows[i]] * z[3:]
+        buf, lens = f.encode_lpn(rows, t_ms, pos, vel)
+        return [
+            (buf[i, : lens[i]].tobytes(), self._rows[r].spec.key)
+            for i, r in enumerate(rows.tolist())
+        ]
+
+    # --------------------------------------------------------------- clock
+    def _step(self) -> None:
+        """One physics step, then the telemetry due at the new sim time."""
+        self.fleet.step(self.dt)
+        self.step_count += 1
+        self.stats.steps = self.step_count
+        self.sim_time_s = now = self.step_count * self.dt
+        self._emit(now)
+        self._notify()
+
+    def _emit(self, now: float) -> None:
+        while self._delayed_in and self._delayed_in[0][0] <= now + _EPS:
+            _t, _n, ep, msgs = heapq.heappop(self._delayed_in)
+            if not ep.sysids:
+                continue
+            self._deliver(ep, msgs)
+        while self._delayed_out and self._delayed_out[0][0] <= now + _EPS:
+            _t, _n, ep, peer, data, lpn = heapq.heappop(self._delayed_out)
+            if ep.sysids:
+                ep.sendto(data, peer)
+                self._lpn_left(lpn)
+        f = self.fleet
+        for row in np.flatnonzero(f.deadline <= now + _EPS).tolist():
+            v = self._rows[row]
+            out = v.ap.poll(now, self._kin(v))
+            self._sync(v, now)
+            if out and v.ep.peers:
+                v.ep.outbox.extend((self._pack(v, m), 0) for m in out)
+        due = np.flatnonzero(f.lpn_next <= now + _EPS)
+        if due.size:
+            nxt = f.lpn_next[due] + f.lpn_interval[due]
+            f.lpn_next[due] = np.where(nxt <= now + _EPS, now + f.lpn_interval[due], nxt)
+            for frame, key in self._lpn_frames(due, now):
+                ep = self._vehicles[key].ep
+                if ep.peers:
+                    ep.outbox.append((frame, key))
+        for ep in self._endpoints:
+            if ep.outbox:
+                frames, ep.outbox = ep.outbox, []
+                self._transmit(ep, frames)
+
+    async def _clock(self) -> None:
+        self._emit(0.0)
+        if self.config.clock == "lockstep":
+            await self._run_lockstep()
+        else:
+            await self._run_realtime()
+
+    async def _run_realtime(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = self.dt / self.config.speedup
+        t0, k0 = loop.time(), self.step_count
+        while True:
+            delay = t0 + (self.step_count - k0 + 1) * period - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            else:
+                if delay < -period:
+                    self.stats.late_steps += 1
+                if delay < -1.0:  # hopelessly behind: drop the backlog, keep pacing
+                    t0, k0 = loop.time(), self.step_count
+                await asyncio.sleep(0)
+            self._step()
+
+    async def _run_lockstep(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = self.dt / self.config.speedup
+        while not all(v.contacted for v in self._vehicles.values() if v.initial):  # rule 1
+            self._wake.clear()
+            await self._wake.wait()
+        last = loop.time()
+        while True:
+            if self.fleet.holding.any():
+                await self._lockstep_wait(last)
+            else:  # rule 4: nobody holds, pace at speed-up x wall clock
+                delay = last + period - loop.time()
+                await asyncio.sleep(max(delay, 0.0))
+            self._step()
+            last = loop.time()
+            await asyncio.sleep(0)
+
+    async def _lockstep_wait(self, last: float) -> None:
+        """Rules 2-3: wait until no holding vehicle blocks, or the wall-clock timeout."""
+        loop = asyncio.get_running_loop()
+        f = self.fleet
+        while True:
+            blocking = f.holding & (f.awaiting | np.isinf(f.lpn_interval))
+            if not blocking.any():
+                return
+            remaining = last + self.config.lockstep_timeout_s - loop.time()
+            if remaining <= 0:
+                self.stats.lockstep_timeouts += 1
+                return
+            self._wake.clear()
+            try:
+                async with asyncio.timeout(remaining):
+                    await self._wake.wait()
+            except TimeoutError:
+                pass

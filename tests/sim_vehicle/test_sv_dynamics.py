@@ -1,0 +1,152 @@
+"""Unit tests of the pure pieces: dynamics (Eqs. D1-D4), the vectorised codec, imports."""
+
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from sim_vehicle.codec import encode_local_position_ned
+from sim_vehicle.dynamics import DynParams, KinState, step
+
+DT = 0.02
+
+
+def _params(n: int, tau: float, acc_max: float = 50.0) -> DynParams:
+    return DynParams(np.full(n, tau), np.full(n, acc_max), np.zeros(n))
+
+
+def _airborne(n: int) -> KinState:
+    st = KinState.zeros(n)
+    st.pos_ned_m[:, 2] = -10.0
+    return KinState(st.pos_ned_m, st.vel_ned_m_s, st.acc_ned_m_s2, np.zeros(n, dtype=bool))
+
+
+def test_ideal_constant_acceleration_matches_closed_form() -> None:
+    rng = np.random.default_rng(1)
+    n, steps = 7, 500
+    a = rng.uniform(-2, 2, (n, 3))
+    a[:, 2] = -np.abs(a[:, 2])  # climbing, so the ground never interferes
+    st = _airborne(n)
+    p0 = st.pos_ned_m.copy()
+    for _ in range(steps):
+        st = step(st, a, DT, _params(n, 0.0))
+    t = steps * DT
+    # Eq. D2 with tau = 0 is exact for constant acceleration; 1e-9 leaves room for
+    # 500 steps of float64 rounding on values of order 100 m.
+    np.testing.assert_allclose(st.pos_ned_m, p0 + 0.5 * a * t * t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(st.vel_ned_m_s, a * t, rtol=0, atol=1e-9)
+
+
+def test_lagged_step_matches_first_order_solution() -> None:
+    tau, c, steps = 0.2, 1.0, 150
+    st = _airborne(1)
+    cmd = np.array([[c, 0.0, 0.0]])
+    for _ in range(steps):
+        st = step(st, cmd, DT, _params(1, tau))
+    t = steps * DT
+    e = math.exp(-t / tau)
+    # closed form of Eq. D1 from rest: a = c(1-e), v = c(t - tau(1-e)),
+    # p = c(t^2/2 - tau t + tau^2 (1-e))
+    assert abs(st.acc_ned_m_s2[0, 0] - c * (1 - e)) < 1e-12
+    assert abs(st.vel_ned_m_s[0, 0] - c * (t - tau * (1 - e))) < 1e-9
+    assert abs(st.pos_ned_m[0, 0] - c * (t * t / 2 - tau * t + tau * tau * (1 - e))) < 1e-9
+
+
+def test_command_norm_is_clamped() -> None:
+    st = _airborne(1)
+    st = step(st, np.array([[30.0, 40.0, 0.0]]), DT, _params(1, 0.0, acc_max=5.0))
+    np.testing.assert_allclose(st.acc_ned_m_s2[0], [3.0, 4.0, 0.0], atol=1e-12)
+
+
+def test_ground_plane_stops_a_descent_and_lands() -> None:
+    st = _airborne(1)
+    st.vel_ned_m_s[0] = [1.0, 0.0, 5.0]  # diving at 5 m/s
+    for _ in range(200):
+        st = step(st, np.array([[0.0, 0.0, 1.0]]), DT, _params(1, 0.0))
+    assert st.pos_ned_m[0, 2] == 0.0
+    assert st.landed[0]
+    np.testing.assert_array_equal(st.vel_ned_m_s[0], [0.0, 0.0, 0.0])
+
+
+def test_vectorised_lpn_encoder_is_byte_identical_to_pymavlink() -> None:
+    rng = np.random.default_rng(7)
+    n = 300
+    pos, vel = rng.normal(size=(n, 3)) * 50, rng.normal(size=(n, 3))
+    vel[::3, 2] = 0.0  # trailing zero bytes are trimmed in MAVLink 2
+    vel[::5] = 0.0
+    pos[::10] = 0.0
+    t = rng.integers(0, 2**32, n)
+    t[::10] = 0
+    seq, sysid = rng.integers(0, 256, n), rng.integers(1, 255, n)
+    buf, lens = encode_local_position_ned(t, pos, vel, seq, sysid, np.ones(n, dtype=np.int64))
+    for i in range(n):
+        enc = mav.MAVLink(None, int(sysid[i]), 1)
+        enc.seq = int(seq[i])
+        ref = mav.MAVLink_local_position_ned_message(
+            int(t[i]), *map(float, pos[i]), *map(float, vel[i])
+        ).pack(enc)
+        assert buf[i, : lens[i]].tobytes() == ref, i
+
+
+def test_dynamics_imports_only_numpy() -> None:
+    src = Path(__file__).parents[2] / "sim_vehicle" / "dynamics.py"
+    names = set()
+    for node in ast.walk(ast.parse(src.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module.split(".")[0])
+    assert names <= {"__future__", "dataclasses", "numpy"}, names
+
+
+def test_sim_vehicle_never_imports_gcs_swarm() -> None:
+    pkg = Path(__file__).parents[2] / "sim_vehicle"
+    for src in pkg.glob("*.py"):
+        for node in ast.walk(ast.parse(src.read_text())):
+            mods = []
+            if isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                mods = [node.module]
+            assert not any(m.startswith("gcs_swarm") for m in mods), src
+
+
+def test_exported_names() -> None:
+    import sim_vehicle
+
+    assert sorted(sim_vehicle.__all__) == [
+        "DEFAULT_ORIGIN",
+        "Emulator",
+        "EmulatorConfig",
+        "EmulatorStats",
+        "Impairment",
+        "VehicleSpec",
+        "VehicleState",
+    ]
+
+
+def test_fast_setpoint_decoder_agrees_with_pymavlink() -> None:
+    from sim_vehicle.link import _fast_setpoint
+
+    rng = np.random.default_rng(3)
+    enc = mav.MAVLink(None, 255, 190)
+    for i in range(200):
+        vals = [float(np.float32(v)) for v in rng.normal(size=11)]
+        if i % 3 == 0:
+            vals[3:] = [0.0] * 8  # trailing zeros: truncated payload
+        frame = enc.set_position_target_local_ned_encode(
+            i, int(rng.integers(0, 255)), 1, int(rng.integers(0, 12)), int(rng.integers(0, 4096)),
+            *vals,
+        ).pack(enc)  # fmt: skip
+        ref = mav.MAVLink(None, 0, 0).parse_buffer(frame)[0]
+        got = _fast_setpoint(frame)
+        assert got is not None and got.to_dict() == ref.to_dict()
+        assert got.get_msgId() == 84
+        bad = frame[:-1] + bytes(((frame[-1] + 1) % 256,))
+        assert _fast_setpoint(bad) is None  # CRC checked
+    hb = enc.heartbeat_encode(6, 8, 0, 0, 0).pack(enc)
+    assert _fast_setpoint(hb) is None
