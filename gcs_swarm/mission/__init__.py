@@ -1,0 +1,47 @@
+"""Mission files: YAML in, a frozen ``Mission`` out, or every problem at once.
+
+``load_mission(path)`` validates a file strictly (unknown keys, types, ranges
+and cross-checks) and raises ``MissionError`` with one line per problem,
+``file:line: key.path: message``. ``schema()`` is the JSON Schema of the
+format; ``check_command(path)`` is ``gcs-swarm check``. The format is
+described in ``docs/mission-format.md``.
+"""
+
+from __future__ import annotations
+
+from gcs_swarm.mission.loader import check_command, load_mission, parse_mission, summary
+from gcs_swarm.mission.model import (
+    DEFAULT_SIM_HOME,
+    Emulator,
+    Event,
+    GeoPoint,
+    Impairments,
+    LogSettings,
+    Mission,
+    Settings,
+    Startup,
+    Vehicle,
+    enu_offset_m,
+    geodetic_at,
+)
+from gcs_swarm.mission.schema import schema
+
+__all__ = [
+    "DEFAULT_SIM_HOME",
+    "Emulator",
+    "Event",
+    "GeoPoint",
+    "Impairments",
+    "LogSettings",
+    "Mission",
+    "Settings",
+    "Startup",
+    "Vehicle",
+    "check_command",
+    "enu_offset_m",
+    "geodetic_at",
+    "load_mission",
+    "parse_mission",
+    "schema",
+    "summary",
+]

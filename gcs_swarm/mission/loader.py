@@ -1,0 +1,246 @@
+"""Read a mission file into a ``Mission``, or fail with every problem at once.
+
+The YAML is composed with the safe loader (``yaml.compose``, SafeLoader): the
+node tree keeps line numbers and nothing is ever constructed from a tag, so
+``!!python/object`` is reported as one line like any other mistake. Every
+problem is one line ``file:line: key.path: message``, sorted by line; whole-file
+problems use the path ``(file)``, YAML syntax errors ``(syntax)``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from gcs_swarm.control.params import Avoidance, LawConfig, Limits, Safety
+from gcs_swarm.errors import MissionError
+from gcs_swarm.mission.checks import run_checks
+from gcs_swarm.mission.context import Context, Problem
+from gcs_swarm.mission.fields import INVALID
+from gcs_swarm.mission.format import MISSION
+from gcs_swarm.mission.model import Emulator, Mission, Settings, Vehicle
+
+__all__ = [
+    "MAX_FILE_BYTES",
+    "MAX_PROBLEMS",
+    "check_command",
+    "load_mission",
+    "parse_mission",
+    "summary",
+]
+
+#: A mission file is a few kilobytes; anything over this is refused unread.
+MAX_FILE_BYTES = 1 << 20
+#: At most this many problems are printed (then a count of the rest).
+MAX_PROBLEMS = 100
+
+
+def _fail(source: str, problems: list[Problem]) -> MissionError:
+    problems = sorted(problems, key=lambda p: p.line)  # stable: same line keeps order
+    lines = [p.render(source) for p in problems[:MAX_PROBLEMS]]
+    if len(problems) > MAX_PROBLEMS:
+        more = len(problems) - MAX_PROBLEMS
+        lines.append(Problem(1, "(file)", f"{more} more problems not shown").render(source))
+    return MissionError("\n".join(lines), lines)
+
+
+def load_mission(path: str | os.PathLike[str]) -> Mission:
+    """Read and validate the mission file at ``path``.
+
+    Raises ``MissionError`` whose message is every problem, one per line, and
+    whose ``problems`` attribute is the list of those lines. ``path`` is shown
+    in the messages as given.
+    """
+    source = os.fspath(path)
+    try:
+        size = os.path.getsize(source)
+        if size > MAX_FILE_BYTES:
+            raise _fail(
+                source,
+                [
+                    Problem(
+                        1,
+                        "(file)",
+                        f"{size} bytes is too large for a mission file (limit {MAX_FILE_BYTES})",
+                    )
+                ],
+            )
+        with open(source, "rb") as fh:
+            data = fh.read()
+    except OSError as err:
+        raise _fail(
+            source, [Problem(1, "(file)", f"cannot read the file: {err.strerror or err}")]
+        ) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        raise _fail(source, [Problem(line, "(file)", "not UTF-8 text")]) from None
+    return parse_mission(text, source, name=Path(source).stem)
+
+
+def parse_mission(text: str, source: str = "<string>", *, name: str = "mission") -> Mission:
+    """Validate YAML ``text``; ``source`` names it in messages, ``name`` is the
+    mission name when the file gives none."""
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as err:
+        raise _fail(source, [_syntax_problem(err)]) from None
+    except yaml.reader.ReaderError as err:  # a character YAML does not allow
+        line = text[: err.position].count("\n") + 1
+        what = f"character #x{err.character:04x}" if isinstance(err.character, int) else "byte"
+        problem = Problem(line, "(syntax)", f"YAML syntax error: {what} is not allowed in YAML")
+        raise _fail(source, [problem]) from None
+    except yaml.YAMLError as err:
+        problem = Problem(1, "(syntax)", f"YAML syntax error: {' '.join(str(err).split())}")
+        raise _fail(source, [problem]) from None
+    if root is None:
+        raise _fail(
+            source,
+            [Problem(1, "(file)", 'the file is empty; a mission needs at least a "vehicles" list')],
+        )
+    ctx = Context()
+    ctx.defaults["duration"] = Settings(name="").duration
+    sections = MISSION.parse(root, "", ctx)
+    if sections is INVALID:
+        sections = {}
+    mission = _assemble(ctx, source, name, sections)
+    if ctx.problems or mission is None:
+        raise _fail(source, ctx.problems)
+    return mission
+
+
+#: PyYAML's token names, in words a user recognises.
+_TOKEN_WORDS = {
+    "'?'": "a key (name: value)",
+    "<block end>": "the end of the block (check the indentation)",
+    "'<block mapping start>'": "the start of a mapping",
+    "'<block sequence start>'": "the start of a list",
+}
+
+
+def _syntax_problem(err: yaml.MarkedYAMLError) -> Problem:
+    mark = err.problem_mark or err.context_mark
+    line = mark.line + 1 if mark is not None else 1
+    text = err.problem or "not valid YAML"
+    for token, words in _TOKEN_WORDS.items():
+        text = text.replace(token, words)
+    if err.context and not err.context.startswith("while"):
+        text = f"{err.context}, {text}"  # e.g. "expected a single document ..., but found ..."
+    elif err.context and err.context_mark is not None and err.context_mark.line + 1 != line:
+        text += f" ({err.context} at line {err.context_mark.line + 1})"
+    if "\\t" in text or "\t" in text:
+        text += "; indent with spaces, not tabs"
+    return Problem(line, "(syntax)", f"YAML syntax error: {text}")
+
+
+def _ok(value: Any) -> bool:
+    return value is not INVALID
+
+
+def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Mission | None:
+    """Build the mission from the parsed sections and run the semantic checks
+    on whichever sections parsed; ``None`` if any section failed."""
+    settings = s.get("mission", INVALID)
+    if settings is None:
+        settings = Settings(name=name)
+    elif _ok(settings) and settings.name is None:
+        settings = replace(settings, name=name)
+    emulator = s.get("emulator", INVALID)
+    vehicles = s.get("vehicles", INVALID)
+    obstacles = s.get("obstacles", INVALID)
+    if obstacles is None:
+        obstacles = ((), Avoidance())
+    limits = s.get("limits", INVALID)
+    if limits is None:
+        limits = (Limits(), Safety())
+    parts = [s.get(k, INVALID) for k in ("gains", "leader", "readings")]
+    law: LawConfig | None = None
+    if all(_ok(x) for x in (*parts, obstacles, limits)):
+        gains, leader, readings = parts
+        law = LawConfig(
+            gains=gains,
+            leader=leader,
+            obstacles=obstacles[0],
+            avoidance=obstacles[1],
+            readings=readings,
+            limits=limits[0],
+            safety=limits[1],
+        )
+    events = s.get("events", INVALID)
+    run_checks(
+        ctx,
+        settings if _ok(settings) else None,
+        vehicles if _ok(vehicles) else None,
+        emulator if _ok(emulator) else None,
+        law,
+        events if _ok(events) else None,
+    )
+    if _ok(vehicles) and _ok(emulator):
+        vehicles = _fill_sim_origins(vehicles, emulator)
+    log = s.get("log", INVALID)
+    if law is None or not all(_ok(x) for x in (settings, vehicles, emulator, events, log)):
+        return None
+    return Mission(
+        source=source,
+        settings=settings,
+        vehicles=vehicles,
+        law=law,
+        emulator=emulator,
+        events=tuple(sorted(events, key=lambda e: e.t)),
+        log=log,
+    )
+
+
+def _fill_sim_origins(vehicles: tuple[Vehicle, ...], emulator: Emulator) -> tuple[Vehicle, ...]:
+    """Default home of the k-th sim vehicle: [k * origin_spread, 0, ground] [m]."""
+    out = []
+    k = 0
+    for v in vehicles:
+        if v.is_sim:
+            if v.origin is None:
+                v = replace(v, origin=(k * emulator.origin_spread, 0.0, emulator.ground))
+            k += 1
+        out.append(v)
+    return tuple(out)
+
+
+def summary(mission: Mission) -> str:
+    """One line describing a valid mission, for ``gcs-swarm check``."""
+    n = len(mission.vehicles)
+    sim = sum(v.is_sim for v in mission.vehicles)
+    kinds = "sim" if sim == n else ("real" if sim == 0 else f"{sim} sim, {n - sim} real")
+    law = mission.law
+    s = mission.settings
+    parts = [
+        f'"{s.name}"',
+        f"{n} vehicle{'s' if n != 1 else ''} ({kinds})",
+        f"{len(mission.reserves)} reserve",
+        f"{len(mission.events)} event{'s' if len(mission.events) != 1 else ''}",
+        f"{len(law.obstacles)} obstacle{'s' if len(law.obstacles) != 1 else ''}",
+        f"leader force {type(law.leader.force).__name__}",
+        f"{s.duration:g} s at {s.rate:g} Hz",
+        f"end {s.end}",
+    ]
+    return ", ".join(parts)
+
+
+def check_command(path: str) -> int:
+    """``gcs-swarm check FILE``: validate without flying.
+
+    Prints ``OK: FILE: <summary>`` on stdout and returns 0, or every problem on
+    stderr (one line each) and returns 1. Never raises for a bad file.
+    """
+    try:
+        mission = load_mission(path)
+    except MissionError as err:
+        for line in str(err).splitlines():
+            print(line, file=sys.stderr)
+        return 1
+    print(f"OK: {path}: {summary(mission)}")
+    return 0

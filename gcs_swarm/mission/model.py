@@ -1,0 +1,296 @@
+"""The loaded mission: frozen dataclasses, SI units, mission frame.
+
+Owns the shape of a validated mission file. The formation law's own
+parameters are ``gcs_swarm.control.params.LawConfig`` (a field of ``Mission``);
+everything else the station, the emulator and the logger need lives here.
+
+Frame: the mission frame is x east, y north, z up, metres, with its origin at
+the mission origin (formation-law.md section 1). Geodetic points are degrees
+and metres above mean sea level.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from gcs_swarm.control.params import LawConfig, Vec3
+
+__all__ = [
+    "DEFAULT_SIM_HOME",
+    "EARTH_RADIUS_M",
+    "Autopilot",
+    "Dynamics",
+    "Emulator",
+    "EmulatorMode",
+    "EndAction",
+    "Event",
+    "EventAction",
+    "GeoPoint",
+    "Impairments",
+    "LogSettings",
+    "Mission",
+    "Settings",
+    "Spawn",
+    "Startup",
+    "Vehicle",
+    "enu_offset_m",
+    "geodetic_at",
+]
+
+Autopilot = Literal["ardupilot", "sim", "px4"]
+EndAction = Literal["hold", "land", "rtl"]
+EmulatorMode = Literal["lockstep", "realtime"]
+Dynamics = Literal["ideal", "ardupilot-like"]
+Spawn = Literal["ground", "air"]
+EventAction = Literal["join", "leave"]
+
+#: Flat-earth radius of mavlink-protocol.md "Frames and origins" [m].
+EARTH_RADIUS_M = 6378137.0
+
+
+@dataclass(frozen=True)
+class GeoPoint:
+    """A geodetic point: ``lat`` and ``lon`` [deg, WGS84], ``alt`` [m AMSL]."""
+
+    lat: float
+    lon: float
+    alt: float
+
+
+#: Ground location of the bundled emulator's first vehicle when the mission
+#: origin is ``first-vehicle`` (ArduPilot SITL's default "CMAC" home) [deg, deg, m].
+DEFAULT_SIM_HOME = GeoPoint(lat=-35.363261, lon=149.165230, alt=584.0)
+
+
+def enu_offset_m(origin: GeoPoint, point: GeoPoint) -> Vec3:
+    """Position of ``point`` relative to ``origin`` in metres, (east, north, up).
+
+    Flat earth, as mavlink-protocol.md allows at swarm scale:
+    north = dlat * R, east = dlon * R * cos(lat), up = dalt.
+    """
+    north = math.radians(point.lat - origin.lat) * EARTH_RADIUS_M
+    east = (
+        math.radians(point.lon - origin.lon) * EARTH_RADIUS_M * math.cos(math.radians(origin.lat))
+    )
+    return (east, north, point.alt - origin.alt)
+
+
+def geodetic_at(origin: GeoPoint, offset_enu_m: Vec3) -> GeoPoint:
+    """The geodetic point at ``offset_enu_m`` (east, north, up) [m] from ``origin``;
+    the inverse of ``enu_offset_m``."""
+    east, north, up = offset_enu_m
+    lat = origin.lat + math.degrees(north / EARTH_RADIUS_M)
+    lon = origin.lon + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(origin.lat))))
+    return GeoPoint(lat=lat, lon=lon, alt=origin.alt + up)
+
+
+@dataclass(frozen=True)
+class Startup:
+    """Start-up sequence settings (mavlink-protocol.md "Start-up sequence").
+
+    takeoff_alt [m] above each vehicle's home; ready_timeout [s] for every
+    active vehicle to be armed, airborne and at its start; guid_timeout [s]
+    the GUID_TIMEOUT parameter the station sets before the formation starts.
+    """
+
+    takeoff_alt: float = 5.0
+    ready_timeout: float = 90.0
+    guid_timeout: float = 0.5
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The ``mission:`` block.
+
+    duration [s] of the formation phase; rate [Hz] of the control loop and of
+    the telemetry asked for; origin of the mission frame (a geodetic point, or
+    ``"first-vehicle"``: see ``Mission.origin_geo``); end action; stale_timeout
+    [s] after which a silent vehicle is dropped from the formation;
+    link_budget [setpoints/s] that one link may carry (vehicles on it x rate).
+    """
+
+    name: str
+    duration: float = 60.0
+    rate: float = 50.0
+    origin: GeoPoint | Literal["first-vehicle"] = "first-vehicle"
+    end: EndAction = "hold"
+    stale_timeout: float = 1.0
+    link_budget: float = 2000.0
+    startup: Startup = field(default_factory=Startup)
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """One vehicle of the ``vehicles:`` list.
+
+    sysid: MAVLink system id 1..255; link: pymavlink-style connection string
+    (``udpin:HOST:PORT``, ``udpout:``, ``tcp:``, ``tcpin:``) or ``"sim"`` (the
+    bundled emulator); start [m] mission frame; q [C] charge (Eq. 9);
+    reserve: joins on an event instead of flying from the start; origin: only
+    for ``sim`` vehicles, the vehicle's EKF origin (its home, on the ground)
+    either as an offset [m] in the mission frame or as a geodetic point.
+    After loading, every sim vehicle has an origin (defaults filled in).
+    """
+
+    sysid: int
+    link: str
+    autopilot: Autopilot
+    start: Vec3
+    q: float
+    reserve: bool = False
+    origin: Vec3 | GeoPoint | None = None
+
+    @property
+    def is_sim(self) -> bool:
+        """True when the bundled emulator hosts this vehicle (``link: sim``)."""
+        return self.link == "sim"
+
+
+@dataclass(frozen=True)
+class Impairments:
+    """Seeded link impairments of the emulator, applied in both directions.
+
+    loss, duplicate: probabilities 0..1 per packet; delay, jitter [s].
+    """
+
+    loss: float = 0.0
+    delay: float = 0.0
+    jitter: float = 0.0
+    duplicate: float = 0.0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Emulator:
+    """The bundled emulator, used by vehicles whose link is ``sim``.
+
+    mode: ``lockstep`` (one step per answered telemetry) or ``realtime``
+    (times ``speedup``); dynamics ``ideal`` or ``ardupilot-like``; lag [s]
+    first-order acceleration lag (``None``: 0 for ideal, 0.2 for
+    ardupilot-like); ekf_ready_delay [s] before arming is accepted;
+    ground [m] mission-frame z of the sim vehicles' homes (their EKF origins)
+    unless a vehicle names its own origin; origin_spread [m] east spacing of
+    the default homes (like SITL instances 5 m apart); accel_max [m/s^2]
+    the emulator's clamp on the commanded acceleration (``None``: the
+    emulator's own default, SIM_ACC_MAX); noise_pos [m] and noise_vel [m/s]
+    standard deviations of seeded noise on LOCAL_POSITION_NED; spawn:
+    ``ground`` (landed at home, full start-up) or ``air`` (armed, GUIDED,
+    hovering at the start position); host and base_port: where the
+    endpoints bind (port ``base_port + 10 k`` for the k-th sim vehicle, like
+    SITL instances; 0: free ports); shared: every sim vehicle on one
+    endpoint, told apart by system id (like ``sim_vehicle.py --mcast``).
+    """
+
+    mode: EmulatorMode = "realtime"
+    speedup: float = 1.0
+    dynamics: Dynamics = "ardupilot-like"
+    lag: float | None = None
+    accel_max: float | None = None
+    ekf_ready_delay: float = 2.0
+    noise_pos: float = 0.0
+    noise_vel: float = 0.0
+    ground: float = -20.0
+    origin_spread: float = 5.0
+    spawn: Spawn = "ground"
+    host: str = "127.0.0.1"
+    base_port: int = 0
+    shared: bool = False
+    impairments: Impairments = field(default_factory=Impairments)
+
+    @property
+    def lag_s(self) -> float:
+        """The first-order lag actually used [s]."""
+        if self.lag is not None:
+            return self.lag
+        return 0.0 if self.dynamics == "ideal" else 0.2
+
+
+@dataclass(frozen=True)
+class Event:
+    """At mission time ``t`` [s] (from the formation start) vehicle ``sysid``
+    joins or leaves the formation."""
+
+    t: float
+    action: EventAction
+    sysid: int
+
+
+@dataclass(frozen=True)
+class LogSettings:
+    """Where run artefacts go: ``dir`` (relative paths are relative to the
+    current directory when the station starts)."""
+
+    dir: str = "runs"
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A validated mission file. ``law`` is what ``gcs_swarm.control`` takes."""
+
+    source: str
+    settings: Settings
+    vehicles: tuple[Vehicle, ...]
+    law: LawConfig = field(default_factory=LawConfig)
+    emulator: Emulator = field(default_factory=Emulator)
+    events: tuple[Event, ...] = ()
+    log: LogSettings = field(default_factory=LogSettings)
+
+    def law_config(self) -> LawConfig:
+        """The law's parameters (same object as ``self.law``)."""
+        return self.law
+
+    def vehicle(self, sysid: int) -> Vehicle:
+        """The vehicle with system id ``sysid`` (KeyError if none)."""
+        for v in self.vehicles:
+            if v.sysid == sysid:
+                return v
+        raise KeyError(sysid)
+
+    @property
+    def initial(self) -> tuple[Vehicle, ...]:
+        """Vehicles in the formation from the start (not reserves), file order."""
+        return tuple(v for v in self.vehicles if not v.reserve)
+
+    @property
+    def reserves(self) -> tuple[Vehicle, ...]:
+        """Vehicles that join on an event, file order."""
+        return tuple(v for v in self.vehicles if v.reserve)
+
+    def origin_geo(self) -> GeoPoint | None:
+        """The mission origin as a geodetic point, when the file fixes it.
+
+        - an explicit ``mission.origin`` is returned as is;
+        - ``first-vehicle`` with a ``sim`` first vehicle: that vehicle's home is
+          ``DEFAULT_SIM_HOME`` (or its own geodetic origin), and the mission
+          origin is placed so that the home sits at the vehicle's origin offset
+          (by default ``emulator.ground`` metres, i.e. 20 m below);
+        - ``first-vehicle`` with a real first vehicle: ``None``; the station
+          reads it from that vehicle's GPS_GLOBAL_ORIGIN.
+        """
+        origin = self.settings.origin
+        if isinstance(origin, GeoPoint):
+            return origin
+        first = self.vehicles[0]
+        if not first.is_sim:
+            return None
+        if isinstance(first.origin, GeoPoint):
+            return first.origin
+        offset = first.origin if first.origin is not None else (0.0, 0.0, 0.0)
+        return geodetic_at(DEFAULT_SIM_HOME, (-offset[0], -offset[1], -offset[2]))
+
+    def sim_origins(self, mission_origin: GeoPoint) -> dict[int, GeoPoint]:
+        """Geodetic EKF origin (home) of every ``sim`` vehicle, by system id,
+        given the resolved mission origin (``origin_geo()`` or, for a real
+        first vehicle, its GPS_GLOBAL_ORIGIN)."""
+        out: dict[int, GeoPoint] = {}
+        for v in self.vehicles:
+            if not v.is_sim:
+                continue
+            if isinstance(v.origin, GeoPoint):
+                out[v.sysid] = v.origin
+            else:
+                offset = v.origin if v.origin is not None else (0.0, 0.0, self.emulator.ground)
+                out[v.sysid] = geodetic_at(mission_origin, offset)
+        return out
