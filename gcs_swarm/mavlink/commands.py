@@ -1,0 +1,136 @@
+"""Awaited commands of one vehicle: one in flight, a FIFO behind it, resent on
+timeout (STYLE.md habit 6: "Commands: awaited, under a timeout, retried").
+
+A command is answered by a COMMAND_ACK with its MAV_CMD number, or, for a
+PARAM_SET, by the PARAM_VALUE of the same name. MAV_RESULT_IN_PROGRESS
+restarts the wait. Resends carry an increasing ``confirmation`` as
+COMMAND_LONG asks. No I/O: specs go to the ``out`` list the owner drains;
+time is an argument.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from gcs_swarm.mavlink.codec import MessageSpec
+
+__all__ = ["MAV_RESULT_NAMES", "CommandQueue"]
+
+MAV_RESULT_NAMES = {
+    0: "accepted",
+    1: "temporarily rejected",
+    2: "denied",
+    3: "unsupported",
+    4: "failed",
+    5: "in progress",
+    6: "cancelled",
+}
+_IN_PROGRESS = 5
+
+Done = Callable[[int, float], None]
+"""Called with (MAV_RESULT, now [s]); a PARAM_VALUE answer counts as 0."""
+
+
+@dataclass
+class _Command:
+    name: str
+    make: Callable[[], MessageSpec]
+    command: int  # MAV_CMD, or -1 when a PARAM_VALUE answers
+    param: str | None
+    on_done: Done
+    sent_at: float = 0.0
+    attempts: int = 0
+
+
+class CommandQueue:
+    """Commands to one vehicle, each awaited ``timeout_s`` and sent at most
+    ``attempts`` times; ``failed`` names the first command nobody answered."""
+
+    def __init__(self, out: list[MessageSpec], *, timeout_s: float, attempts: int) -> None:
+        self._out = out
+        self.timeout_s = timeout_s
+        self.attempts = attempts
+        self._pending: _Command | None = None
+        self._queue: list[_Command] = []
+        self.failed: str | None = None
+        self.last_sent_at = 0.0
+        """When the most recently answered command was last sent [s]."""
+
+    @property
+    def busy(self) -> bool:
+        return self._pending is not None or bool(self._queue)
+
+    def push(
+        self,
+        now: float,
+        name: str,
+        make: Callable[[], MessageSpec],
+        on_done: Done,
+        *,
+        command: int = -1,
+        param: str | None = None,
+        urgent: bool = False,
+    ) -> None:
+        """Queue a command (``urgent`` goes first); sends it now if idle."""
+        cmd = _Command(name, make, command, param, on_done)
+        if urgent:
+            self._queue.insert(0, cmd)
+        else:
+            self._queue.append(cmd)
+        self._send_next(now)
+
+    def clear(self) -> None:
+        self._pending = None
+        self._queue.clear()
+        self.failed = None
+
+    def on_ack(self, command: int, result: int, now: float) -> None:
+        pending = self._pending
+        if pending is None or pending.command != command:
+            return
+        if result == _IN_PROGRESS:
+            pending.sent_at = now
+            return
+        self._answered(pending, result, now)
+
+    def on_param(self, name: str, now: float) -> None:
+        pending = self._pending
+        if pending is not None and pending.param == name:
+            self._answered(pending, 0, now)
+
+    def next_deadline(self) -> float | None:
+        return None if self._pending is None else self._pending.sent_at + self.timeout_s
+
+    def handle_timer(self, now: float) -> None:
+        """Resend an unanswered command, or give up on it (``failed``)."""
+        pending = self._pending
+        if pending is None or now < pending.sent_at + self.timeout_s:
+            return
+        if pending.attempts >= self.attempts:
+            self._pending = None
+            self._queue.clear()
+            self.failed = f"no answer to {pending.name} after {pending.attempts} attempts"
+            return
+        self._transmit(pending, now)
+
+    def _answered(self, pending: _Command, result: int, now: float) -> None:
+        self._pending = None
+        self.last_sent_at = pending.sent_at
+        pending.on_done(result, now)
+        self._send_next(now)
+
+    def _send_next(self, now: float) -> None:
+        if self._pending is None and self._queue:
+            self._transmit(self._queue.pop(0), now)
+
+    def _transmit(self, cmd: _Command, now: float) -> None:
+        spec = cmd.make()
+        if cmd.attempts and spec.name == "COMMAND_LONG":
+            fields = dict(spec.fields)
+            fields["confirmation"] = min(cmd.attempts, 255)
+            spec = MessageSpec(spec.name, fields, spec.kind)
+        cmd.attempts += 1
+        cmd.sent_at = now
+        self._pending = cmd
+        self._out.append(spec)

@@ -1,0 +1,213 @@
+"""Typed views of the MAVLink messages the station reads.
+
+``from_pymavlink`` turns a decoded pymavlink message into one of the frozen
+dataclasses below (or None for messages the station does not use), so that
+the protocol state machine never touches pymavlink objects and its tests can
+build messages by hand. Units are MAVLink's own, named in each field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "CommandAck",
+    "EkfStatus",
+    "GpsGlobalOrigin",
+    "GpsRaw",
+    "Heartbeat",
+    "Inbound",
+    "LocalPositionNed",
+    "ParamValue",
+    "PositionTarget",
+    "StatusText",
+    "from_pymavlink",
+]
+
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_AUTOPILOT_INVALID = 8
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """HEARTBEAT (0): ``custom_mode`` is the Copter mode number."""
+
+    sysid: int
+    compid: int
+    type: int
+    autopilot: int
+    base_mode: int
+    custom_mode: int
+    system_status: int
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def is_autopilot(self) -> bool:
+        """False for ground stations, gimbals and other non-autopilot components."""
+        return self.autopilot != MAV_AUTOPILOT_INVALID
+
+
+@dataclass(frozen=True, slots=True)
+class LocalPositionNed:
+    """LOCAL_POSITION_NED (32): [m] and [m/s], NED, relative to the EKF origin;
+    ``time_boot_ms`` is vehicle time [ms]."""
+
+    sysid: int
+    compid: int
+    time_boot_ms: int
+    x: float
+    y: float
+    z: float
+    vx: float
+    vy: float
+    vz: float
+
+
+@dataclass(frozen=True, slots=True)
+class CommandAck:
+    """COMMAND_ACK (77): ``result`` is a MAV_RESULT (0 accepted, 5 in progress)."""
+
+    sysid: int
+    compid: int
+    command: int
+    result: int
+
+
+@dataclass(frozen=True, slots=True)
+class StatusText:
+    """STATUSTEXT (253): the vehicle's own words, e.g. ``PreArm: Need 3D Fix``."""
+
+    sysid: int
+    compid: int
+    severity: int
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class GpsGlobalOrigin:
+    """GPS_GLOBAL_ORIGIN (49): the EKF origin, degE7, degE7, mm AMSL."""
+
+    sysid: int
+    compid: int
+    lat_e7: int
+    lon_e7: int
+    alt_mm: int
+
+
+@dataclass(frozen=True, slots=True)
+class EkfStatus:
+    """EKF_STATUS_REPORT (193): ``flags`` is an EKF_STATUS_FLAGS bitmask."""
+
+    sysid: int
+    compid: int
+    flags: int
+
+
+@dataclass(frozen=True, slots=True)
+class GpsRaw:
+    """GPS_RAW_INT (24): ``fix_type`` (3 = 3D fix), satellites visible."""
+
+    sysid: int
+    compid: int
+    fix_type: int
+    satellites: int
+
+
+@dataclass(frozen=True, slots=True)
+class ParamValue:
+    """PARAM_VALUE (22): the value the vehicle actually holds."""
+
+    sysid: int
+    compid: int
+    name: str
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class PositionTarget:
+    """POSITION_TARGET_LOCAL_NED (85): what the vehicle is tracking (echo)."""
+
+    sysid: int
+    compid: int
+    time_boot_ms: int
+    type_mask: int
+    afx: float
+    afy: float
+    afz: float
+
+
+Inbound = (
+    Heartbeat
+    | LocalPositionNed
+    | CommandAck
+    | StatusText
+    | GpsGlobalOrigin
+    | EkfStatus
+    | GpsRaw
+    | ParamValue
+    | PositionTarget
+)
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bytes):
+        value = value.decode("ascii", errors="replace")
+    return str(value).split("\x00", 1)[0]
+
+
+def from_pymavlink(msg: Any) -> Inbound | None:
+    """The typed view of a decoded pymavlink message, None if not used."""
+    kind = msg.get_type()
+    sysid = int(msg.get_srcSystem())
+    compid = int(msg.get_srcComponent())
+    if kind == "LOCAL_POSITION_NED":
+        return LocalPositionNed(
+            sysid,
+            compid,
+            int(msg.time_boot_ms),
+            float(msg.x),
+            float(msg.y),
+            float(msg.z),
+            float(msg.vx),
+            float(msg.vy),
+            float(msg.vz),
+        )
+    if kind == "HEARTBEAT":
+        return Heartbeat(
+            sysid,
+            compid,
+            int(msg.type),
+            int(msg.autopilot),
+            int(msg.base_mode),
+            int(msg.custom_mode),
+            int(msg.system_status),
+        )
+    if kind == "COMMAND_ACK":
+        return CommandAck(sysid, compid, int(msg.command), int(msg.result))
+    if kind == "STATUSTEXT":
+        return StatusText(sysid, compid, int(msg.severity), _text(msg.text))
+    if kind == "GPS_GLOBAL_ORIGIN":
+        return GpsGlobalOrigin(
+            sysid, compid, int(msg.latitude), int(msg.longitude), int(msg.altitude)
+        )
+    if kind == "EKF_STATUS_REPORT":
+        return EkfStatus(sysid, compid, int(msg.flags))
+    if kind == "GPS_RAW_INT":
+        return GpsRaw(sysid, compid, int(msg.fix_type), int(msg.satellites_visible))
+    if kind == "PARAM_VALUE":
+        return ParamValue(sysid, compid, _text(msg.param_id), float(msg.param_value))
+    if kind == "POSITION_TARGET_LOCAL_NED":
+        return PositionTarget(
+            sysid,
+            compid,
+            int(msg.time_boot_ms),
+            int(msg.type_mask),
+            float(msg.afx),
+            float(msg.afy),
+            float(msg.afz),
+        )
+    return None

@@ -1,0 +1,571 @@
+"""The per-vehicle protocol state machine: start-up, hold, setpoints, ending.
+
+No I/O and no clock of its own (STYLE.md habit 1): every entry point takes
+``now`` [s, station monotonic time]; ``next_deadline()`` says when
+``handle_timer(now)`` wants to be called; outbound messages are
+``MessageSpec`` data collected with ``take_outbound()`` and events for the
+log with ``take_events()``.
+
+Phases follow the start-up sequence of mavlink-protocol.md:
+
+    CONNECTING -> CONFIGURING (streams, GUID_TIMEOUT, WP_YAW_BEHAVIOR)
+      -> SETTING_GUIDED -> WAITING_ARMABLE -> ARMING -> TAKING_OFF
+      -> GOING_TO_START (position setpoints) -> READY (holding)
+      -> FLYING (the station streams acceleration setpoints)
+      -> ENDING (zero acceleration + end mode) -> ENDED
+    any -> LOST (heartbeat or telemetry stale) -> CONFIGURING on the next heartbeat
+    any -> FAILED (refused too often, or someone else took the vehicle)
+
+A vehicle found armed in GUIDED is taken over: no arming, no second takeoff.
+Every command is awaited (COMMAND_ACK or PARAM_VALUE), resent on timeout up
+to ``ProtocolConfig.command_attempts`` times; arming is retried every
+``arm_retry_interval_s`` (spec: 2 s) and each refusal is reported with the
+vehicle's own STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from functools import partial
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.codec import MessageSpec
+from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue
+from gcs_swarm.mavlink.frames import (
+    GeoPoint,
+    mission_to_ned,
+    origin_offset_m,
+)
+from gcs_swarm.mavlink.inbound import (
+    CommandAck,
+    EkfStatus,
+    GpsGlobalOrigin,
+    GpsRaw,
+    Heartbeat,
+    Inbound,
+    LocalPositionNed,
+    ParamValue,
+    PositionTarget,
+    StatusText,
+)
+from gcs_swarm.mavlink.states import (
+    AIRBORNE_PHASES,
+    EKF_READY_FLAGS,
+    EKF_UNINITIALIZED,
+    FINAL_PHASES,
+    GUIDED,
+    IDLE_PHASES,
+    TELEMETRY_PHASES,
+    Phase,
+    ProtocolConfig,
+    ProtocolEvent,
+    mode_name,
+)
+
+__all__ = ["VehicleProtocol"]
+
+FloatArray = npt.NDArray[np.float64]
+
+_MAV_SEVERITY_WARNING = 4
+
+
+class VehicleProtocol:
+    """The protocol state of one vehicle (system id ``sysid``).
+
+    ``goto_m`` is where the vehicle goes after take-off, in the mission frame
+    [m]; the station may move it with ``set_goto`` (joiners chase the leader).
+    """
+
+    def __init__(
+        self,
+        sysid: int,
+        config: ProtocolConfig,
+        *,
+        goto_m: tuple[float, float, float],
+        enabled: bool = True,
+    ) -> None:
+        self.sysid = sysid
+        self.enabled = enabled
+        self.config = config
+        self.phase = Phase.CONNECTING
+        self.compid = 1
+        self.heartbeat: Heartbeat | None = None
+        self.position: LocalPositionNed | None = None
+        self.position_at = -math.inf
+        self.target_echo: PositionTarget | None = None
+        self.origin: GeoPoint | None = None
+        self.reference: GeoPoint | None = config.mission_origin
+        self.offset_m: FloatArray | None = None
+        self.last_accel_ned: FloatArray = np.zeros(3)
+        self.failure: str | None = None
+        self.took_over = False
+        self.params: dict[str, float] = {}
+        self._goto_m = np.asarray(goto_m, dtype=np.float64)
+        self._hb_at = -math.inf
+        self._ekf_flags = 0
+        self._gps_fix = 0
+        self._texts: deque[tuple[float, int, str]] = deque(maxlen=16)
+        self._out: list[MessageSpec] = []
+        self._events: list[ProtocolEvent] = []
+        self._commands = CommandQueue(
+            self._out, timeout_s=config.command_timeout_s, attempts=config.command_attempts
+        )
+        self._timers: dict[str, float] = {}
+        self._arm_tries = 0
+        self._takeoff_up_m = 0.0
+        self._end_mode = config.end_mode
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def mode_name(self) -> str:
+        return "-" if self.heartbeat is None else mode_name(self.heartbeat.custom_mode)
+
+    @property
+    def armed(self) -> bool:
+        return self.heartbeat is not None and self.heartbeat.armed
+
+    @property
+    def goto_m(self) -> FloatArray:
+        return self._goto_m
+
+    def state_mission(self) -> tuple[FloatArray, FloatArray]:
+        """Latest (position [m], velocity [m/s]) in the mission frame."""
+        if self.position is None or self.offset_m is None:
+            raise RuntimeError(f"vehicle {self.sysid} has no position or origin yet")
+        p, o = self.position, self.offset_m
+        # p = (e, n, -d) + o_i; v = (v_e, v_n, -v_d) (formation-law.md s1), written
+        # out because it runs for every vehicle at every step.
+        return (
+            np.array((p.y + o[0], p.x + o[1], -p.z + o[2])),
+            np.array((p.vy, p.vx, -p.vz)),
+        )
+
+    def next_deadline(self) -> float | None:
+        """The earliest time [s] at which ``handle_timer`` has work, or None."""
+        deadlines = list(self._timers.values())
+        command = self._commands.next_deadline()
+        if command is not None:
+            deadlines.append(command)
+        if self.phase not in IDLE_PHASES:
+            deadlines.append(self._hb_at + self.config.heartbeat_timeout_s)
+            if self.phase in TELEMETRY_PHASES:
+                deadlines.append(self.position_at + self.config.stale_timeout_s)
+        return min(deadlines) if deadlines else None
+
+    def take_outbound(self) -> list[MessageSpec]:
+        out = self._out[:]
+        self._out.clear()
+        return out
+
+    def take_events(self) -> list[ProtocolEvent]:
+        events, self._events = self._events, []
+        return events
+
+    # ----------------------------------------------------------- station input
+    def enable(self, now: float) -> None:
+        """Start readying a vehicle created with ``enabled=False`` (a reserve
+        waiting for its join event), or one that ended, from its next HEARTBEAT."""
+        self.enabled = True
+        if self.phase in FINAL_PHASES:
+            self.phase = Phase.CONNECTING
+            self.failure = None
+        if self.phase is Phase.CONNECTING and self.heartbeat is not None:
+            self._start_configuring(now)
+
+    def set_reference(self, reference: GeoPoint) -> None:
+        """Fix the mission origin when it is learnt at run time (``first-vehicle``
+        with a real first vehicle): offsets exist only once it is known."""
+        self.reference = reference
+        self._update_offset()
+
+    def set_goto(self, goto_m: tuple[float, float, float] | FloatArray) -> None:
+        """Move the mission-frame point [m] the vehicle flies to before the law."""
+        self._goto_m = np.asarray(goto_m, dtype=np.float64)
+
+    def begin_flying(self, now: float) -> None:
+        """READY -> FLYING: from now on the station streams acceleration setpoints."""
+        if self.phase is not Phase.READY:
+            raise RuntimeError(f"vehicle {self.sysid} is {self.phase.value}, not ready")
+        self._set_phase(Phase.FLYING, now)
+
+    def accel_setpoint(self, accel_mps2: npt.ArrayLike) -> MessageSpec:
+        """The SET_POSITION_TARGET_LOCAL_NED for a mission-frame acceleration [m/s^2]."""
+        a = np.asarray(accel_mps2, dtype=np.float64)
+        a_ned = (float(a[1]), float(a[0]), float(-a[2]))  # a_ned = (a_y, a_x, -a_z)
+        self.last_accel_ned = np.array(a_ned)
+        return b.accel_setpoint(self.sysid, self.compid, self._boot_ms(), a_ned)
+
+    def finish(self, now: float, *, mode: int | None = None) -> None:
+        """End this vehicle: zero acceleration, then ``mode`` (default the
+        config's end mode) confirmed by heartbeat. A vehicle still on the
+        ground simply stops being readied."""
+        if self.phase in FINAL_PHASES or self.phase is Phase.ENDING:
+            return
+        self._end_mode = self.config.end_mode if mode is None else mode
+        if self.phase is Phase.LOST:
+            # Best effort, not awaited: it may still hear us. Otherwise its own
+            # GUID_TIMEOUT (set short at start-up) brakes it to a hover.
+            if self.armed:
+                self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
+                self._out.append(b.set_mode(self.sysid, self.compid, self._end_mode))
+            return
+        self._reset()
+        if not self.armed and self.phase not in AIRBORNE_PHASES:
+            self._set_phase(Phase.ENDED, now)
+            return
+        self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
+        self._set_phase(Phase.ENDING, now)
+        self._send_end_mode(now)
+
+    # --------------------------------------------------------- vehicle input
+    def handle_message(self, msg: Inbound, now: float) -> None:
+        """Feed one decoded message from this vehicle."""
+        if msg.sysid != self.sysid:
+            return
+        if isinstance(msg, Heartbeat):
+            self._on_heartbeat(msg, now)
+        elif isinstance(msg, LocalPositionNed):
+            self._on_position(msg, now)
+        elif isinstance(msg, CommandAck):
+            self._commands.on_ack(msg.command, msg.result, now)
+        elif isinstance(msg, StatusText):
+            self._texts.append((now, msg.severity, msg.text))
+            self._event("statustext", f"vehicle {self.sysid} says: {msg.text}")
+        elif isinstance(msg, GpsGlobalOrigin):
+            self._on_origin(msg, now)
+        elif isinstance(msg, EkfStatus):
+            self._ekf_flags = msg.flags
+            self._check_armable(now)
+        elif isinstance(msg, GpsRaw):
+            self._gps_fix = msg.fix_type
+            self._check_armable(now)
+        elif isinstance(msg, ParamValue):
+            self.params[msg.name] = msg.value
+            self._commands.on_param(msg.name, now)
+        elif isinstance(msg, PositionTarget):
+            self.target_echo = msg
+
+    def handle_timer(self, now: float) -> None:
+        """Do whatever is due at ``now``: resends, retries, stale checks."""
+        cfg = self.config
+        if self.phase not in IDLE_PHASES:
+            if now >= self._hb_at + cfg.heartbeat_timeout_s:
+                self._lose(now, f"no HEARTBEAT for {cfg.heartbeat_timeout_s:g} s")
+                return
+            if self.phase in TELEMETRY_PHASES and now >= self.position_at + cfg.stale_timeout_s:
+                self._lose(now, f"no LOCAL_POSITION_NED for {cfg.stale_timeout_s:g} s")
+                return
+        self._commands.handle_timer(now)
+        if self._commands.failed is not None:
+            self._fail(now, self._commands.failed)
+            return
+        for name, due in sorted(self._timers.items(), key=lambda kv: kv[1]):
+            if now >= due and self._timers.get(name) == due:
+                del self._timers[name]
+                self._on_timer(name, now)
+
+    # ------------------------------------------------------------ internals
+    def _on_timer(self, name: str, now: float) -> None:
+        if name == "origin" and self.origin is None:
+            self._request_origin(now)
+        elif name == "arm":
+            self._send_arm(now)
+        elif name == "mode_confirm":
+            self._send_guided(now)
+        elif name == "takeoff":
+            self._fail(now, f"take-off not complete after {self.config.takeoff_timeout_s:g} s")
+        elif name == "end_confirm":
+            self._send_end_mode(now)
+
+    def _on_heartbeat(self, hb: Heartbeat, now: float) -> None:
+        if not hb.is_autopilot:
+            return
+        self.heartbeat = hb
+        self.compid = hb.compid
+        self._hb_at = now
+        phase = self.phase
+        if phase in (Phase.CONNECTING, Phase.LOST):
+            if self.enabled:
+                self._start_configuring(now)
+        elif phase is Phase.SETTING_GUIDED and "mode_confirm" in self._timers:
+            if hb.custom_mode == GUIDED:
+                del self._timers["mode_confirm"]
+                self._after_guided(now)
+        elif phase in (Phase.GOING_TO_START, Phase.READY, Phase.FLYING):
+            if hb.custom_mode != GUIDED:
+                self._fail(
+                    now,
+                    f"left GUIDED (now {self.mode_name}): someone else has it; "
+                    "removed from the formation",
+                )
+            elif not hb.armed:
+                self._fail(now, "disarmed in flight; removed from the formation")
+        elif phase is Phase.ENDING and "end_confirm" in self._timers:
+            if hb.custom_mode == self._end_mode:
+                del self._timers["end_confirm"]
+                self._set_phase(Phase.ENDED, now)
+
+    def _on_position(self, pos: LocalPositionNed, now: float) -> None:
+        self.position = pos
+        self.position_at = now
+        phase = self.phase
+        if phase is Phase.TAKING_OFF:
+            # Done within 5 % (at least 0.5 m): measured, 9.5 m of 10 m after 9.4 s.
+            if -pos.z >= self._takeoff_up_m - max(0.5, 0.05 * abs(self._takeoff_up_m)):
+                self._timers.pop("takeoff", None)
+                self._go_to_start(now)
+        elif phase in (Phase.GOING_TO_START, Phase.READY):
+            self._go_to_start(now)
+        elif phase is Phase.ENDING:
+            # Zero acceleration answers every telemetry until the mode is confirmed.
+            self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
+        elif phase is Phase.WAITING_ARMABLE:
+            self._check_armable(now)
+
+    def _on_origin(self, msg: GpsGlobalOrigin, now: float) -> None:
+        origin = GeoPoint.from_mavlink(msg.lat_e7, msg.lon_e7, msg.alt_mm)
+        self.origin = origin
+        self._timers.pop("origin", None)
+        self._event(
+            "info",
+            f"vehicle {self.sysid}: EKF origin {origin.lat_deg:.7f} {origin.lon_deg:.7f} "
+            f"{origin.alt_m:.2f} m",
+        )
+        self._update_offset()
+        self._check_armable(now)
+
+    def _update_offset(self) -> None:
+        if self.origin is None or self.reference is None:
+            return
+        self.offset_m = origin_offset_m(self.origin, self.reference)
+        e, n, u = self.offset_m
+        self._event(
+            "info",
+            f"vehicle {self.sysid}: frame offset {e:+.2f} E {n:+.2f} N {u:+.2f} U m "
+            "from the mission origin",
+        )
+
+    def _start_configuring(self, now: float) -> None:
+        self._reset()
+        self._arm_tries = 0
+        self.took_over = False
+        self._set_phase(Phase.CONFIGURING, now)
+        cfg, s, c = self.config, self.sysid, self.compid
+        for label, msg_id, hz in (
+            ("LOCAL_POSITION_NED", b.MSG_ID_LOCAL_POSITION_NED, cfg.control_rate_hz),
+            ("EKF_STATUS_REPORT", b.MSG_ID_EKF_STATUS_REPORT, cfg.status_rate_hz),
+            ("GPS_RAW_INT", b.MSG_ID_GPS_RAW_INT, cfg.status_rate_hz),
+        ):
+            make = partial(b.set_message_interval, s, c, msg_id, 1.0 / hz)
+            done = partial(self._refused_if, f"stream {label}")
+            self._commands.push(
+                now, f"SET_MESSAGE_INTERVAL {label}", make, done,
+                command=b.MAV_CMD_SET_MESSAGE_INTERVAL,
+            )  # fmt: skip
+        for name, value, why in (
+            ("GUID_TIMEOUT", cfg.guid_timeout_s, "s: when setpoints stop it brakes after this"),
+            ("WP_YAW_BEHAVIOR", float(cfg.wp_yaw_behavior), "(heading kept while flying)"),
+        ):
+            make = partial(b.param_set, s, c, name, value)
+            self._commands.push(
+                now, f"PARAM_SET {name}", make, partial(self._param_set, name, why), param=name
+            )
+        self._request_origin(now)
+
+    def _refused_if(self, what: str, result: int, now: float) -> None:
+        if result != 0:
+            self._refused(now, what, result)
+
+    def _param_set(self, name: str, why: str, result: int, now: float) -> None:
+        value = self.params.get(name, math.nan)
+        self._event("param", f"vehicle {self.sysid}: {name} = {value:g} {why}")
+        if not self._commands.busy and self.phase is Phase.CONFIGURING:
+            self._after_configuring(now)
+
+    def _after_configuring(self, now: float) -> None:
+        hb = self.heartbeat
+        if hb is not None and hb.armed:
+            self._event(
+                "info",
+                f"vehicle {self.sysid} is already armed in {self.mode_name}: "
+                "taking it over without a take-off",
+            )
+        if hb is not None and hb.custom_mode == GUIDED:
+            self._after_guided(now)
+        else:
+            self._set_phase(Phase.SETTING_GUIDED, now)
+            self._send_guided(now)
+
+    def _send_guided(self, now: float, *, then_arm: bool = False) -> None:
+        make = partial(b.set_mode, self.sysid, self.compid, GUIDED)
+        done = partial(self._refused_if, "GUIDED") if then_arm else self._guided_acked
+        self._commands.push(now, "set mode GUIDED", make, done, command=b.MAV_CMD_DO_SET_MODE)
+
+    def _guided_acked(self, result: int, now: float) -> None:
+        if result != 0:
+            self._refused(now, "GUIDED", result)
+        # Confirm in the next HEARTBEAT (spec step 3); ask again if it does not come.
+        self._timers["mode_confirm"] = now + 2 * self.config.command_timeout_s
+
+    def _after_guided(self, now: float) -> None:
+        self.took_over = self.armed
+        self._set_phase(Phase.WAITING_ARMABLE, now)
+        self._check_armable(now)
+
+    def _check_armable(self, now: float) -> None:
+        if self.phase is not Phase.WAITING_ARMABLE or self.position is None:
+            return
+        if self.took_over:
+            # Already flying: it only needs its origin and a position to join.
+            if self.offset_m is not None:
+                self._go_to_start(now)
+            return
+        flags = self._ekf_flags
+        ekf_ok = flags & EKF_READY_FLAGS == EKF_READY_FLAGS and not flags & EKF_UNINITIALIZED
+        if ekf_ok and self._gps_fix >= 3 and self.offset_m is not None:
+            self._set_phase(Phase.ARMING, now)
+            self._send_arm(now)
+
+    def _send_arm(self, now: float) -> None:
+        if self.phase is Phase.ARMING:
+            self._arm_tries += 1
+            make = partial(b.arm, self.sysid, self.compid)
+            self._commands.push(
+                now, "arm", make, self._arm_acked, command=b.MAV_CMD_COMPONENT_ARM_DISARM
+            )
+
+    def _arm_acked(self, result: int, now: float) -> None:
+        if self.phase is not Phase.ARMING:
+            return
+        if result == 0:
+            self._send_takeoff(now)  # at once: ArduCopter disarms after DISARM_DELAY
+            return
+        self._refused(now, f"arming (attempt {self._arm_tries})", result)
+        hb = self.heartbeat
+        if hb is not None and hb.custom_mode != GUIDED:
+            # Someone switched it while we waited ("Arm: Mode not armable"); it
+            # is still on the ground, so ask for GUIDED again before the retry.
+            self._send_guided(now, then_arm=True)
+        if self._arm_tries >= self.config.arm_attempts:
+            self._fail(now, f"arming refused {self._arm_tries} times: {self._last_text()}")
+        else:
+            self._timers["arm"] = self._commands.last_sent_at + self.config.arm_retry_interval_s
+
+    def _send_takeoff(self, now: float) -> None:
+        assert self.position is not None and self.offset_m is not None
+        up_now = -self.position.z
+        goto_up = float(self._goto_m[2] - self.offset_m[2])
+        alt = max(self.config.takeoff_min_alt_m, goto_up - up_now)
+        self._takeoff_up_m = up_now + alt
+        self._set_phase(Phase.TAKING_OFF, now)
+        self._timers["takeoff"] = now + self.config.takeoff_timeout_s
+        make = partial(b.takeoff, self.sysid, self.compid, alt)
+        self._commands.push(
+            now, f"take-off to {alt:.1f} m", make, self._takeoff_acked,
+            command=b.MAV_CMD_NAV_TAKEOFF,
+        )  # fmt: skip
+
+    def _takeoff_acked(self, result: int, now: float) -> None:
+        if result != 0 and self.phase is Phase.TAKING_OFF:
+            self._refused(now, "take-off", result)
+            self._fail(now, f"take-off refused: {self._last_text()}")
+
+    def _send_end_mode(self, now: float) -> None:
+        make = partial(b.set_mode, self.sysid, self.compid, self._end_mode)
+        self._commands.push(
+            now, f"set mode {mode_name(self._end_mode)}", make, self._end_mode_acked,
+            command=b.MAV_CMD_DO_SET_MODE, urgent=True,
+        )  # fmt: skip
+
+    def _end_mode_acked(self, result: int, now: float) -> None:
+        if self.phase is not Phase.ENDING:
+            return
+        land = b.COPTER_MODES["LAND"]
+        if result != 0:
+            self._refused(now, f"mode {mode_name(self._end_mode)}", result)
+            if self._end_mode != land:
+                self._event("info", f"vehicle {self.sysid}: falling back to LAND")
+                self._end_mode = land
+                self._send_end_mode(now)
+                return
+        hb = self.heartbeat
+        if result == 0 and hb is not None and hb.custom_mode == self._end_mode:
+            self._set_phase(Phase.ENDED, now)
+        else:
+            self._timers["end_confirm"] = now + self.config.end_confirm_timeout_s
+
+    def _go_to_start(self, now: float) -> None:
+        """GOING_TO_START until at the goto point and slow, then READY (holding)."""
+        if self.phase is not Phase.READY:
+            self._set_phase(Phase.GOING_TO_START, now)
+            pos, vel = self.state_mission()
+            cfg = self.config
+            if (
+                np.linalg.norm(pos - self._goto_m) <= cfg.goto_tolerance_m
+                and np.linalg.norm(vel) <= cfg.goto_speed_tolerance_mps
+            ):
+                self._set_phase(Phase.READY, now)
+        self._answer_hold()
+
+    def _answer_hold(self) -> None:
+        """Position setpoint to the goto point, sent in answer to each telemetry."""
+        if self.offset_m is not None:
+            ned = mission_to_ned(self._goto_m, self.offset_m)
+            self.last_accel_ned = np.zeros(3)
+            spec = b.position_setpoint(self.sysid, self.compid, self._boot_ms(), _vec(ned))
+            self._out.append(spec)
+
+    def _request_origin(self, now: float) -> None:
+        self._out.append(b.request_message(self.sysid, self.compid, b.MSG_ID_GPS_GLOBAL_ORIGIN))
+        self._timers["origin"] = now + self.config.origin_request_interval_s
+
+    def _refused(self, now: float, what: str, result: int) -> None:
+        # The vehicle's STATUSTEXT (why) may come a little before its COMMAND_ACK.
+        since = min(self._commands.last_sent_at, now) - 0.5
+        recent = [(sev, t) for at, sev, t in self._texts if at >= since]
+        # Prefer the warnings and errors (PreArm:/Arm: are CRITICAL) over INFO chatter.
+        why = [t for sev, t in recent if sev <= _MAV_SEVERITY_WARNING] or [t for _, t in recent]
+        said = "; ".join(why) or "no STATUSTEXT"
+        verdict = MAV_RESULT_NAMES.get(result, str(result))
+        self._event("refused", f"vehicle {self.sysid}: {what} refused ({verdict}): {said}")
+
+    def _last_text(self) -> str:
+        for _, sev, text in reversed(self._texts):
+            if sev <= _MAV_SEVERITY_WARNING:
+                return text
+        return self._texts[-1][2] if self._texts else "no STATUSTEXT from the vehicle"
+
+    def _reset(self) -> None:
+        self._commands.clear()
+        self._timers.clear()
+
+    def _lose(self, now: float, why: str) -> None:
+        self._reset()
+        self.failure = why
+        self._set_phase(Phase.LOST, now)
+        self._event("lost", f"vehicle {self.sysid} lost: {why}")
+
+    def _fail(self, now: float, why: str) -> None:
+        self._reset()
+        self.failure = why
+        self._set_phase(Phase.FAILED, now)
+        self._event("failed", f"vehicle {self.sysid}: {why}")
+
+    def _set_phase(self, phase: Phase, now: float) -> None:
+        if phase is not self.phase:
+            self.phase = phase
+            self._event("phase", f"vehicle {self.sysid}: {phase.value}")
+
+    def _event(self, kind: str, text: str) -> None:
+        self._events.append(ProtocolEvent(self.sysid, kind, text, self.phase))
+
+    def _boot_ms(self) -> int:
+        return self.position.time_boot_ms if self.position is not None else 0
+
+
+def _vec(v: FloatArray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))

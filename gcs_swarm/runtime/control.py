@@ -1,0 +1,141 @@
+"""One control step of the station: vehicle time, the law, the limits.
+
+``ControlLoop`` holds the ``SwarmController`` (Eqs. 12-13 and 27-30 from
+``gcs_swarm.control.law``) and the ``SafetyFilter`` (limits and safety of
+formation-law.md section 11), and keeps the mission clock in VEHICLE time:
+at each step it advances by the median of the fresh vehicles' increments of
+``time_boot_ms`` (formation-law.md section 4: the leader is integrated in the
+time the telemetry carries, so lockstep and speed-up fly like real time).
+Positions and velocities come in and accelerations go out in the mission
+frame; the NED edge is ``gcs_swarm.mavlink``. No asyncio here; the look-ahead
+job is handed to the caller to run in a worker thread.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.control.law import ControlOutput, SwarmController
+from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
+from gcs_swarm.control.obstacles import box_signed_distance
+from gcs_swarm.control.params import LawConfig
+from gcs_swarm.control.safety import SafetyFilter, SafetyReport, SafetyStats
+
+__all__ = ["ControlLoop", "StepResult"]
+
+FloatArray = npt.NDArray[np.float64]
+
+MAX_CLOCK_JUMP_S = 1.0
+"""Largest mission-clock advance of one step [s]: a vehicle reboot or a long
+telemetry gap must not fling the virtual leader ahead."""
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One step: the input positions ``pos_m (N, 3)`` and ``accel_mps2 (N, 3)``
+    after limits/safety, in ``ids`` order, mission frame; the law's raw output;
+    the filter's report (None when the filter is the identity); radii [m] to
+    the leader and the minimum pairwise separation [m] at the input state."""
+
+    t_s: float
+    ids: tuple[int, ...]
+    pos_m: FloatArray
+    accel_mps2: FloatArray
+    law: ControlOutput
+    safety: SafetyReport | None
+    radii_m: FloatArray
+    min_separation_m: float
+
+
+class ControlLoop:
+    """The law plus limits, stepped on telemetry in vehicle time."""
+
+    def __init__(
+        self, law: LawConfig, charges: Mapping[int, float], rate_hz: float, *, defer: bool = True
+    ) -> None:
+        self.config = law
+        self.charges = dict(charges)
+        self.controller = SwarmController(law, t0=0.0, defer_lookahead=defer)
+        self.safety = SafetyFilter(law.limits, law.safety, law.obstacles, dt=1.0 / rate_hz)
+        self.safety_stats = SafetyStats()
+        lim = law.limits
+        # A disabled filter with no finite limit is the identity (safety.py): skip it.
+        self.filtering: bool = law.safety.enabled or not (
+            math.isinf(lim.a_max) and math.isinf(lim.v_max) and math.isinf(lim.z_floor)
+            and lim.geofence_min is None and lim.geofence_max is None
+        )  # fmt: skip
+        self.t_s = 0.0
+        self.steps = 0
+        self.min_separation_m = math.inf
+        self.min_clearance_m = math.inf
+        """Smallest signed distance [m] of any vehicle to any box seen at a
+        step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
+        self._boot_ms: dict[int, int] = {}
+        self.last: StepResult | None = None
+
+    def advance_clock(self, boot_ms: Mapping[int, int]) -> float:
+        """Advance the mission clock from the fresh vehicles' ``time_boot_ms``.
+
+        Increments are taken against each vehicle's value at its previous
+        step; new, rebooted (time going back) vehicles add nothing. Returns
+        the mission time [s].
+        """
+        increments = []
+        for sysid, ms in boot_ms.items():
+            prev = self._boot_ms.get(sysid)
+            self._boot_ms[sysid] = ms
+            if prev is not None and ms >= prev:
+                increments.append((ms - prev) * 1e-3)
+        if increments:
+            self.t_s += min(float(np.median(increments)), MAX_CLOCK_JUMP_S)
+        return self.t_s
+
+    def forget(self, sysid: int) -> None:
+        """A vehicle left: its next telemetry starts a new increment chain."""
+        self._boot_ms.pop(sysid, None)
+
+    def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:
+        """The limited accelerations for ``ids`` at their mission-frame states."""
+        q = np.array([self.charges[i] for i in ids], dtype=np.float64)
+        out = self.controller.step(self.t_s, ids, pos_m, vel_mps, q)
+        accel, report = out.accel_mps2, None
+        if self.filtering:
+            accel, report = self.safety.filter(pos_m, vel_mps, out.accel_mps2, ids=ids)
+            self.safety_stats.update(report)
+        radii = np.linalg.norm(pos_m - out.leader_pos_m, axis=1)
+        sep = _min_separation(pos_m)
+        self.min_separation_m = min(self.min_separation_m, sep)
+        obstacles = self.controller.obstacles
+        if obstacles.count and len(ids):
+            clearance = float(box_signed_distance(pos_m, obstacles).min())
+            self.min_clearance_m = min(self.min_clearance_m, clearance)
+        self.steps += 1
+        self.last = StepResult(self.t_s, tuple(ids), pos_m.copy(), accel, out, report, radii, sep)
+        return self.last
+
+    def pending_lookahead(self) -> LookaheadJob | None:
+        return self.controller.pending_lookahead()
+
+    def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult) -> None:
+        self.controller.resolve_lookahead(job, result)
+
+    def slot_m(self, start_m: Sequence[float]) -> FloatArray:
+        """Where a vehicle readied mid-mission should fly to [m]: its start
+        position carried along with the virtual leader since the start."""
+        start = np.asarray(start_m, dtype=np.float64)
+        leader0 = np.asarray(self.config.leader.start, dtype=np.float64)
+        return start - leader0 + self.controller.leader_pos_m
+
+
+def _min_separation(pos_m: FloatArray) -> float:
+    n = pos_m.shape[0]
+    if n < 2:
+        return math.inf
+    d = pos_m[:, None, :] - pos_m[None, :, :]
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
+    return float(dist[np.triu_indices(n, 1)].min())

@@ -1,0 +1,284 @@
+"""MAVLink links over asyncio: UDP and TCP transports behind one ``Link`` class.
+
+Connection strings follow pymavlink's conventions (mavlink-protocol.md,
+"Identity and links"): ``udpin:HOST:PORT`` (listen), ``udpout:HOST:PORT``
+(send first), ``tcp:HOST:PORT`` (connect, reconnecting), ``tcpin:HOST:PORT``
+(listen). Several system ids may share one link: inbound messages carry
+their sender's id and each reply goes to the peer that id was last heard
+from; broadcasts (the station HEARTBEAT) go to every peer.
+
+One ``Codec`` per peer (sequence numbers and parser state). Outbound policy
+(STYLE.md habit 6):
+- setpoints: one slot per vehicle, newest wins, overwritten ones counted;
+- other messages: FIFO of ``MESSAGE_QUEUE_SIZE``; when full the oldest is
+  dropped and counted (commands are resent by the protocol on timeout).
+A ``Link`` is an ``async with`` lifetime owning one ``asyncio.TaskGroup``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any, Literal
+
+from gcs_swarm.errors import LinkError
+from gcs_swarm.mavlink.codec import Codec, MessageSpec
+
+__all__ = ["MESSAGE_QUEUE_SIZE", "Endpoint", "Link", "LinkStats", "parse_connection"]
+
+_log = logging.getLogger("gcs_swarm.link")
+
+MESSAGE_QUEUE_SIZE = 256
+"""Bound of a link's FIFO of non-setpoint messages."""
+_RECONNECT_S = 1.0
+
+Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
+Peer = Any  # a UDP address tuple, or a TCP connection object
+OnMessage = Callable[[Any, "Link"], None]
+"""Called with each decoded pymavlink message and the link it came on."""
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A parsed connection string."""
+
+    scheme: Scheme
+    host: str
+    port: int
+
+    def __str__(self) -> str:
+        return f"{self.scheme}:{self.host}:{self.port}"
+
+
+def parse_connection(text: str) -> Endpoint:
+    """``udpin:HOST:PORT`` and friends -> ``Endpoint``; ``LinkError`` if malformed."""
+    parts = text.strip().split(":")
+    if len(parts) != 3 or parts[0] not in ("udpin", "udpout", "tcp", "tcpin"):
+        raise LinkError(
+            f"connection string {text!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
+            "tcp:HOST:PORT or tcpin:HOST:PORT"
+        )
+    scheme, host, port_text = parts
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535 or (port == 0 and scheme in ("udpout", "tcp")) or not host:
+        raise LinkError(f"connection string {text!r}: bad host or port")
+    return Endpoint(scheme, host, port)  # type: ignore[arg-type]
+
+
+@dataclass
+class LinkStats:
+    """Counters of one link (monotonic)."""
+
+    received: int = 0
+    sent: int = 0
+    bad_packets: int = 0
+    unknown_messages: int = 0
+    setpoints_dropped: int = 0
+    messages_dropped: int = 0
+    reconnects: int = 0
+    peers: set[str] = field(default_factory=set)
+
+
+class _Udp(asyncio.DatagramProtocol):
+    def __init__(self, link: Link) -> None:
+        self._link = link
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self._link._on_bytes(data, addr, datagram=True)
+
+    def error_received(self, exc: Exception) -> None:  # e.g. ICMP port unreachable
+        _log.debug("%s: %s", self._link.endpoint, exc)
+
+
+@dataclass(eq=False)
+class _Stream:
+    writer: asyncio.StreamWriter
+
+
+class Link:
+    """One MAVLink connection shared by any number of vehicles."""
+
+    def __init__(self, connection: str, on_message: OnMessage) -> None:
+        self.endpoint = parse_connection(connection)
+        self.stats = LinkStats()
+        self._on_message = on_message
+        self._codecs: dict[Peer, Codec] = {}
+        self._routes: dict[int, Peer] = {}
+        self._setpoints: dict[int, MessageSpec] = {}
+        self._messages: deque[tuple[MessageSpec, int | None]] = deque()
+        self._wake = asyncio.Event()
+        self._udp: asyncio.DatagramTransport | None = None
+        self._streams: list[_Stream] = []
+        self._server: asyncio.Server | None = None
+        self._tg = asyncio.TaskGroup()
+        self._tasks: list[asyncio.Task[None]] = []
+
+    # ----------------------------------------------------------- lifetime
+    async def __aenter__(self) -> Link:
+        await self._tg.__aenter__()
+        try:
+            await self._open()
+        except OSError as err:
+            await self._tg.__aexit__(None, None, None)
+            raise LinkError(f"{self.endpoint}: {err.strerror or err}") from err
+        self._tasks.append(self._tg.create_task(self._writer()))
+        return self
+
+    async def __aexit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        for task in self._tasks:
+            task.cancel()
+        try:
+            # Our own tasks are cancelled above; hand the TaskGroup only a cancellation
+            # (its bookkeeping needs it), so that an error of the body (e.g.
+            # StartupError) propagates as itself, not wrapped in an ExceptionGroup.
+            cancelled = et is not None and issubclass(et, asyncio.CancelledError)
+            await self._tg.__aexit__(*((et, ev, tb) if cancelled else (None, None, None)))
+        finally:
+            if self._udp is not None:
+                self._udp.close()
+            for stream in self._streams:
+                stream.writer.close()
+            if self._server is not None:
+                self._server.close()
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """The bound (host, port) of a listening link (``udpin``/``tcpin``)."""
+        if self._udp is not None:
+            addr = self._udp.get_extra_info("sockname")
+            return (str(addr[0]), int(addr[1]))
+        if self._server is not None and self._server.sockets:
+            addr = self._server.sockets[0].getsockname()
+            return (str(addr[0]), int(addr[1]))
+        return None
+
+    async def _open(self) -> None:
+        ep = self.endpoint
+        loop = asyncio.get_running_loop()
+        if ep.scheme == "udpin":
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Udp(self), local_addr=(ep.host, ep.port)
+            )
+            self._udp = transport
+        elif ep.scheme == "udpout":
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Udp(self), remote_addr=(ep.host, ep.port)
+            )
+            self._udp = transport
+            self._codecs[(ep.host, ep.port)] = Codec()
+        elif ep.scheme == "tcpin":
+            self._server = await asyncio.start_server(self._serve, ep.host, ep.port)
+        else:
+            self._tasks.append(self._tg.create_task(self._tcp_client()))
+
+    # ------------------------------------------------------------ sending
+    def send(self, spec: MessageSpec, sysid: int | None = None) -> None:
+        """Queue ``spec`` for vehicle ``sysid`` (None: every peer). Never blocks."""
+        if sysid is None and not self._codecs:
+            return  # a broadcast (HEARTBEAT) with nobody connected yet goes nowhere
+        if spec.kind == "setpoint" and sysid is not None:
+            if sysid in self._setpoints:
+                self.stats.setpoints_dropped += 1
+            self._setpoints[sysid] = spec
+        else:
+            if len(self._messages) >= MESSAGE_QUEUE_SIZE:
+                self._messages.popleft()
+                self.stats.messages_dropped += 1
+            self._messages.append((spec, sysid))
+        self._wake.set()
+
+    async def _writer(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            if not self._codecs:
+                continue  # nobody to send to yet: keep the queues (bounded) until a peer
+            while self._messages:
+                spec, sysid = self._messages.popleft()
+                self._write(spec, sysid)
+            setpoints, self._setpoints = self._setpoints, {}
+            for sysid, spec in setpoints.items():
+                self._write(spec, sysid)
+            for stream in self._streams:
+                with contextlib.suppress(ConnectionError):
+                    await stream.writer.drain()
+
+    def _write(self, spec: MessageSpec, sysid: int | None) -> None:
+        peers = list(self._codecs) if sysid is None else [self._route(sysid)]
+        for peer in peers:
+            if peer is None:
+                continue
+            data = self._codecs[peer].encode(spec)
+            self.stats.sent += 1
+            if isinstance(peer, _Stream):
+                if not peer.writer.is_closing():
+                    peer.writer.write(data)
+            elif self._udp is not None:
+                if self.endpoint.scheme == "udpout":
+                    self._udp.sendto(data)
+                else:
+                    self._udp.sendto(data, peer)
+
+    def _route(self, sysid: int) -> Peer | None:
+        peer = self._routes.get(sysid)
+        if peer is None and len(self._codecs) == 1:
+            peer = next(iter(self._codecs))
+        return peer
+
+    # ---------------------------------------------------------- receiving
+    def _on_bytes(self, data: bytes, peer: Peer, *, datagram: bool) -> None:
+        codec = self._codecs.get(peer)
+        if codec is None:
+            codec = self._codecs[peer] = Codec()
+            self.stats.peers.add(str(peer if not isinstance(peer, _Stream) else "tcp"))
+        bad, unknown = codec.stats.bad_packets, codec.stats.unknown_messages
+        msgs = codec.decode(data, datagram=datagram)
+        self.stats.bad_packets += codec.stats.bad_packets - bad
+        self.stats.unknown_messages += codec.stats.unknown_messages - unknown
+        for msg in msgs:
+            self.stats.received += 1
+            self._routes[msg.get_srcSystem()] = peer
+            self._on_message(msg, self)
+
+    async def _read_stream(self, reader: asyncio.StreamReader, stream: _Stream) -> None:
+        self._streams.append(stream)
+        self._codecs[stream] = Codec()
+        self._wake.set()  # flush what was queued while nobody was connected
+        try:
+            while data := await reader.read(65536):
+                self._on_bytes(data, stream, datagram=False)
+        except ConnectionError as err:
+            _log.warning("%s: connection lost: %s", self.endpoint, err)
+        finally:
+            self._streams.remove(stream)
+            self._codecs.pop(stream, None)
+            for sysid in [s for s, p in self._routes.items() if p is stream]:
+                del self._routes[sysid]
+            stream.writer.close()
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        await self._read_stream(reader, _Stream(writer))
+
+    async def _tcp_client(self) -> None:
+        ep = self.endpoint
+        while True:
+            try:
+                reader, writer = await asyncio.open_connection(ep.host, ep.port)
+            except OSError as err:
+                _log.warning("%s: cannot connect (%s); retrying", ep, err.strerror or err)
+                self.stats.reconnects += 1
+                await asyncio.sleep(_RECONNECT_S)
+                continue
+            await self._read_stream(reader, _Stream(writer))
+            self.stats.reconnects += 1
+            await asyncio.sleep(_RECONNECT_S)

@@ -1,0 +1,467 @@
+"""The ground station: links, vehicles, the control loop, join/leave, ending.
+
+``Station`` is one ``async with`` lifetime owning one ``asyncio.TaskGroup``
+(heartbeat, control loop, status line, look-ahead workers) and its links
+(STYLE.md habit 7). It glues the I/O-free pieces together:
+
+- each received message goes to its vehicle's ``VehicleProtocol`` (traffic
+  from system ids the mission does not name is counted and ignored); the
+  protocol's outbound specs go to that vehicle's link; ``next_deadline()``
+  arms one ``loop.call_at`` timer per vehicle (habit 1);
+- the control loop runs when every flying vehicle has sent a fresh
+  LOCAL_POSITION_NED (or a fallback delay after the first one), and answers
+  each fresh telemetry with exactly one setpoint: the emulator's lockstep
+  rule, and a steady rate on real vehicles;
+- membership: initial vehicles fly from the start; a reserve joins on its
+  event; a vehicle leaves on its event, or when its protocol reports it LOST
+  or FAILED; the law simply gets the current set (formation-law.md s9). A
+  lost vehicle that comes back is readied again and rejoins at its slot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from gcs_swarm.control.lookahead import LookaheadJob
+from gcs_swarm.control.params import LawConfig, Vec3
+from gcs_swarm.errors import StartupError
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.frames import GeoPoint
+from gcs_swarm.mavlink.inbound import LocalPositionNed, from_pymavlink
+from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolConfig, ProtocolEvent
+from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.runtime.control import ControlLoop
+from gcs_swarm.runtime.links import Link
+
+__all__ = ["Station", "StationConfig", "VehiclePlan"]
+
+_log = logging.getLogger("gcs_swarm.station")
+
+_READYING = frozenset(
+    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
+     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class VehiclePlan:
+    """One vehicle as the station sees it: ``link`` a connection string,
+    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9)."""
+
+    sysid: int
+    link: str
+    start_m: Vec3
+    q: float
+    reserve: bool = False
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    """What the station needs from a mission. Times in seconds: ``duration_s``
+    and event times are mission (vehicle) time from the formation start;
+    ``ready_timeout_s`` and ``end_timeout_s`` are station (wall) time."""
+
+    vehicles: tuple[VehiclePlan, ...]
+    law: LawConfig
+    rate_hz: float = 50.0
+    duration_s: float = 60.0
+    end_mode: int = b.COPTER_MODES["BRAKE"]
+    stale_timeout_s: float = 1.0
+    ready_timeout_s: float = 90.0
+    end_timeout_s: float = 15.0
+    guid_timeout_s: float = 0.5
+    takeoff_alt_m: float = 5.0
+    mission_origin: GeoPoint | None = None
+    events: tuple[tuple[float, str, int], ...] = ()
+    lockstep: bool = False
+
+    def protocol_config(self) -> ProtocolConfig:
+        return ProtocolConfig(
+            control_rate_hz=self.rate_hz,
+            guid_timeout_s=self.guid_timeout_s,
+            takeoff_min_alt_m=self.takeoff_alt_m,
+            stale_timeout_s=self.stale_timeout_s,
+            end_mode=self.end_mode,
+            mission_origin=self.mission_origin,
+        )
+
+
+class Station:
+    """Fly one mission: ``ready()``, ``fly()``, then always ``end()``."""
+
+    def __init__(
+        self,
+        config: StationConfig,
+        *,
+        on_status: Callable[[str], None] | None = None,
+        status_interval_s: float = 1.0,
+    ) -> None:
+        self.config = config
+        self.on_status = on_status
+        self.status_interval_s = status_interval_s
+        pcfg = config.protocol_config()
+        self.plans = {p.sysid: p for p in config.vehicles}
+        self.vehicles = {
+            p.sysid: VehicleProtocol(p.sysid, pcfg, goto_m=p.start_m, enabled=not p.reserve)
+            for p in config.vehicles
+        }
+        self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
+                                   config.rate_hz)  # fmt: skip
+        self.members = {p.sysid for p in config.vehicles if not p.reserve}
+        self.flying: set[int] = set()
+        self.flown: set[int] = set()
+        """Vehicles that have flown in the formation: if one comes back after
+        being lost it goes to its slot beside the leader, not to its start."""
+        self.left: set[int] = set()
+        self.unknown_sysids: Counter[int] = Counter()
+        self.log: deque[str] = deque(maxlen=2000)
+        self.started = False
+        self.ending = False
+        self._events = sorted(config.events)
+        self._reference = config.mission_origin
+        self._links: dict[str, Link] = {}
+        self._link_of: dict[int, Link] = {}
+        self._fresh: dict[int, int] = {}
+        self._timers: dict[int, tuple[float, asyncio.TimerHandle]] = {}
+        self._fallback: asyncio.TimerHandle | None = None
+        self._tg = asyncio.TaskGroup()
+        self._stack = contextlib.AsyncExitStack()
+        self._tasks: list[asyncio.Task[None]] = []
+        self._changed = asyncio.Event()
+        self._step = asyncio.Event()
+        self._finished = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._idle_since: float | None = None
+
+    # ------------------------------------------------------------ lifetime
+    async def __aenter__(self) -> Station:
+        self._loop = asyncio.get_running_loop()
+        try:
+            for plan in self.config.vehicles:
+                link = self._links.get(plan.link)
+                if link is None:
+                    link = Link(plan.link, self._on_message)
+                    self._links[plan.link] = await self._stack.enter_async_context(link)
+                    link = self._links[plan.link]
+                self._link_of[plan.sysid] = link
+            await self._tg.__aenter__()
+        except BaseException:
+            await self._stack.aclose()
+            raise
+        for coro in (self._heartbeat(), self._control_task(), self._status_task()):
+            self._tasks.append(self._tg.create_task(coro))
+        return self
+
+    async def __aexit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for _, handle in self._timers.values():
+            handle.cancel()
+        if self._fallback is not None:
+            self._fallback.cancel()
+        try:
+            # Our own tasks are cancelled above; hand the TaskGroup only a cancellation
+            # (its bookkeeping needs it), so that an error of the body (e.g.
+            # StartupError) propagates as itself, not wrapped in an ExceptionGroup.
+            cancelled = et is not None and issubclass(et, asyncio.CancelledError)
+            await self._tg.__aexit__(*((et, ev, tb) if cancelled else (None, None, None)))
+        finally:
+            await self._stack.aclose()
+
+    @property
+    def links(self) -> dict[str, Link]:
+        return dict(self._links)
+
+    def now(self) -> float:
+        assert self._loop is not None
+        return self._loop.time()
+
+    # ------------------------------------------------------------- phases
+    async def ready(self) -> None:
+        """Until every initial vehicle is READY at its start point; raises
+        ``StartupError`` (naming each vehicle, with its own words) on a
+        failure or after ``ready_timeout_s``."""
+        try:
+            async with asyncio.timeout(self.config.ready_timeout_s):
+                while True:
+                    initial = [self.vehicles[s] for s in sorted(self.members)]
+                    failed = [vp for vp in initial if vp.phase is Phase.FAILED]
+                    if failed:
+                        raise StartupError(self._not_ready("could not be readied", failed))
+                    if all(vp.phase is Phase.READY for vp in initial):
+                        return
+                    await self._wait_change()
+        except TimeoutError:
+            late = [self.vehicles[s] for s in sorted(self.members)]
+            late = [vp for vp in late if vp.phase is not Phase.READY]
+            what = f"not ready after {self.config.ready_timeout_s:g} s"
+            raise StartupError(self._not_ready(what, late)) from None
+
+    async def fly(self) -> None:
+        """Start the formation and return when the mission time is over (or
+        nobody is left to fly)."""
+        now = self.now()
+        self.started = True
+        for sysid in sorted(self.members):
+            self._join(self.vehicles[sysid], now)
+        self._note(f"formation started with vehicles {sorted(self.flying)}")
+        await self._finished.wait()
+
+    async def end(self, mode: int | None = None) -> None:
+        """Zero acceleration and the end mode for everyone, confirmed by heartbeat."""
+        self.ending = True
+        now = self.now()
+        for vp in self.vehicles.values():
+            vp.finish(now, mode=mode)
+            self._service(vp, now)
+        settled = {Phase.ENDED, Phase.FAILED, Phase.LOST, Phase.CONNECTING}
+        try:
+            async with asyncio.timeout(self.config.end_timeout_s):
+                while any(vp.phase not in settled for vp in self.vehicles.values()):
+                    await self._wait_change()
+        except TimeoutError:
+            late = [vp for vp in self.vehicles.values() if vp.phase not in settled]
+            self._note(self._not_ready("end mode not confirmed", late), level=logging.ERROR)
+
+    # ----------------------------------------------------------- messages
+    def _on_message(self, msg: Any, link: Link) -> None:
+        sysid = int(msg.get_srcSystem())
+        vp = self.vehicles.get(sysid)
+        if vp is None or self._link_of.get(sysid) is not link:
+            if sysid not in self.unknown_sysids:
+                self._note(f"ignoring traffic from system {sysid} on {link.endpoint}",
+                           level=logging.WARNING)  # fmt: skip
+            self.unknown_sysids[sysid] += 1
+            return
+        inbound = from_pymavlink(msg)
+        if inbound is None:
+            return
+        now = self.now()
+        vp.handle_message(inbound, now)
+        if isinstance(inbound, LocalPositionNed) and vp.phase is Phase.FLYING:
+            self._fresh[sysid] = inbound.time_boot_ms
+            self._maybe_step(now)
+        self._service(vp, now)
+
+    def _service(self, vp: VehicleProtocol, now: float) -> None:
+        """Send what the protocol queued, react to its events, re-arm its timer."""
+        link = self._link_of[vp.sysid]
+        for spec in vp.take_outbound():
+            link.send(spec, vp.sysid)
+        events = vp.take_events()
+        for event in events:
+            self._on_event(vp, event, now)
+        if self._reference is None and vp.origin is not None:
+            if vp.sysid == self.config.vehicles[0].sysid:
+                self._reference = vp.origin
+                self._note(f"mission origin = vehicle {vp.sysid}'s EKF origin")
+                for other in self.vehicles.values():
+                    other.set_reference(vp.origin)
+        self._arm_timer(vp)
+        if events:
+            self._changed.set()
+
+    def _on_event(self, vp: VehicleProtocol, event: ProtocolEvent, now: float) -> None:
+        level = {"refused": logging.WARNING, "failed": logging.ERROR, "lost": logging.WARNING,
+                 }.get(event.kind, logging.INFO)  # fmt: skip
+        self._note(event.text, level=level)
+        if event.kind not in ("phase", "lost", "failed"):
+            return
+        sysid = vp.sysid
+        if sysid in self.flying and vp.phase is not Phase.FLYING:
+            self.flying.discard(sysid)
+            self._fresh.pop(sysid, None)
+            self.control.forget(sysid)
+            self._note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
+                       f"{len(self.flying)} re-form")  # fmt: skip
+            self._maybe_step(now)
+        elif vp.phase is Phase.READY and self.started and not self.ending:
+            if sysid in self.members:
+                self._join(vp, now)
+
+    def _join(self, vp: VehicleProtocol, now: float) -> None:
+        if vp.phase is Phase.READY:
+            vp.begin_flying(now)
+            self.flying.add(vp.sysid)
+            self.flown.add(vp.sysid)
+            if self.started:
+                self._note(f"vehicle {vp.sysid} joins the formation ({len(self.flying)} flying)")
+
+    # --------------------------------------------------------------- timers
+    def _arm_timer(self, vp: VehicleProtocol) -> None:
+        due = vp.next_deadline()
+        old = self._timers.get(vp.sysid)
+        if old is not None:
+            if due is not None and old[0] <= due:
+                # Keep the earlier timer: firing early is harmless (the protocol
+                # acts only on what is due) and re-arms then. Telemetry pushes the
+                # stale deadline on at every message; this avoids a heap churn.
+                return
+            old[1].cancel()
+            del self._timers[vp.sysid]
+        if due is not None and self._loop is not None:
+            handle = self._loop.call_at(due, self._on_timer, vp.sysid, due)
+            self._timers[vp.sysid] = (due, handle)
+
+    def _on_timer(self, sysid: int, due: float) -> None:
+        self._timers.pop(sysid, None)
+        # call_at may fire up to one clock resolution early: never hand the
+        # protocol a time before the deadline it asked for.
+        now = max(self.now(), due)
+        vp = self.vehicles[sysid]
+        vp.handle_timer(now)
+        self._service(vp, now)
+
+    # --------------------------------------------------------- control loop
+    def _maybe_step(self, now: float) -> None:
+        if not self.started or self.ending or not self._fresh:
+            return
+        if self.flying <= self._fresh.keys():
+            self._step.set()
+        elif self._fallback is None and self._loop is not None:
+            # Lockstep: a generous wait keeps runs repeatable; real time: half a period.
+            wait = 0.2 if self.config.lockstep else 0.5 / self.config.rate_hz
+            self._fallback = self._loop.call_at(now + wait, self._step.set)
+
+    async def _control_task(self) -> None:
+        while True:
+            await self._step.wait()
+            self._step.clear()
+            if self._fallback is not None:
+                self._fallback.cancel()
+                self._fallback = None
+            if not self.ending:
+                self._control_step()
+
+    def _control_step(self) -> None:
+        now = self.now()
+        fresh, self._fresh = self._fresh, {}
+        t = self.control.advance_clock(fresh)
+        self._run_events(t, now)
+        ids = sorted(self.flying)
+        if ids:
+            states = [self.vehicles[s].state_mission() for s in ids]
+            pos = np.array([p for p, _ in states])
+            vel = np.array([v for _, v in states])
+            res = self.control.step(ids, pos, vel)
+            if res.law.event is not None:
+                what = "starts" if res.law.event == "start" else "ends: formation resumes"
+                self._note(f"t={t:.2f} s: avoidance episode {res.law.episode} {what}")
+            for i, sysid in enumerate(ids):
+                if sysid in fresh:  # exactly one answer per telemetry
+                    vp = self.vehicles[sysid]
+                    self._link_of[sysid].send(vp.accel_setpoint(res.accel_mps2[i]), sysid)
+            job = self.control.pending_lookahead()
+            if job is not None:
+                self._tasks.append(self._tg.create_task(self._lookahead(job)))
+        for sysid in (self.members & self.flown) - self.flying:
+            vp = self.vehicles[sysid]
+            if vp.phase in _READYING and vp.phase is not Phase.READY:
+                vp.set_goto(self.control.slot_m(self.plans[sysid].start_m))
+        if t >= self.config.duration_s:
+            self._note(f"mission time {t:.2f} s reached the duration")
+            self._finished.set()
+
+    async def _lookahead(self, job: LookaheadJob) -> None:
+        """The plane look-ahead in a worker thread: setpoints keep flowing."""
+        t0 = self.now()
+        result = await asyncio.to_thread(job)
+        self.control.resolve_lookahead(job, result)
+        n_vertical = int(result.vertical.sum())
+        self._note(
+            f"look-ahead for episode {job.episode}: vertical plane for {n_vertical} of "
+            f"{len(result.ids)} vehicles ({1e3 * (self.now() - t0):.0f} ms in a worker thread)"
+        )
+
+    def _run_events(self, t: float, now: float) -> None:
+        while self._events and self._events[0][0] <= t:
+            at, action, sysid = self._events.pop(0)
+            vp = self.vehicles[sysid]
+            self._note(f"t={at:g} s: vehicle {sysid} {action}s")
+            if action == "join":
+                self.members.add(sysid)
+                self.left.discard(sysid)
+                vp.enable(now)  # to its start point (the mission's waiting place), then in
+            else:
+                self.members.discard(sysid)
+                self.left.add(sysid)
+                vp.finish(now)
+            self._service(vp, now)
+
+    # ------------------------------------------------------ periodic tasks
+    async def _heartbeat(self) -> None:
+        """HEARTBEAT at 1 Hz on every link (also wakes udpout peers at once)."""
+        while True:
+            for link in self._links.values():
+                link.send(b.heartbeat())
+            await asyncio.sleep(1.0)
+
+    async def _status_task(self) -> None:
+        while True:
+            await asyncio.sleep(self.status_interval_s)
+            if self.on_status is not None:
+                self.on_status(self.status_line())
+            self._check_alive()
+
+    def _check_alive(self) -> None:
+        """End a started mission once nobody has flown for ``ready_timeout_s``."""
+        if not self.started or self.ending or self.flying:
+            self._idle_since = None
+            return
+        now = self.now()
+        if self._idle_since is None:
+            self._idle_since = now
+        elif now - self._idle_since >= self.config.ready_timeout_s:
+            self._note("no vehicle left in the formation; ending", level=logging.WARNING)
+            self._finished.set()
+
+    def status_line(self) -> str:
+        """One line: mission time, behaviour, who flies, radius, separation."""
+        last = self.control.last
+        parts = [f"t={self.control.t_s:7.2f}s"]
+        if last is not None and last.ids:
+            r = last.radii_m
+            parts.append(f"{last.law.behaviour:9s} r={r.min():.3f}..{r.max():.3f} m")
+            sep = last.min_separation_m
+            parts.append(f"min sep {sep:.3f} m" if math.isfinite(sep) else "min sep -")
+        parts.append(" ".join(f"{s}:{vp.phase.value}/{vp.mode_name}"
+                              for s, vp in sorted(self.vehicles.items())))  # fmt: skip
+        drops = sum(link.stats.setpoints_dropped for link in self._links.values())
+        if drops:
+            parts.append(f"drops {drops}")
+        return " | ".join(parts)
+
+    # ---------------------------------------------------------------- misc
+    async def _wait_change(self) -> None:
+        self._changed.clear()
+        await self._changed.wait()
+
+    def _not_ready(self, what: str, vps: list[VehicleProtocol]) -> str:
+        who = "; ".join(
+            f"vehicle {vp.sysid} {vp.phase.value}" + (f" ({vp.failure})" if vp.failure else "")
+            for vp in vps
+        )
+        return f"{what}: {who}" if who else what
+
+    def _note(self, text: str, *, level: int = logging.INFO) -> None:
+        _log.log(level, "%s", text)
+        if level >= logging.INFO:
+            self.log.append(text)
+
+    def phases(self) -> dict[int, Phase]:
+        return {s: vp.phase for s, vp in self.vehicles.items()}
+
+    def final(self) -> bool:
+        return all(vp.phase in FINAL_PHASES for vp in self.vehicles.values())

@@ -1,0 +1,143 @@
+"""The end-of-run summary: what flew, where it ended, what the links counted.
+
+``RunSummary.from_station`` reads a ``Station`` once its vehicles have been
+ended; positions are mission frame [m] at the last control step (the state
+the law last saw), so a test can compare them with the in-process law.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.control.params import Vec3
+from gcs_swarm.runtime.station import Station
+
+__all__ = ["RunSummary", "VehicleSummary"]
+
+
+@dataclass(frozen=True)
+class VehicleSummary:
+    """One vehicle at the end: its phase and Copter mode, position [m] and
+    radius to the leader [m] at the last control step (None if it was not
+    flying then), the last acceleration the station commanded [m/s^2, NED]
+    (zero after a clean ending), and why it failed or was lost, if it did."""
+
+    sysid: int
+    phase: str
+    mode: str
+    position_m: Vec3 | None
+    radius_m: float | None
+    last_accel_ned_mps2: Vec3
+    failure: str | None
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """The run in numbers. ``outcome``: completed, cancelled, startup failed.
+    Separation and clearance [m] are minima over the control steps (``inf``
+    when not applicable); ``episodes`` counts avoidance episodes."""
+
+    outcome: str
+    mission_time_s: float
+    wall_time_s: float
+    steps: int
+    behaviour: str
+    leader_pos_m: Vec3
+    vehicles: tuple[VehicleSummary, ...]
+    min_separation_m: float
+    min_clearance_m: float
+    episodes: int
+    messages_sent: int
+    setpoints_dropped: int
+    messages_dropped: int
+    bad_packets: int
+    unknown_sysid_messages: int
+    safety: str
+    log: tuple[str, ...]
+
+    @classmethod
+    def from_station(cls, station: Station, *, outcome: str, wall_time_s: float) -> RunSummary:
+        last = station.control.last
+        at: dict[int, tuple[Vec3, float]] = {}
+        if last is not None:
+            for i, sysid in enumerate(last.ids):
+                p = last.pos_m[i]
+                at[sysid] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
+        vehicles = tuple(
+            VehicleSummary(
+                sysid=s,
+                phase=vp.phase.value,
+                mode=vp.mode_name,
+                position_m=at[s][0] if s in at else None,
+                radius_m=at[s][1] if s in at else None,
+                last_accel_ned_mps2=(
+                    float(vp.last_accel_ned[0]),
+                    float(vp.last_accel_ned[1]),
+                    float(vp.last_accel_ned[2]),
+                ),
+                failure=vp.failure,
+            )
+            for s, vp in sorted(station.vehicles.items())
+        )
+        leader = station.control.controller.leader_pos_m
+        links = station.links.values()
+        return cls(
+            outcome=outcome,
+            mission_time_s=station.control.t_s,
+            wall_time_s=wall_time_s,
+            steps=station.control.steps,
+            behaviour=station.control.controller.behaviour,
+            leader_pos_m=(float(leader[0]), float(leader[1]), float(leader[2])),
+            vehicles=vehicles,
+            min_separation_m=station.control.min_separation_m,
+            min_clearance_m=station.control.min_clearance_m,
+            episodes=station.control.controller.episode,
+            messages_sent=sum(lk.stats.sent for lk in links),
+            setpoints_dropped=sum(lk.stats.setpoints_dropped for lk in links),
+            messages_dropped=sum(lk.stats.messages_dropped for lk in links),
+            bad_packets=sum(lk.stats.bad_packets for lk in links),
+            unknown_sysid_messages=sum(station.unknown_sysids.values()),
+            safety=(
+                str(station.control.safety_stats.summary())
+                if station.control.filtering
+                else "safety filter: off (disabled in the mission, no finite limit)"
+            ),
+            log=tuple(station.log),
+        )
+
+    def positions(self) -> dict[int, npt.NDArray[np.float64]]:
+        """Mission-frame positions [m] at the last step, by system id."""
+        return {v.sysid: np.array(v.position_m) for v in self.vehicles if v.position_m is not None}
+
+    def format(self) -> str:
+        """A human-readable multi-line summary."""
+        sep = f"{self.min_separation_m:.3f} m" if math.isfinite(self.min_separation_m) else "-"
+        lines = [
+            f"outcome: {self.outcome}; mission time {self.mission_time_s:.2f} s in "
+            f"{self.wall_time_s:.1f} s wall, {self.steps} control steps",
+            f"leader at ({', '.join(f'{c:.3f}' for c in self.leader_pos_m)}) m, "
+            f"behaviour {self.behaviour}, minimum separation {sep}",
+        ]
+        if math.isfinite(self.min_clearance_m):
+            lines.append(
+                f"avoidance episodes {self.episodes}, minimum box clearance "
+                f"{self.min_clearance_m:.3f} m (negative: inside a box)"
+            )
+        for v in self.vehicles:
+            where = "-"
+            if v.position_m is not None and v.radius_m is not None:
+                xyz = ", ".join(f"{c:.3f}" for c in v.position_m)
+                where = f"at ({xyz}) m, radius {v.radius_m:.4f} m"
+            why = f" [{v.failure}]" if v.failure else ""
+            lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{why}")
+        lines.append(
+            f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
+            f"and {self.messages_dropped} messages dropped, {self.bad_packets} bad packets, "
+            f"{self.unknown_sysid_messages} from unknown systems"
+        )
+        lines.append(self.safety)
+        return "\n".join(lines)

@@ -1,0 +1,324 @@
+"""Telemetry logs: an append-only ``.tlog`` writer and a raw reader.
+
+The ``.tlog`` format (written by MAVProxy and Mission Planner, read by
+pymavlink's ``mavlogdump.py`` and MAVExplorer) is a plain sequence of records,
+each an 8-byte big-endian unsigned timestamp in microseconds since the Unix
+epoch followed by one raw MAVLink frame (v1 ``0xFE`` or v2 ``0xFD``, with its
+signature if signed). There is no file header and no direction flag.
+
+``TlogWriter`` (station side) never blocks the event loop for long: ``write``
+appends to an in-memory buffer bounded by ``max_buffer_bytes`` (a frame that
+does not fit is dropped and counted in ``stats.dropped_frames``); the buffer
+is handed to a worker thread once it holds ``flush_bytes`` or every
+``flush_interval_s``, and the file is flushed after each hand-over. As an
+``async with`` lifetime it owns one ``asyncio.TaskGroup`` (the flusher); a
+plain ``with`` (tools, tests, no event loop) writes synchronously at the
+same thresholds. Closing writes everything still buffered.
+
+``read_tlog`` yields ``TlogRecord(t_us, frame, direction)``. Direction comes
+from the frame's source: system 255 is the station (mavlink-protocol.md,
+"Identity"), so its frames are ``"out"``, except those of component 155
+(MAV_COMP_ID_LOG), the station's own annotations written to the log only and
+never sent (``"note"``, see ``gcs_swarm.report.notes``); every other source
+is ``"in"``. Damaged records are skipped by scanning for the next plausible
+one (counted in ``TlogStats.skipped_bytes``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO, Literal
+
+__all__ = [
+    "LOG_COMPID",
+    "STATION_SYSID",
+    "Direction",
+    "FrameHeader",
+    "TlogRecord",
+    "TlogStats",
+    "TlogWriter",
+    "WriterStats",
+    "frame_header",
+    "read_tlog",
+]
+
+STATION_SYSID = 255
+"""Source system id of the ground station (mavlink-protocol.md, Identity)."""
+LOG_COMPID = 155
+"""MAV_COMP_ID_LOG: source component of the station's log-only annotations."""
+
+_TS = struct.Struct(">Q")
+_V1, _V2 = 0xFE, 0xFD
+_SIGNED = 0x01  # MAVLink 2 incompat flag: 13-byte signature follows the CRC
+_MAX_SKEW_US = 3 * 24 * 3600 * 10**6  # as pymavlink: a timestamp this far off is garbage
+
+Direction = Literal["in", "out", "note"]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameHeader:
+    """The header fields of one raw MAVLink frame; ``length`` is the whole
+    frame in bytes (header, payload, CRC and signature)."""
+
+    version: int
+    length: int
+    seq: int
+    sysid: int
+    compid: int
+    msgid: int
+
+    @property
+    def direction(self) -> Direction:
+        if self.sysid != STATION_SYSID:
+            return "in"
+        return "note" if self.compid == LOG_COMPID else "out"
+
+
+def frame_header(buf: bytes | bytearray | memoryview, offset: int = 0) -> FrameHeader | None:
+    """Parse the frame header at ``offset``; None if it is not a complete
+    MAVLink 1 or 2 header (the payload is not checked)."""
+    n = len(buf) - offset
+    if n < 6:
+        return None
+    magic = buf[offset]
+    plen = buf[offset + 1]
+    if magic == _V2:
+        if n < 10:
+            return None
+        sig = 13 if buf[offset + 2] & _SIGNED else 0
+        msgid = buf[offset + 7] | buf[offset + 8] << 8 | buf[offset + 9] << 16
+        seq, sysid, compid = buf[offset + 4], buf[offset + 5], buf[offset + 6]
+        return FrameHeader(2, 12 + plen + sig, seq, sysid, compid, msgid)
+    if magic == _V1:
+        seq, sysid, compid = buf[offset + 2], buf[offset + 3], buf[offset + 4]
+        return FrameHeader(1, 8 + plen, seq, sysid, compid, buf[offset + 5])
+    return None
+
+
+# ----------------------------------------------------------------------- writer
+@dataclass
+class WriterStats:
+    """Counters of a ``TlogWriter`` (monotonic)."""
+
+    frames: int = 0
+    bytes: int = 0
+    dropped_frames: int = 0
+    flushes: int = 0
+
+
+class TlogWriter:
+    """Append-only ``.tlog`` writer; see the module docstring for the policy.
+
+    ``clock`` returns seconds since the Unix epoch (default ``time.time``);
+    ``write(frame, t_us=...)`` may give the timestamp itself.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        flush_bytes: int = 64 * 1024,
+        flush_interval_s: float = 1.0,
+        max_buffer_bytes: int = 4 * 1024 * 1024,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        if not 0 < flush_bytes <= max_buffer_bytes:
+            raise ValueError("need 0 < flush_bytes <= max_buffer_bytes")
+        self.path = Path(path)
+        self.flush_bytes = flush_bytes
+        self.flush_interval_s = flush_interval_s
+        self.max_buffer_bytes = max_buffer_bytes
+        self.stats = WriterStats()
+        self._clock = clock
+        self._buf = bytearray()
+        self._file: BinaryIO | None = None
+        self._closed = False
+        self._wake: asyncio.Event | None = None
+        self._flushed: asyncio.Event | None = None
+        self._tg: asyncio.TaskGroup | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._inflight: asyncio.Future[None] | None = None
+        self._io_lock = threading.Lock()  # one writer of the file at a time
+
+    # -------------------------------------------------------------- writing
+    def write(self, frame: bytes | bytearray, t_us: int | None = None) -> bool:
+        """Append one raw frame; False (and counted) if the buffer is full or
+        the writer is closed. Never blocks in an ``async with`` lifetime."""
+        need = 8 + len(frame)
+        if self._file is None or self._closed or len(self._buf) + need > self.max_buffer_bytes:
+            self.stats.dropped_frames += 1
+            return False
+        stamp = int(self._clock() * 1e6) if t_us is None else int(t_us)
+        self._buf += _TS.pack(stamp & 0xFFFFFFFFFFFFFFFF)
+        self._buf += frame
+        self.stats.frames += 1
+        self.stats.bytes += need
+        if len(self._buf) >= self.flush_bytes:
+            if self._wake is not None:
+                self._wake.set()
+            else:
+                self._write_out(self._take())
+        return True
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes buffered and not yet handed to the file."""
+        return len(self._buf)
+
+    def _take(self) -> bytes:
+        chunk, self._buf = bytes(self._buf), bytearray()
+        return chunk
+
+    def _write_out(self, chunk: bytes) -> None:
+        """Write ``chunk`` and flush the file (runs in a worker thread when async)."""
+        if not chunk:
+            return
+        with self._io_lock:
+            assert self._file is not None
+            self._file.write(chunk)
+            self._file.flush()
+        self.stats.flushes += 1
+
+    def _open(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "ab")
+
+    def _close_file(self) -> None:
+        self._write_out(self._take())
+        self._closed = True
+        if self._file is not None:
+            self._file.close()
+
+    # ------------------------------------------------------- sync lifetime
+    def __enter__(self) -> TlogWriter:
+        self._open()
+        return self
+
+    def __exit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self._close_file()
+
+    # ------------------------------------------------------ async lifetime
+    async def __aenter__(self) -> TlogWriter:
+        await asyncio.to_thread(self._open)
+        self._wake = asyncio.Event()
+        self._flushed = asyncio.Event()
+        self._tg = asyncio.TaskGroup()
+        await self._tg.__aenter__()
+        self._task = self._tg.create_task(self._flusher())
+        return self
+
+    async def __aexit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        assert self._tg is not None and self._task is not None
+        self._task.cancel()
+        try:
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._tg.__aexit__(None, None, None)
+        finally:
+            self._wake = None
+            # A chunk still being written goes first, then the rest and the
+            # close, off the loop; shielded so that a cancelled run still
+            # leaves a complete log.
+            if self._inflight is not None:
+                await asyncio.shield(self._inflight)
+            await asyncio.shield(asyncio.to_thread(self._close_file))
+
+    async def flush(self) -> None:
+        """Write everything buffered so far to the file now (in a worker
+        thread), e.g. at a phase change; returns once it is on disk."""
+        if self._inflight is not None:
+            await asyncio.shield(self._inflight)
+        chunk = self._take()
+        if chunk:
+            self._inflight = asyncio.ensure_future(asyncio.to_thread(self._write_out, chunk))
+            await asyncio.shield(self._inflight)
+            self._inflight = None
+
+    async def next_flush(self) -> None:
+        """Wait until the background flusher has written its next chunk."""
+        if self._flushed is None:
+            raise RuntimeError("the writer is not running in an async with block")
+        self._flushed.clear()
+        await self._flushed.wait()
+
+    async def _flusher(self) -> None:
+        assert self._wake is not None
+        while True:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(self.flush_interval_s):
+                    await self._wake.wait()
+            self._wake.clear()
+            chunk = self._take()
+            if chunk:
+                # Shielded: a cancellation must not abandon a chunk half-way
+                # (``__aexit__`` awaits it before the close).
+                self._inflight = asyncio.ensure_future(asyncio.to_thread(self._write_out, chunk))
+                await asyncio.shield(self._inflight)
+                self._inflight = None
+                assert self._flushed is not None
+                self._flushed.set()
+
+
+# ----------------------------------------------------------------------- reader
+@dataclass(frozen=True, slots=True)
+class TlogRecord:
+    """One record: timestamp [us since the Unix epoch], the raw frame and its
+    direction as seen by the station (see the module docstring)."""
+
+    t_us: int
+    frame: bytes
+    header: FrameHeader
+
+    @property
+    def direction(self) -> Direction:
+        return self.header.direction
+
+
+@dataclass
+class TlogStats:
+    """What ``read_tlog`` skipped: bytes of damaged records and a truncated tail."""
+
+    records: int = 0
+    skipped_bytes: int = 0
+    truncated: bool = False
+
+
+def read_tlog(path: str | os.PathLike[str], stats: TlogStats | None = None) -> Iterator[TlogRecord]:
+    """Yield every record of a ``.tlog`` file in order (the CRC is not checked
+    here; the decoder does that). A record whose timestamp is more than three
+    days from the previous one, or whose frame does not start with a MAVLink
+    magic byte, is damaged: bytes are skipped one at a time until a plausible
+    record starts (counted in ``stats`` when given), as pymavlink does."""
+    st = stats if stats is not None else TlogStats()
+    data = Path(path).read_bytes()
+    pos, end = 0, len(data)
+    last_t: int | None = None
+    while pos + 8 < end:
+        (t_us,) = _TS.unpack_from(data, pos)
+        hdr = frame_header(data, pos + 8)
+        if hdr is None or (last_t is not None and abs(t_us - last_t) > _MAX_SKEW_US):
+            pos += 1
+            st.skipped_bytes += 1
+            continue
+        stop = pos + 8 + hdr.length
+        if stop > end:
+            break
+        st.records += 1
+        last_t = t_us
+        yield TlogRecord(t_us, data[pos + 8 : stop], hdr)
+        pos = stop
+    if pos < end:
+        st.truncated = True
+        st.skipped_bytes += end - pos

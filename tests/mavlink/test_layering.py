@@ -1,0 +1,44 @@
+"""The MAVLink layer does no I/O (STYLE.md: time is an argument) and both
+packages export exactly what their ``__all__`` says."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+import gcs_swarm.mavlink
+import gcs_swarm.runtime
+
+_IO_MODULES = {"asyncio", "socket", "selectors", "threading", "time", "subprocess", "logging"}
+
+
+@pytest.mark.parametrize("path", sorted(Path(gcs_swarm.mavlink.__file__).parent.glob("*.py")))
+def test_mavlink_modules_import_no_io(path: Path) -> None:
+    tree = ast.parse(path.read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names} | {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module.split(".")[0])
+            names.add(node.module)
+            assert not node.module.startswith("gcs_swarm.runtime"), path.name
+    assert not names & _IO_MODULES, f"{path.name} imports {names & _IO_MODULES}"
+    assert "pymavlink.mavutil" not in names and "mavutil" not in {
+        a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names
+    }  # the generated dialect only (STYLE.md habit 5)
+
+
+@pytest.mark.parametrize("package", [gcs_swarm.mavlink, gcs_swarm.runtime])
+def test_exported_names(package: object) -> None:
+    exported = package.__all__  # type: ignore[attr-defined]
+    assert exported == sorted(exported, key=lambda n: (not n.isupper(), n))
+    module = importlib.import_module(package.__name__)  # type: ignore[attr-defined]
+    for name in exported:
+        assert getattr(module, name) is not None
+    public = {n for n in vars(module) if not n.startswith("_")}
+    submodules = {n for n in public if type(getattr(module, n)).__name__ == "module"}
+    assert public - submodules - {"annotations"} == set(exported)

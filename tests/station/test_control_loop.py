@@ -1,0 +1,56 @@
+"""The control step without I/O: vehicle-time clock, limits, join slots."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gcs_swarm.control import ConstantForce, LawConfig, Leader, Limits
+from gcs_swarm.runtime import ControlLoop
+from gcs_swarm.runtime.control import MAX_CLOCK_JUMP_S
+
+
+def test_mission_clock_follows_vehicle_time_not_the_wall() -> None:
+    loop = ControlLoop(LawConfig(), {1: 10.0, 2: 10.0, 3: 10.0}, 50.0)
+    assert loop.advance_clock({1: 5000, 2: 9000}) == 0.0  # first sight: no increment
+    # Vehicles booted at different times: each one's own increment counts.
+    assert loop.advance_clock({1: 5020, 2: 9020}) == pytest.approx(0.02)
+    # The median ignores one vehicle's odd increment (late packet).
+    assert loop.advance_clock({1: 5040, 2: 9040, 3: 100}) == pytest.approx(0.04)
+    assert loop.advance_clock({1: 5060, 2: 9200, 3: 120}) == pytest.approx(0.06)
+    # A rebooted vehicle (time going back) adds nothing; a long gap is capped.
+    assert loop.advance_clock({2: 10}) == pytest.approx(0.06)
+    assert loop.advance_clock({1: 65060}) == pytest.approx(0.06 + MAX_CLOCK_JUMP_S)
+
+
+def test_leader_moves_in_vehicle_time() -> None:
+    force = ConstantForce((10.0, 0.0, 0.0))  # terminal speed 1 m/s (total damping 10)
+    law = LawConfig(leader=Leader(force=force))
+    loop = ControlLoop(law, {1: 10.0}, 50.0)
+    pos, vel = np.zeros((1, 3)), np.zeros((1, 3))
+    for k in range(0, 20001, 20):  # 20 s of vehicle time
+        loop.advance_clock({1: k})
+        res = loop.step([1], pos, vel)
+    # x(t) = v_inf (t - tau (1 - e^{-t/tau})), tau = M / (D + k) = 0.1 s.
+    assert res.law.leader_pos_m[0] == pytest.approx(20.0 - 0.1 * (1 - math.exp(-200)), abs=1e-4)
+
+
+def test_acceleration_limit_is_applied_to_every_setpoint() -> None:
+    law = LawConfig(limits=Limits(a_max=2.0))
+    loop = ControlLoop(law, {1: 10.0, 2: 10.0}, 50.0)
+    far = np.array([[30.0, 0.0, 0.0], [0.0, -30.0, 0.0]])  # cubic attraction: huge demand
+    res = loop.step([1, 2], far, np.zeros((2, 3)))
+    assert np.linalg.norm(res.law.accel_mps2, axis=1).min() > 1e3
+    np.testing.assert_allclose(np.linalg.norm(res.accel_mps2, axis=1), 2.0, rtol=1e-9)
+
+
+def test_slot_of_a_returning_vehicle_moves_with_the_leader() -> None:
+    law = LawConfig(leader=Leader(start=(1.0, 1.0, 1.0), force=ConstantForce((10.0, 0.0, 0.0))))
+    loop = ControlLoop(law, {1: 10.0}, 50.0)
+    for k in range(0, 5001, 20):
+        loop.advance_clock({1: k})
+        loop.step([1], np.array([[1.0, 1.0, 1.0]]), np.zeros((1, 3)))
+    slot = loop.slot_m((2.0, 1.0, 1.0))
+    np.testing.assert_allclose(slot - loop.controller.leader_pos_m, [1.0, 0.0, 0.0])

@@ -1,0 +1,56 @@
+"""Obstacle avoidance and an ArduPilot-like vehicle over MAVLink (issue 6)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+from station_harness import fly, lockstep_config, mission_from, radii
+
+from gcs_swarm.simulation import simulate
+
+
+@pytest.mark.slow
+def test_scenario3_every_vehicle_passes_the_box_and_the_formation_re_forms() -> None:
+    mission = mission_from("scenario3_obstacle.yaml")  # 60 s, box centred (20, 15, 5)
+    flown = asyncio.run(fly(mission, lockstep_config(mission)))
+    s = flown.ok
+    assert flown.emu.stats.lockstep_timeouts == 0
+    # One avoidance episode, started and ended, then Eq. 12 again.
+    assert s.episodes == 1 and s.behaviour == "formation"
+    log = "\n".join(s.log)
+    assert "avoidance episode 1 starts" in log and "avoidance episode 1 ends" in log
+    box = mission.law.obstacles[0]
+    beyond = box.centre[0] + box.half_extents[0]
+    pos = np.array([s.positions()[i] for i in range(1, 5)])
+    assert (pos[:, 0] > beyond + 30.0).all()  # every vehicle is far past the box
+    # Re-formed where the in-process law (RK4, same 50 Hz step) puts it. 0.25 m:
+    # the episode's switch and plane choice are sampled at 50 Hz here and the
+    # look-ahead lands a few steps later from its worker thread; measured 0.09 m
+    # after 60 s at ~1 m/s.
+    ref = simulate(mission.law, [v.start for v in mission.vehicles], duration=60.0, dt=0.02)
+    np.testing.assert_allclose(pos, ref.pos_m[-1], atol=0.25)
+    np.testing.assert_allclose(s.leader_pos_m, ref.leader_pos_m[-1], atol=0.25)
+    ref_r = np.linalg.norm(ref.pos_m[-1] - ref.leader_pos_m[-1], axis=1)
+    np.testing.assert_allclose(list(radii(s).values()), ref_r, atol=0.05)
+    # The paper's law gives no clearance guarantee (formation-law.md s11): it is
+    # measured and reported, not asserted positive here (the safety filter's job).
+    assert np.isfinite(s.min_clearance_m)
+
+
+@pytest.mark.slow
+def test_ardupilot_like_lag_in_real_time_settles_within_2_percent() -> None:
+    mission = mission_from("example1_octahedron.yaml", duration=30.0)
+    # ArduCopter-like 0.2 s first-order acceleration lag, paced by the wall
+    # clock (5 x real time, so the run takes ~6 s): no lockstep, the station
+    # steps on telemetry as it would with SITL.
+    cfg = lockstep_config(mission, clock="realtime", speedup=5.0, dynamics="ardupilot")
+    assert cfg.tau_s == pytest.approx(0.2)
+    flown = asyncio.run(fly(mission, cfg, lockstep=False))
+    s = flown.ok
+    assert s.mission_time_s == pytest.approx(30.0, abs=0.1)
+    r = np.array(list(radii(s).values()))
+    # Issue: within 2 % of the radius 2.48418.
+    assert np.abs(r / 2.48418 - 1.0).max() < 0.02, r
+    assert s.setpoints_dropped == 0
