@@ -1,0 +1,112 @@
+"""The ``gcs-swarm`` command line: parse arguments, run one subcommand, and
+print any ``SwarmError`` as one line with a non-zero exit.
+
+Subcommands (their work lives in the library modules):
+
+- ``run MISSION``: fly the mission over MAVLink (``gcs_swarm.runtime``);
+- ``simulate MISSION``: the deterministic in-process reference
+  (``gcs_swarm.missionsim``);
+- ``check MISSION``: validate without flying (``gcs_swarm.mission``);
+- ``schema``: print the JSON Schema of mission files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from gcs_swarm import __version__
+from gcs_swarm.errors import MissionError, SwarmError
+
+__all__ = ["build_parser", "main"]
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from gcs_swarm.mission import check_command
+
+    return check_command(args.mission)
+
+
+def _cmd_schema(args: argparse.Namespace) -> int:
+    from gcs_swarm.mission import schema
+
+    print(json.dumps(schema(), indent=2, sort_keys=False))
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from gcs_swarm.mission import load_mission
+    from gcs_swarm.missionsim import simulate_mission
+
+    mission = load_mission(args.mission)
+    if args.dt <= 0.0:
+        raise SwarmError(f"--dt: expected a positive step in seconds, got {args.dt}")
+    out = simulate_mission(mission, dt_s=args.dt, duration_s=args.duration)
+    print(
+        f"{mission.settings.name}: simulated {out.result.times_s[-1]:.2f} s (RK4, dt {args.dt} s)"
+    )
+    print(out.text())
+    if args.out is not None:
+        try:
+            path = out.result.save(args.out, every=args.every)
+        except (OSError, ValueError) as err:
+            raise SwarmError(f"{args.out}: cannot write trajectories: {err}") from None
+        print(f"trajectories written to {path}")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from gcs_swarm.runtime import run_command
+
+    return run_command(args.mission, status=not args.no_status)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``gcs-swarm``."""
+    parser = argparse.ArgumentParser(
+        prog="gcs-swarm",
+        description="Fly a drone swarm in formation over MAVLink.",
+    )
+    parser.add_argument("--version", action="version", version=f"gcs-swarm {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="fly a mission over MAVLink (bundled emulator for `sim` links)")
+    p.add_argument("mission", help="mission YAML file")
+    p.add_argument("--no-status", action="store_true", help="no live status line")
+    p.set_defaults(handler=_cmd_run)
+
+    p = sub.add_parser("simulate", help="run a mission in the in-process reference simulator")
+    p.add_argument("mission", help="mission YAML file")
+    p.add_argument("--dt", type=float, default=0.01, help="RK4 step [s] (default 0.01)")
+    p.add_argument("--duration", type=float, default=None, help="override the duration [s]")
+    p.add_argument("--out", type=Path, default=None, help="write trajectories (.csv or .npz)")
+    p.add_argument("--every", type=int, default=1, help="write every n-th sample (default 1)")
+    p.set_defaults(handler=_cmd_simulate)
+
+    p = sub.add_parser("check", help="validate a mission file without flying")
+    p.add_argument("mission", help="mission YAML file")
+    p.set_defaults(handler=_cmd_check)
+
+    p = sub.add_parser("schema", help="print the JSON Schema of mission files")
+    p.set_defaults(handler=_cmd_schema)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.handler(args))
+    except MissionError as err:
+        for line in err.problems:
+            print(f"gcs-swarm: {line}", file=sys.stderr)
+        return 2
+    except SwarmError as err:
+        print(f"gcs-swarm: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gcs-swarm: interrupted", file=sys.stderr)
+        return 130

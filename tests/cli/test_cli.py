@@ -1,0 +1,80 @@
+"""The ``gcs-swarm`` command line: every subcommand through ``main()`` as a
+user types it, and bad input as one line with no traceback."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_swarm.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+TETRA = ROOT / "config" / "missions" / "example1_tetrahedron.yaml"
+
+
+def test_simulate_prints_the_summary(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", str(TETRA)]) == 0
+    out = capsys.readouterr().out
+    assert "tetrahedron" in out
+    # The paper's N = 4 radius (issue 3), printed to 5 decimals.
+    assert "min 2.33359  max 2.33359" in out
+    assert "6 x 3.81074" in out
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_simulate_writes_trajectories(tmp_path: Path, suffix: str) -> None:
+    out = tmp_path / f"traj{suffix}"
+    assert main(["simulate", str(TETRA), "--duration", "2", "--out", str(out)]) == 0
+    assert out.exists()
+    if suffix == ".npz":
+        with np.load(out) as data:
+            assert data["pos_m"].shape[1:] == (4, 3)
+            assert data["times_s"][-1] == pytest.approx(2.0)
+    else:
+        lines = out.read_text().splitlines()
+        assert lines[0].startswith("t_s,id,x_m")
+        assert len(lines) == 1 + 4 * 201  # 201 samples (t = 0 .. 2 s at 0.01 s) x 4
+
+
+def test_check_ok_and_schema(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["check", str(TETRA)]) == 0
+    assert capsys.readouterr().out.startswith("OK: ")
+    assert main(["schema"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "vehicles" in doc["properties"]
+
+
+def test_bad_mission_is_one_line_per_problem_and_no_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "mission: {name: x}\n"
+        "gains: {alpha: -1}\n"
+        "vehicles:\n"
+        "  - {sysid: 1, start: [0, 0, 0]}\n"
+        "  - {sysid: 1, start: [1, 0, 0]}\n"
+    )
+    for cmd in ("simulate", "run"):
+        assert main([cmd, str(bad)]) == 2
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert len(lines) >= 2  # both problems reported, not just the first
+        assert all(line.startswith(f"gcs-swarm: {bad}:") for line in lines)
+        assert "Traceback" not in err
+        assert any("alpha" in line for line in lines)
+        assert any("sysid" in line for line in lines)
+
+
+def test_missing_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", str(tmp_path / "nope.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nope.yaml" in err
+
+
+def test_bad_step_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", str(TETRA), "--dt", "0"]) == 2
+    assert "--dt" in capsys.readouterr().err

@@ -1,0 +1,95 @@
+"""Scenario 3 (``config/missions/scenario3_obstacle.yaml``: the moving
+tetrahedron meets a box) through the in-process simulator with the safety
+filter as its acceleration hook, filter on and off.
+
+Limits for both runs: a_max = 10 m/s^2, v_max = 5 m/s; the filter keeps 0.5 m
+from the box and 1 m between vehicles. dt = 0.05 s (RK4; the hook runs in
+every stage, so the filter acts as a state feedback) and 40 s, enough for
+every vehicle to reach the far side of the box in the filter-off run (last at
+22.6 s; the episode ends at 27.3 s), keep the run to a few seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_swarm.control.limits import box_signed_distance
+from gcs_swarm.control.params import Limits, Safety
+from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary
+from gcs_swarm.mission import load_mission
+from gcs_swarm.simulation import SimResult, simulate
+
+MISSION = Path(__file__).resolve().parents[2] / "config" / "missions" / "scenario3_obstacle.yaml"
+DT = 0.05
+A_MAX, V_MAX, CLEARANCE, SEPARATION = 10.0, 5.0, 0.5, 1.0
+POS_TOL = 1e-6  # the barrier is exact up to rounding (measured >= 0.5 - 1e-12 m)
+
+
+@cache
+def _run(enabled: bool) -> tuple[SimResult, SafetySummary]:
+    law = load_mission(MISSION).law
+    starts = [v.start for v in load_mission(MISSION).initial]
+    lim = Limits(a_max=A_MAX, v_max=V_MAX)
+    saf = Safety(enabled=enabled, clearance=CLEARANCE, separation=SEPARATION)
+    cfg = dataclasses.replace(law, limits=lim, safety=saf)
+    hook = SafetyHook(SafetyFilter(lim, saf, law.obstacles, dt=DT))
+    res = simulate(cfg, starts, duration=40.0, dt=DT, accel_filter=hook)
+    return res, hook.stats.summary()
+
+
+def _clearance(res: SimResult) -> np.ndarray:
+    box = res.config.obstacles[0]
+    p = res.pos_m.reshape(-1, 3)
+    d, _ = box_signed_distance(p, np.array([box.centre]), np.array([box.half_extents]))
+    return d.reshape(res.pos_m.shape[:2])
+
+
+def _time_past(res: SimResult) -> list[float | None]:
+    """Per vehicle, the first time it is beyond the box's far face (x)."""
+    box = res.config.obstacles[0]
+    far = box.centre[0] + box.half_extents[0]
+    out: list[float | None] = []
+    for j in range(res.pos_m.shape[1]):
+        k = np.flatnonzero(res.pos_m[:, j, 0] > far)
+        out.append(float(res.times_s[k[0]]) if k.size else None)
+    return out
+
+
+def test_scenario3_filter_on_keeps_clearance_separation_and_limits() -> None:
+    res, summary = _run(True)
+    assert _clearance(res).min() >= CLEARANCE - POS_TOL
+    p = res.pos_m
+    d = np.linalg.norm(p[:, :, None] - p[:, None], axis=-1) + np.eye(p.shape[1]) * 1e9
+    assert d.min() >= SEPARATION - POS_TOL
+    assert np.nanmax(np.linalg.norm(res.accel_mps2, axis=-1)) <= A_MAX + 1e-9
+    assert summary.infeasible == 0
+    assert summary.interventions > 0
+
+
+def test_scenario3_filter_off_cuts_into_the_box() -> None:
+    res, summary = _run(False)
+    # Spec s11: the paper's paths cut into the box (measured -0.32 m);
+    # every vehicle passes it.
+    assert _clearance(res).min() < -0.2
+    assert all(t is not None for t in _time_past(res))
+    assert summary.max_correction_mps2 > 0  # a_max clamps the switch spikes
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "law, not filter: the vertical field's heading phi is the velocity's "
+        "azimuth (fields.heading); once the filter stops the approach to the "
+        "face, phi swings to +-90 deg each RK4 stage and vehicle 3 limit-cycles "
+        "at x = 17.5 m. With phi from the desired force all four pass "
+        "(19.9, 19.8, 24.3, 22.6 s vs 18.4, 19.8, 21.4, 22.6 s off)."
+    ),
+)
+def test_scenario3_filter_on_every_vehicle_passes() -> None:
+    res, _ = _run(True)
+    assert all(t is not None for t in _time_past(res))
