@@ -7,7 +7,9 @@ Subcommands (their work lives in the library modules):
 - ``simulate MISSION``: the deterministic in-process reference
   (``gcs_swarm.missionsim``);
 - ``check MISSION``: validate without flying (``gcs_swarm.mission``);
-- ``schema``: print the JSON Schema of mission files.
+- ``schema``: print the JSON Schema of mission files;
+- ``report RUN_FOLDER_OR_TLOG``: rebuild a run's summary and picture from
+  its ``.tlog`` and the mission file (``gcs_swarm.report``).
 """
 
 from __future__ import annotations
@@ -55,13 +57,35 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as err:
             raise SwarmError(f"{args.out}: cannot write trajectories: {err}") from None
         print(f"trajectories written to {path}")
+    if not args.no_log:
+        from gcs_swarm.report import create_run_folder, write_simulation_report
+
+        folder = create_run_folder(mission, base_dir=args.log_dir)
+        write_simulation_report(out, folder.path, name=mission.settings.name)
+        print(f"summary written to {folder.summary}")
+        print(f"picture written to {folder.picture}")
     return 0
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from gcs_swarm.runtime import run_command
 
-    return run_command(args.mission, status=not args.no_status)
+    return run_command(
+        args.mission, status=not args.no_status, log_dir=args.log_dir, record=not args.no_log
+    )
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from gcs_swarm.report import report_command
+
+    return report_command(args.path, args.mission)
+
+
+def _log_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--log-dir", default=None, help="put the run folder here (default: the mission's log.dir)"
+    )
+    p.add_argument("--no-log", action="store_true", help="write no run folder")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -76,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="fly a mission over MAVLink (bundled emulator for `sim` links)")
     p.add_argument("mission", help="mission YAML file")
     p.add_argument("--no-status", action="store_true", help="no live status line")
+    _log_options(p)
     p.set_defaults(handler=_cmd_run)
 
     p = sub.add_parser("simulate", help="run a mission in the in-process reference simulator")
@@ -84,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="override the duration [s]")
     p.add_argument("--out", type=Path, default=None, help="write trajectories (.csv or .npz)")
     p.add_argument("--every", type=int, default=1, help="write every n-th sample (default 1)")
+    _log_options(p)
     p.set_defaults(handler=_cmd_simulate)
 
     p = sub.add_parser("check", help="validate a mission file without flying")
@@ -92,6 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("schema", help="print the JSON Schema of mission files")
     p.set_defaults(handler=_cmd_schema)
+
+    p = sub.add_parser("report", help="rebuild a run's summary and picture from its .tlog")
+    p.add_argument("path", help="a run folder, or a .tlog file")
+    p.add_argument(
+        "--mission", default=None, help="the mission file flown (default: the folder's copy)"
+    )
+    p.set_defaults(handler=_cmd_report)
     return parser
 
 

@@ -41,6 +41,9 @@ Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
 Peer = Any  # a UDP address tuple, or a TCP connection object
 OnMessage = Callable[[Any, "Link"], None]
 """Called with each decoded pymavlink message and the link it came on."""
+OnFrame = Callable[[bytes, Literal["in", "out"]], None]
+"""Called with every raw frame the link decoded ("in") or sent ("out"), e.g.
+a ``.tlog`` writer; bad packets are counted, not passed on."""
 
 
 @dataclass(frozen=True)
@@ -106,10 +109,13 @@ class _Stream:
 class Link:
     """One MAVLink connection shared by any number of vehicles."""
 
-    def __init__(self, connection: str, on_message: OnMessage) -> None:
+    def __init__(
+        self, connection: str, on_message: OnMessage, *, on_frame: OnFrame | None = None
+    ) -> None:
         self.endpoint = parse_connection(connection)
         self.stats = LinkStats()
         self._on_message = on_message
+        self._on_frame = on_frame
         self._codecs: dict[Peer, Codec] = {}
         self._routes: dict[int, Peer] = {}
         self._setpoints: dict[int, MessageSpec] = {}
@@ -220,6 +226,8 @@ class Link:
                 continue
             data = self._codecs[peer].encode(spec)
             self.stats.sent += 1
+            if self._on_frame is not None:
+                self._on_frame(data, "out")
             if isinstance(peer, _Stream):
                 if not peer.writer.is_closing():
                     peer.writer.write(data)
@@ -247,6 +255,8 @@ class Link:
         self.stats.unknown_messages += codec.stats.unknown_messages - unknown
         for msg in msgs:
             self.stats.received += 1
+            if self._on_frame is not None:
+                self._on_frame(bytes(msg.get_msgbuf()), "in")
             self._routes[msg.get_srcSystem()] = peer
             self._on_message(msg, self)
 

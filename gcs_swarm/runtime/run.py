@@ -18,15 +18,24 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, load_mission
+from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
+from gcs_swarm.runtime.tlog import TlogWriter
 from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
+
+if TYPE_CHECKING:
+    # gcs_swarm.report reads logs with gcs_swarm.runtime.tlog: imported lazily
+    # below so that importing either package first works.
+    from gcs_swarm.report.artefacts import RunFolder
 
 __all__ = ["END_MODES", "emulator_config", "run_command", "run_mission", "station_config"]
 
@@ -80,10 +89,14 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
     """The ``sim_vehicle.EmulatorConfig`` of the mission's ``sim`` vehicles.
 
     Each sim vehicle's EKF origin (its home, on the ground) comes from the
-    mission; with ``airborne`` the initial vehicles start armed in GUIDED,
-    hovering at their mission start points (the station then takes them
-    over); reserves always wait on the ground until their join event.
+    mission; with ``airborne`` (or ``emulator.spawn: air``) the initial
+    vehicles start armed in GUIDED, hovering at their mission start points
+    (the station then takes them over); reserves always wait on the ground
+    until their join event. ``emulator.accel_max`` sets SIM_ACC_MAX,
+    ``noise_pos``/``noise_vel`` the seeded telemetry noise, ``base_port`` and
+    ``shared`` where the endpoints bind.
     """
+    airborne = airborne or mission.emulator.spawn == "air"
     origin = mission.origin_geo()
     if origin is None:
         raise StartupError("sim vehicles need a mission origin or a sim first vehicle")
@@ -126,6 +139,11 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
         dynamics="ideal" if em.dynamics == "ideal" else "ardupilot",
         accel_tau_s=em.lag_s,
         ekf_ready_s=em.ekf_ready_delay,
+        noise_pos_m=em.noise_pos,
+        noise_vel_m_s=em.noise_vel,
+        base_port=0 if em.shared else em.base_port,
+        shared_port=em.base_port if em.shared else None,
+        params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},
         seed=imp.seed,
         uplink=link,
         downlink=link,
@@ -146,8 +164,18 @@ async def run_mission(
     on_status: Callable[[str], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
     end_timeout_s: float = 15.0,
+    log_dir: str | Path | None = None,
+    picture: bool = True,
+    on_folder: Callable[[RunFolder], None] | None = None,
 ) -> RunSummary:
     """Fly ``mission`` and return its summary.
+
+    With ``log_dir`` (``gcs-swarm run`` gives the mission's ``log.dir``) the
+    run gets a folder there holding ``flight.tlog`` (every frame
+    in and out, plus the station's annotations), a copy of the mission,
+    ``summary.json`` and ``report.png`` (unless ``picture`` is False); the
+    summary and picture are written however the run ends. ``on_folder``
+    gets the folder as soon as it exists.
 
     ``links`` maps system ids to connection strings and overrides the file's
     (tests point them at their own emulator); vehicles still ``sim`` make this
@@ -163,37 +191,114 @@ async def run_mission(
     sims = [v for v in mission.vehicles if v.is_sim and v.sysid not in given]
     if lockstep is None:
         lockstep = bool(sims) and mission.emulator.mode == "lockstep"
-    async with contextlib.AsyncExitStack() as stack:
-        if sims:
-            cfg = emulator_config(mission, airborne=sim_airborne)
-            emu = await stack.enter_async_context(Emulator(cfg))
-            for v in sims:
-                host, port = emu.endpoints[v.sysid]
-                given[v.sysid] = f"udpout:{host}:{port}"
-            _log.info("bundled emulator: %d vehicles on %s", len(sims), cfg.host)
-        for v in mission.vehicles:
-            given.setdefault(v.sysid, v.link)
-        station_cfg = station_config(mission, given, lockstep=lockstep)
-        station = await stack.enter_async_context(
-            Station(_with_end_timeout(station_cfg, end_timeout_s), on_status=on_status)
-        )
-        outcome = "cancelled"
-        end_mode: int | None = None
-        try:
-            await station.ready()
-            await station.fly()
-            outcome = "completed"
-        except StartupError:
-            outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
-            raise
-        finally:
-            await station.end(end_mode)
+    folder: RunFolder | None = None
+    recorder: FlightRecorder | None = None
+    tlog: TlogWriter | None = None
+    if log_dir is not None:
+        from gcs_swarm.report.artefacts import create_run_folder
+        from gcs_swarm.report.replay import safety_applied
+
+        folder = create_run_folder(mission, base_dir=log_dir)
+        if on_folder is not None:
+            on_folder(folder)
+    station: Station | None = None
+    outcome = "cancelled"
+    try:
+        async with contextlib.AsyncExitStack() as stack:
+            if folder is not None:
+                tlog = await stack.enter_async_context(TlogWriter(folder.tlog))
+                recorder = FlightRecorder(
+                    name=mission.settings.name,
+                    source="run",
+                    boxes=mission.law.obstacles,
+                    r0=mission.law.avoidance.r0,
+                    rate_hz=mission.settings.rate,
+                    safety=safety_applied(mission),
+                    sink=_note_sink(tlog),
+                )
+            if sims:
+                cfg = emulator_config(mission, airborne=sim_airborne)
+                emu = await stack.enter_async_context(Emulator(cfg))
+                for v in sims:
+                    host, port = emu.endpoints[v.sysid]
+                    given[v.sysid] = f"udpout:{host}:{port}"
+                _log.info("bundled emulator: %d vehicles on %s", len(sims), cfg.host)
+            for v in mission.vehicles:
+                given.setdefault(v.sysid, v.link)
+            station_cfg = station_config(mission, given, lockstep=lockstep)
+            station = await stack.enter_async_context(
+                Station(
+                    _with_end_timeout(station_cfg, end_timeout_s),
+                    on_status=on_status,
+                    recorder=recorder,
+                    on_frame=None if tlog is None else _frame_sink(tlog),
+                )
+            )
+            end_mode: int | None = None
+            try:
+                await station.ready()
+                await station.fly()
+                outcome = "completed"
+            except StartupError:
+                outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
+                raise
+            finally:
+                await station.end(end_mode)
+    finally:
+        # After the station, the emulator and the log have closed: the summary's
+        # counters and the flight record then cover every frame in the .tlog.
+        if station is not None:
             summary = RunSummary.from_station(
                 station, outcome=outcome, wall_time_s=time.monotonic() - wall0
             )
+            if folder is not None and recorder is not None:
+                await _write_run_report(folder, recorder, summary, picture=picture)
             if on_summary is not None:
                 on_summary(summary)
     return summary
+
+
+def _note_sink(tlog: TlogWriter) -> Callable[[bytes], None]:
+    def sink(frame: bytes) -> None:
+        tlog.write(frame)
+
+    return sink
+
+
+def _frame_sink(tlog: TlogWriter) -> Callable[[bytes, str], None]:
+    def sink(frame: bytes, direction: str) -> None:
+        tlog.write(frame)
+
+    return sink
+
+
+async def _write_run_report(
+    folder: RunFolder, recorder: FlightRecorder, summary: RunSummary, *, picture: bool
+) -> None:
+    """``summary.json`` and ``report.png`` of the run, off the event loop
+    (matplotlib takes about a second); the station's link counters go in too."""
+    extra: dict[str, Any] = {
+        "outcome": summary.outcome,
+        "wall_time_s": summary.wall_time_s,
+        "links": {
+            "messages_sent": summary.messages_sent,
+            "setpoints_dropped": summary.setpoints_dropped,
+            "messages_dropped": summary.messages_dropped,
+            "bad_packets": summary.bad_packets,
+            "unknown_sysid_messages": summary.unknown_sysid_messages,
+        },
+    }
+    from gcs_swarm.report.artefacts import write_report
+
+    rec = recorder.record()
+    try:
+        await asyncio.shield(
+            asyncio.to_thread(
+                write_report, rec, folder.summary, folder.picture if picture else None, extra=extra
+            )
+        )
+    except Exception as err:  # never let the report hide how the flight ended
+        _log.error("%s: report not written: %s", folder.path, err)
 
 
 def _with_end_timeout(cfg: StationConfig, end_timeout_s: float) -> StationConfig:
@@ -202,15 +307,19 @@ def _with_end_timeout(cfg: StationConfig, end_timeout_s: float) -> StationConfig
     return replace(cfg, end_timeout_s=end_timeout_s)
 
 
-def run_command(path: str, *, status: bool = True) -> int:
+def run_command(
+    path: str, *, status: bool = True, log_dir: str | None = None, record: bool = True
+) -> int:
     """``gcs-swarm run PATH``: exit 0 when the mission completed, 130 when it
     was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
-    for the command line to print as one line."""
+    for the command line to print as one line. With ``record`` the run
+    folder goes under ``log_dir`` (default the mission's ``log.dir``)."""
     mission = load_mission(path)
-    return asyncio.run(_main(mission, status=status))
+    base = (log_dir if log_dir is not None else mission.log.dir) if record else None
+    return asyncio.run(_main(mission, status=status, log_dir=base))
 
 
-async def _main(mission: Mission, *, status: bool) -> int:
+async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
     assert task is not None
@@ -242,9 +351,25 @@ async def _main(mission: Mission, *, status: bool) -> int:
         if tty:
             print(file=sys.stderr)
         print(summary.format())
+        for folder in folders:
+            for path in (folder.tlog, folder.summary, folder.picture):
+                if path.is_file():
+                    print(f"written: {path}")
+
+    folders: list[RunFolder] = []
+
+    def announce(folder: RunFolder) -> None:
+        folders.append(folder)
+        print(f"run folder: {folder.path}", file=sys.stderr)
 
     try:
-        await run_mission(mission, on_status=show if status else None, on_summary=report)
+        await run_mission(
+            mission,
+            on_status=show if status else None,
+            on_summary=report,
+            log_dir=log_dir,
+            on_folder=announce,
+        )
     except asyncio.CancelledError:
         return 130
     finally:

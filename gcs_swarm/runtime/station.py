@@ -40,8 +40,9 @@ from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.inbound import LocalPositionNed, from_pymavlink
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolConfig, ProtocolEvent
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.control import ControlLoop
-from gcs_swarm.runtime.links import Link
+from gcs_swarm.runtime.links import Link, OnFrame
 
 __all__ = ["Station", "StationConfig", "VehiclePlan"]
 
@@ -105,9 +106,16 @@ class Station:
         *,
         on_status: Callable[[str], None] | None = None,
         status_interval_s: float = 1.0,
+        recorder: FlightRecorder | None = None,
+        on_frame: OnFrame | None = None,
     ) -> None:
+        """``recorder`` receives every control step, membership change and
+        received message (the run's flight record); ``on_frame`` every raw
+        frame in and out on every link (the ``.tlog``)."""
         self.config = config
         self.on_status = on_status
+        self.recorder = recorder
+        self._on_frame = on_frame
         self.status_interval_s = status_interval_s
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
@@ -142,6 +150,10 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._idle_since: float | None = None
+        self.steps = 0
+        self.peak_accel_mps2 = 0.0
+        self.min_separation_m = math.inf
+        self._status_mark: tuple[float, int] | None = None
 
     # ------------------------------------------------------------ lifetime
     async def __aenter__(self) -> Station:
@@ -150,7 +162,7 @@ class Station:
             for plan in self.config.vehicles:
                 link = self._links.get(plan.link)
                 if link is None:
-                    link = Link(plan.link, self._on_message)
+                    link = Link(plan.link, self._on_message, on_frame=self._on_frame)
                     self._links[plan.link] = await self._stack.enter_async_context(link)
                     link = self._links[plan.link]
                 self._link_of[plan.sysid] = link
@@ -238,6 +250,9 @@ class Station:
     # ----------------------------------------------------------- messages
     def _on_message(self, msg: Any, link: Link) -> None:
         sysid = int(msg.get_srcSystem())
+        if self.recorder is not None:
+            self.recorder.inbound(sysid, int(msg.get_srcComponent()), int(msg.get_seq()),
+                                  int(msg.get_msgId()))  # fmt: skip
         vp = self.vehicles.get(sysid)
         if vp is None or self._link_of.get(sysid) is not link:
             if sysid not in self.unknown_sysids:
@@ -284,6 +299,8 @@ class Station:
             self.flying.discard(sysid)
             self._fresh.pop(sysid, None)
             self.control.forget(sysid)
+            if self.recorder is not None:
+                self.recorder.member(self.control.t_s, sysid, False)
             self._note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
                        f"{len(self.flying)} re-form")  # fmt: skip
             self._maybe_step(now)
@@ -296,6 +313,8 @@ class Station:
             vp.begin_flying(now)
             self.flying.add(vp.sysid)
             self.flown.add(vp.sysid)
+            if self.recorder is not None:
+                self.recorder.member(self.control.t_s, vp.sysid, True)
             if self.started:
                 self._note(f"vehicle {vp.sysid} joins the formation ({len(self.flying)} flying)")
 
@@ -356,9 +375,20 @@ class Station:
             pos = np.array([p for p, _ in states])
             vel = np.array([v for _, v in states])
             res = self.control.step(ids, pos, vel)
+            self.steps += 1
+            if len(ids):
+                peak = float(np.sqrt((res.accel_mps2**2).sum(axis=1)).max())
+                self.peak_accel_mps2 = max(self.peak_accel_mps2, peak)
+            self.min_separation_m = min(self.min_separation_m, res.min_separation_m)
             if res.law.event is not None:
                 what = "starts" if res.law.event == "start" else "ends: formation resumes"
                 self._note(f"t={t:.2f} s: avoidance episode {res.law.episode} {what}")
+            if self.recorder is not None:
+                # Before the setpoints go out: the log's LEADER note marks the step.
+                cor = None if res.safety is None else res.safety.correction_mps2
+                self.recorder.step(t, ids, res.pos_m, res.law.leader_pos_m, res.law.behaviour,
+                                   res.law.episode, accel_mps2=res.accel_mps2,
+                                   sent=fresh.keys(), correction_mps2=cor)  # fmt: skip
             for i, sysid in enumerate(ids):
                 if sysid in fresh:  # exactly one answer per telemetry
                     vp = self.vehicles[sysid]
@@ -428,14 +458,27 @@ class Station:
             self._finished.set()
 
     def status_line(self) -> str:
-        """One line: mission time, behaviour, who flies, radius, separation."""
+        """One line with the run's figures as they evolve: mission time, control
+        rate over the last interval, behaviour, radius range, separation now and
+        its minimum so far, minimum obstacle clearance so far, peak commanded
+        acceleration, then each vehicle's phase and mode."""
         last = self.control.last
         parts = [f"t={self.control.t_s:7.2f}s"]
+        now = self.now()
+        if self._status_mark is not None and now > self._status_mark[0]:
+            rate = (self.steps - self._status_mark[1]) / (now - self._status_mark[0])
+            parts.append(f"{rate:5.1f} Hz")
+        self._status_mark = (now, self.steps)
         if last is not None and last.ids:
             r = last.radii_m
             parts.append(f"{last.law.behaviour:9s} r={r.min():.3f}..{r.max():.3f} m")
             sep = last.min_separation_m
-            parts.append(f"min sep {sep:.3f} m" if math.isfinite(sep) else "min sep -")
+            if math.isfinite(sep):
+                parts.append(f"sep {sep:.3f} (min {self.min_separation_m:.3f}) m")
+            clr = self.control.min_clearance_m
+            if math.isfinite(clr):
+                parts.append(f"min clearance {clr:.3f} m")
+            parts.append(f"peak |a| {self.peak_accel_mps2:.2f} m/s^2")
         parts.append(" ".join(f"{s}:{vp.phase.value}/{vp.mode_name}"
                               for s, vp in sorted(self.vehicles.items())))  # fmt: skip
         drops = sum(link.stats.setpoints_dropped for link in self._links.values())

@@ -15,19 +15,28 @@ ROOT = Path(__file__).resolve().parents[2]
 TETRA = ROOT / "config" / "missions" / "example1_tetrahedron.yaml"
 
 
-def test_simulate_prints_the_summary(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["simulate", str(TETRA)]) == 0
+def test_simulate_prints_the_summary_and_writes_the_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["simulate", str(TETRA), "--log-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "tetrahedron" in out
     # The paper's N = 4 radius (issue 3), printed to 5 decimals.
     assert "min 2.33359  max 2.33359" in out
     assert "6 x 3.81074" in out
+    (folder,) = tmp_path.iterdir()  # one run folder, named by date and mission
+    assert folder.name.endswith("example-1-tetrahedron-n-4")
+    summary = json.loads((folder / "summary.json").read_text())
+    radii = [v["final_radius_m"] for v in summary["vehicles"].values()]
+    assert radii == pytest.approx([2.33359] * 4, abs=1e-5)
+    assert (folder / "report.png").stat().st_size > 10_000
+    assert (folder / "mission.yaml").read_text() == TETRA.read_text()
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".npz"])
 def test_simulate_writes_trajectories(tmp_path: Path, suffix: str) -> None:
     out = tmp_path / f"traj{suffix}"
-    assert main(["simulate", str(TETRA), "--duration", "2", "--out", str(out)]) == 0
+    assert main(["simulate", str(TETRA), "--duration", "2", "--out", str(out), "--no-log"]) == 0
     assert out.exists()
     if suffix == ".npz":
         with np.load(out) as data:
@@ -76,5 +85,5 @@ def test_missing_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
 
 
 def test_bad_step_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["simulate", str(TETRA), "--dt", "0"]) == 2
+    assert main(["simulate", str(TETRA), "--dt", "0", "--no-log"]) == 2
     assert "--dt" in capsys.readouterr().err
