@@ -198,19 +198,24 @@ def NonNeg() -> Num:
 @dataclass
 class Bool(Field):
     """``true`` or ``false`` only: YAML 1.1's yes/no/on/off are refused, since
-    YAML 1.2 tools (and the JSON Schema) read them as strings."""
+    YAML 1.2 tools (and the JSON Schema) read them as strings. ``nullable``:
+    ``null`` is accepted too (a default decided from the rest of the mission)."""
+
+    nullable: bool = False
 
     def expected(self) -> str:
-        return "true or false"
+        return "true or false" + (" or null" if self.nullable else "")
 
     def _parse(self, node: yaml.Node, path: str, ctx: Context) -> Any:
+        if self.nullable and isinstance(node, yaml.ScalarNode) and node.tag == _TAG + "null":
+            return None
         if isinstance(node, yaml.ScalarNode) and node.tag == _TAG + "bool":
             if node.value.lower() in ("true", "false"):
                 return node.value.lower() == "true"
         return self._bad(node, path, ctx)
 
     def schema(self) -> dict[str, Any]:
-        return {"type": "boolean"}
+        return {"type": ["boolean", "null"] if self.nullable else "boolean"}
 
 
 @dataclass

@@ -240,9 +240,10 @@ OBSTACLES = Obj(
         Key("target_margin", NonNeg(), _AV.target_margin, "slot targets at rho >= r0 + this"),
         Key(
             "heading",
-            Enum(choices=("velocity", "desired")),
-            _AV.heading,
-            "vertical field's phi: velocity azimuth (spec) or desired force's",
+            Enum(choices=("auto", "velocity", "desired")),
+            "auto",
+            "vertical field's phi: velocity azimuth (spec) or desired force's; "
+            "auto: desired with the safety filter on, velocity otherwise",
         ),
     ),
 )
@@ -278,7 +279,13 @@ SAFETY = Obj(
     name="safety",
     cls=Safety,
     keys=(
-        Key("enabled", Bool(), _SAFE.enabled, "safety filter on (recommended for real vehicles)"),
+        Key(
+            "enabled",
+            Bool(nullable=True),
+            None,
+            "safety filter on; null (default): on when any vehicle is a real autopilot "
+            "(link not sim), off for an all-sim mission (the paper exactly)",
+        ),
         Key("clearance", NonNeg(), _SAFE.clearance, "minimum distance to every box [m]"),
         Key("separation", NonNeg(), _SAFE.separation, "minimum distance between vehicles [m]"),
     ),

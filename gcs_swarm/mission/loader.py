@@ -154,9 +154,11 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
     emulator = s.get("emulator", INVALID)
     vehicles = s.get("vehicles", INVALID)
     obstacles = s.get("obstacles", INVALID)
+    no_obstacles = obstacles is None
     if obstacles is None:
         obstacles = ((), Avoidance())
     limits = s.get("limits", INVALID)
+    no_limits = limits is None
     if limits is None:
         limits = (Limits(), Safety())
     parts = [s.get(k, INVALID) for k in ("gains", "leader", "readings")]
@@ -172,6 +174,14 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
             limits=limits[0],
             safety=limits[1],
         )
+    if law is not None:
+        # null / auto / an absent section: decided from the vehicles below.
+        safety_auto = no_limits or limits[1].enabled is None
+        heading_auto = no_obstacles or str(law.avoidance.heading) == "auto"
+        law = _resolve_defaults(
+            law, vehicles if _ok(vehicles) else (), safety_auto=safety_auto,
+            heading_auto=heading_auto,
+        )  # fmt: skip
     events = s.get("events", INVALID)
     run_checks(
         ctx,
@@ -195,6 +205,25 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
         events=tuple(sorted(events, key=lambda e: e.t)),
         log=log,
     )
+
+
+def _resolve_defaults(
+    law: LawConfig, vehicles: tuple[Vehicle, ...], *, safety_auto: bool, heading_auto: bool
+) -> LawConfig:
+    """Defaults that depend on the rest of the mission (issue 10): the safety
+    filter (``limits.safety.enabled`` null or absent) is on when any vehicle
+    is a real autopilot (its link is not ``sim``) and off for an all-sim
+    mission, which then reproduces the paper; ``obstacles.heading: auto``
+    (or absent) takes the desired force's azimuth with the filter on (a
+    filter holding a vehicle at a face makes the velocity's azimuth swing)
+    and the spec's velocity otherwise."""
+    safety = law.safety
+    if safety_auto:
+        safety = replace(safety, enabled=any(not v.is_sim for v in vehicles))
+    avoidance = law.avoidance
+    if heading_auto:
+        avoidance = replace(avoidance, heading="desired" if safety.enabled else "velocity")
+    return replace(law, safety=safety, avoidance=avoidance)
 
 
 def _fill_sim_origins(vehicles: tuple[Vehicle, ...], emulator: Emulator) -> tuple[Vehicle, ...]:

@@ -197,3 +197,31 @@ def test_any_value_anywhere_in_a_real_mission_gives_a_mission_or_a_mission_error
         parse_mission(yaml.safe_dump(doc), "m.yaml")
     except MissionError as err:
         assert all(line.startswith("m.yaml:") for line in str(err).splitlines())
+
+
+REAL = (
+    "mission: {origin: {lat: -35.363261, lon: 149.165230, alt: 584}}\n"
+    "vehicles:\n"
+    "  - {sysid: 1, start: [2, 1, 12], link: 'udpin:127.0.0.1:14550', autopilot: ardupilot}\n"
+    "  - {sysid: 2, start: [-1, -1, 11], link: 'udpin:127.0.0.1:14560', autopilot: ardupilot}\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("text", "enabled", "heading"),
+    [
+        (TWO, False, "velocity"),  # all sim: the paper exactly
+        (REAL, True, "desired"),  # a real autopilot: the filter on
+        ("limits: {safety: {enabled: null}}\n" + REAL, True, "desired"),
+        ("limits: {safety: {enabled: false}}\n" + REAL, False, "velocity"),
+        ("limits: {safety: {enabled: true}}\n" + TWO, True, "desired"),
+        ("obstacles: {heading: velocity}\nlimits: {safety: {enabled: true}}\n" + TWO, True,
+         "velocity"),
+    ],
+)  # fmt: skip
+def test_safety_filter_defaults_on_for_real_autopilots(
+    text: str, enabled: bool, heading: str
+) -> None:
+    law = parse_mission(text, "m.yaml").law
+    assert law.safety.enabled is enabled
+    assert law.avoidance.heading == heading

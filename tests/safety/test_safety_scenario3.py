@@ -31,8 +31,11 @@ POS_TOL = 1e-6  # the barrier is exact up to rounding (measured >= 0.5 - 1e-12 m
 
 
 @cache
-def _run(enabled: bool) -> tuple[SimResult, SafetySummary]:
+def _run(enabled: bool, heading: str = "desired") -> tuple[SimResult, SafetySummary]:
+    """Filter on or off; ``heading`` of the vertical field: ``desired`` is what
+    a mission's ``heading: auto`` picks with the filter on."""
     law = load_mission(MISSION).law
+    law = dataclasses.replace(law, avoidance=dataclasses.replace(law.avoidance, heading=heading))
     starts = [v.start for v in load_mission(MISSION).initial]
     lim = Limits(a_max=A_MAX, v_max=V_MAX)
     saf = Safety(enabled=enabled, clearance=CLEARANCE, separation=SEPARATION)
@@ -72,7 +75,7 @@ def test_scenario3_filter_on_keeps_clearance_separation_and_limits() -> None:
 
 
 def test_scenario3_filter_off_cuts_into_the_box() -> None:
-    res, summary = _run(False)
+    res, summary = _run(False, "velocity")
     # Spec s11: the paper's paths cut into the box (measured -0.32 m);
     # every vehicle passes it.
     assert _clearance(res).min() < -0.2
@@ -80,16 +83,34 @@ def test_scenario3_filter_off_cuts_into_the_box() -> None:
     assert summary.max_correction_mps2 > 0  # a_max clamps the switch spikes
 
 
+def test_scenario3_filter_on_every_vehicle_passes_and_reforms() -> None:
+    on, _ = _run(True)
+    off, _ = _run(False, "velocity")
+    t_on, t_off = _time_past(on), _time_past(off)
+    assert all(t is not None for t in t_on)
+    # Time to pass, filter on next to off (measured 19.9/19.8/24.3/22.6 s on,
+    # 18.4/19.8/21.4/22.6 s off): the filter costs at most a few seconds.
+    for a, b in zip(t_on, t_off, strict=True):
+        assert a is not None and b is not None and a - b < 5.0
+    # Re-formed after the box: back in formation, with the same radii to the
+    # leader as the filter-off run at the end (the moving formation is not the
+    # static sphere: radii 2.74..2.99 m both ways; measured agreement 0.022 m
+    # sorted, asserted to 0.1 m, 3.5 % of the radius).
+    assert on.behaviour[-1] == "formation" and off.behaviour[-1] == "formation"
+    r_on = np.sort(np.linalg.norm(on.pos_m[-1] - on.leader_pos_m[-1], axis=-1))
+    r_off = np.sort(np.linalg.norm(off.pos_m[-1] - off.leader_pos_m[-1], axis=-1))
+    np.testing.assert_allclose(r_on, r_off, atol=0.1)
+
+
 @pytest.mark.xfail(
     strict=True,
     reason=(
-        "law, not filter: the vertical field's heading phi is the velocity's "
-        "azimuth (fields.heading); once the filter stops the approach to the "
-        "face, phi swings to +-90 deg each RK4 stage and vehicle 3 limit-cycles "
-        "at x = 17.5 m. With phi from the desired force all four pass "
-        "(19.9, 19.8, 24.3, 22.6 s vs 18.4, 19.8, 21.4, 22.6 s off)."
+        "law, not filter: with the spec's heading (phi = the velocity's azimuth, "
+        "fields.heading) the filter stops the approach to the face, phi swings "
+        "to +-90 deg each RK4 stage and vehicle 3 limit-cycles at x = 17.5 m; "
+        "hence heading: auto picks the desired force's azimuth with the filter on"
     ),
 )
-def test_scenario3_filter_on_every_vehicle_passes() -> None:
-    res, _ = _run(True)
+def test_scenario3_filter_on_with_velocity_heading_passes() -> None:
+    res, _ = _run(True, "velocity")
     assert all(t is not None for t in _time_past(res))
