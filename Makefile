@@ -13,9 +13,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-## demo: fly the paper's Example 1 octahedron (six vehicles) and print the summary
+## demo: fly the paper's Example 1 octahedron (six emulated vehicles over MAVLink)
 demo: $(STAMP)
-	$(BIN)/gcs-swarm simulate config/missions/example1_octahedron.yaml
+	$(BIN)/gcs-swarm run config/missions/example1_octahedron.yaml
 
 ## test: install everything and run the whole test suite
 test: $(STAMP)
