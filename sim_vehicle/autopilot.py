@@ -87,6 +87,7 @@ class Autopilot:
         self.home: Vec3 = (airborne_at[0], airborne_at[1], 0.0) if airborne_at else ZERO
         self.yaw = 0.0
         self.version = 0
+        self.rejected = 0  # messages refused for non-finite or absurd numbers
         self.streaming = airborne_at is not None  # lockstep rule 2
         self.lpn_interval_s: float | None = None
         self.lpn_kick = False  # the server sends one LOCAL_POSITION_NED at once, then clears it

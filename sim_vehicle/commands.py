@@ -14,6 +14,12 @@ velocity 8|16|32, acceleration 64|128|256) ignores the whole group; FORCE_SET
 offset frames add the current position); any other frame stops the vehicle.
 Accepted combinations: position+velocity(+accel), velocity(+accel),
 acceleration only, position only; anything else stops the vehicle.
+
+Hostile numbers (issue 9): a setpoint whose used fields are NaN, infinite or
+absurd (beyond ``SETPOINT_LIMIT``) is dropped and counted in
+``Autopilot.rejected``, as ArduCopter ignores NaN targets; a PARAM_SET of a
+non-finite value is ignored (ArduPilot's rule); a command whose numeric
+parameters it needs are not finite is answered MAV_RESULT_DENIED.
 """
 
 from __future__ import annotations
@@ -72,6 +78,12 @@ _FRAMES = {
 #: Echoed type_mask per tracked kind (ArduCopter 4.5 reports its guided sub-mode).
 ECHO_MASK = {"accel": 3135, "vel": 3079, "pos": 3576, "posvel": 3072}
 Msgs = list[mav.MAVLink_message]
+#: Largest |value| of a setpoint field the emulator accepts (m, m/s, m/s^2, rad).
+SETPOINT_LIMIT = 1.0e5
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
 
 
 def _for_me(ap: Autopilot, msg: Any) -> bool:
@@ -123,6 +135,9 @@ def _ack(command: int, result: int, msg: Any) -> mav.MAVLink_message:
 
 
 def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float, kin: Kin) -> Msgs:
+    if not _finite(*p[:2]) or (cmd == mav.MAV_CMD_NAV_TAKEOFF and not _finite(p[6])):
+        ap.rejected += 1
+        return [_ack(cmd, DENIED, msg)]
     out: Msgs = []
     result = ACCEPTED
     after: Msgs = []
@@ -171,6 +186,9 @@ def _param(ap: Autopilot, kind: str, msg: Any, now: float, kin: Kin) -> Msgs:
         return [store.message(name)] if name is not None and name in store.values else []
     if kind == "PARAM_SET":
         name = _pid(msg)
+        if not _finite(float(msg.param_value)):
+            ap.rejected += 1
+            return []  # ArduPilot ignores NaN and infinite values
         if not store.set(name, float(msg.param_value)):
             return []  # ArduPilot ignores unknown names
         ap.refresh(now, kin)
@@ -200,7 +218,18 @@ def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
     if frame not in _FRAMES:
         ap.stop(now, kin)
         return
-    if not mask & mav.POSITION_TARGET_TYPEMASK_YAW_IGNORE:
+    pos_ign, vel_ign, acc_ign = mask & 0x7, mask & 0x38, mask & 0x1C0
+    yaw_ign = mask & mav.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+    used = (
+        ((msg.x, msg.y, msg.z) if not pos_ign else ())
+        + ((msg.vx, msg.vy, msg.vz) if not vel_ign else ())
+        + ((msg.afx, msg.afy, msg.afz) if not acc_ign else ())
+        + ((msg.yaw,) if not yaw_ign else ())
+    )
+    if not all(math.isfinite(v) and abs(v) <= SETPOINT_LIMIT for v in used):
+        ap.rejected += 1
+        return  # dropped: the vehicle keeps its last target (GUID_TIMEOUT still runs)
+    if not yaw_ign:
         ap.yaw = float(msg.yaw)
     body = frame in (mav.MAV_FRAME_BODY_NED, mav.MAV_FRAME_BODY_OFFSET_NED)
     yaw = ap.yaw if body else 0.0
@@ -213,7 +242,6 @@ def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
         p = (kin.pos[0] + p[0], kin.pos[1] + p[1], kin.pos[2] + p[2])
     v = _rot(yaw, (msg.vx, msg.vy, msg.vz))
     a = _rot(yaw, (msg.afx, msg.afy, msg.afz))
-    pos_ign, vel_ign, acc_ign = mask & 0x7, mask & 0x38, mask & 0x1C0
     sp: dict[str, Any]
     if not pos_ign and not vel_ign:
         kind, sp = "posvel", {"p": p, "v": v, "a": a if not acc_ign else (0.0, 0.0, 0.0)}

@@ -37,6 +37,7 @@ class LinkStats:
     duplicated: int = 0
     tx_dropped_full: int = 0
     bad_frames: int = 0
+    unknown_frames: int = 0
 
 
 class Impairer:
@@ -98,13 +99,26 @@ class Endpoint(asyncio.DatagramProtocol):
         fast = _fast_setpoint(data)
         if fast is not None:
             return [fast]
+        parser = self.parser
         try:
-            msgs = self.parser.parse_buffer(data) or []
-        except mav.MAVError:
+            msgs = parser.parse_buffer(data) or []
+        except (mav.MAVError, ValueError, IndexError):
             self.stats.bad_frames += 1
-            return []
-        good = [m for m in msgs if m.get_type() != "BAD_DATA"]
-        self.stats.bad_frames += len(msgs) - len(good)
+            msgs = []
+        if parser.buf_len() > 0:  # a truncated frame: never glue it to the next datagram
+            self.stats.bad_frames += 1
+            parser.buf = bytearray()
+            parser.buf_index = 0
+            parser.expected_length = mav.HEADER_LEN_V1 + 2
+            parser.have_prefix_error = False
+        good = []
+        for m in msgs:
+            if isinstance(m, mav.MAVLink_bad_data):
+                self.stats.bad_frames += 1
+            elif isinstance(m, mav.MAVLink_unknown):
+                self.stats.unknown_frames += 1
+            else:
+                good.append(m)
         return good
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:

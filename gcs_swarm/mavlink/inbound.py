@@ -4,14 +4,21 @@
 dataclasses below (or None for messages the station does not use), so that
 the protocol state machine never touches pymavlink objects and its tests can
 build messages by hand. Units are MAVLink's own, named in each field.
+
+``plausible`` is the one check of the numbers a vehicle sends: telemetry
+with NaN, infinities or absurd values (a position of 1e30 m) is refused by
+the protocol and never reaches the law; the vehicle goes stale instead.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 __all__ = [
+    "POSITION_LIMIT_M",
+    "SPEED_LIMIT_MPS",
     "CommandAck",
     "EkfStatus",
     "GpsGlobalOrigin",
@@ -23,10 +30,17 @@ __all__ = [
     "PositionTarget",
     "StatusText",
     "from_pymavlink",
+    "plausible",
 ]
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_AUTOPILOT_INVALID = 8
+
+POSITION_LIMIT_M = 1.0e5
+"""Largest plausible |x|, |y|, |z| of LOCAL_POSITION_NED [m]: 100 km from the
+EKF origin, far beyond any swarm's field yet far below float32 garbage."""
+SPEED_LIMIT_MPS = 200.0
+"""Largest plausible velocity component [m/s] (a multicopter flies < 50 m/s)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,3 +225,24 @@ def from_pymavlink(msg: Any) -> Inbound | None:
             float(msg.afz),
         )
     return None
+
+
+def _finite_within(limit: float, *values: float) -> bool:
+    return all(math.isfinite(v) and abs(v) <= limit for v in values)
+
+
+def plausible(msg: Inbound) -> bool:
+    """False for a message whose numbers cannot be true: non-finite or absurd
+    LOCAL_POSITION_NED, an EKF origin off the globe, a non-finite parameter
+    value or acceleration echo. Everything else is plausible."""
+    if isinstance(msg, LocalPositionNed):
+        return _finite_within(POSITION_LIMIT_M, msg.x, msg.y, msg.z) and _finite_within(
+            SPEED_LIMIT_MPS, msg.vx, msg.vy, msg.vz
+        )
+    if isinstance(msg, GpsGlobalOrigin):
+        return abs(msg.lat_e7) <= 900_000_000 and abs(msg.lon_e7) <= 1_800_000_000
+    if isinstance(msg, ParamValue):
+        return math.isfinite(msg.value)
+    if isinstance(msg, PositionTarget):
+        return all(math.isfinite(v) for v in (msg.afx, msg.afy, msg.afz))
+    return True

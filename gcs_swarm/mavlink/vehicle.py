@@ -51,6 +51,7 @@ from gcs_swarm.mavlink.inbound import (
     ParamValue,
     PositionTarget,
     StatusText,
+    plausible,
 )
 from gcs_swarm.mavlink.states import (
     AIRBORNE_PHASES,
@@ -71,6 +72,8 @@ __all__ = ["VehicleProtocol"]
 FloatArray = npt.NDArray[np.float64]
 
 _MAV_SEVERITY_WARNING = 4
+_REBOOT_MS = 10_000
+"""Telemetry older than the last by more than this is a reboot, not a reorder."""
 
 
 class VehicleProtocol:
@@ -103,6 +106,10 @@ class VehicleProtocol:
         self.last_accel_ned: FloatArray = np.zeros(3)
         self.failure: str | None = None
         self.took_over = False
+        self.rejected_values = 0
+        """Messages refused for implausible numbers (NaN, 1e30 m, ...)."""
+        self.stale_telemetry = 0
+        """LOCAL_POSITION_NED not newer than the last one (duplicated or reordered)."""
         self.params: dict[str, float] = {}
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
         self._hb_at = -math.inf
@@ -226,6 +233,9 @@ class VehicleProtocol:
         """Feed one decoded message from this vehicle."""
         if msg.sysid != self.sysid:
             return
+        if not plausible(msg):
+            self.rejected_values += 1  # never reaches the law; the vehicle goes stale
+            return
         if isinstance(msg, Heartbeat):
             self._on_heartbeat(msg, now)
         elif isinstance(msg, LocalPositionNed):
@@ -310,6 +320,16 @@ class VehicleProtocol:
                 self._set_phase(Phase.ENDED, now)
 
     def _on_position(self, pos: LocalPositionNed, now: float) -> None:
+        last = self.position
+        if (
+            self.phase is Phase.FLYING
+            and last is not None
+            and 0 <= last.time_boot_ms - pos.time_boot_ms < _REBOOT_MS
+        ):
+            # A duplicated or reordered frame: the law keeps the newest state and
+            # answers each telemetry once.
+            self.stale_telemetry += 1
+            return
         self.position = pos
         self.position_at = now
         phase = self.phase

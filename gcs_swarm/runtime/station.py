@@ -140,6 +140,7 @@ class Station:
         self._links: dict[str, Link] = {}
         self._link_of: dict[int, Link] = {}
         self._fresh: dict[int, int] = {}
+        self._arrival: dict[int, float] = {}
         self._timers: dict[int, tuple[float, asyncio.TimerHandle]] = {}
         self._fallback: asyncio.TimerHandle | None = None
         self._tg = asyncio.TaskGroup()
@@ -265,8 +266,13 @@ class Station:
             return
         now = self.now()
         vp.handle_message(inbound, now)
-        if isinstance(inbound, LocalPositionNed) and vp.phase is Phase.FLYING:
+        if (
+            isinstance(inbound, LocalPositionNed)
+            and vp.phase is Phase.FLYING
+            and vp.position is inbound  # not refused as implausible, duplicated or old
+        ):
             self._fresh[sysid] = inbound.time_boot_ms
+            self._arrival[sysid] = link.rx_time_s
             self._maybe_step(now)
         self._service(vp, now)
 
@@ -392,7 +398,8 @@ class Station:
             for i, sysid in enumerate(ids):
                 if sysid in fresh:  # exactly one answer per telemetry
                     vp = self.vehicles[sysid]
-                    self._link_of[sysid].send(vp.accel_setpoint(res.accel_mps2[i]), sysid)
+                    self._link_of[sysid].send(vp.accel_setpoint(res.accel_mps2[i]), sysid,
+                                              since_s=self._arrival.get(sysid))  # fmt: skip
             job = self.control.pending_lookahead()
             if job is not None:
                 self._tasks.append(self._tg.create_task(self._lookahead(job)))
@@ -502,6 +509,11 @@ class Station:
         _log.log(level, "%s", text)
         if level >= logging.INFO:
             self.log.append(text)
+
+    def setpoint_latencies_s(self) -> list[float]:
+        """Recent telemetry-arrival-to-setpoint-write times [s] of every link
+        (each link keeps its last ``LatencyRing`` size samples)."""
+        return [x for link in self._links.values() for x in link.latency.samples()]
 
     def phases(self) -> dict[int, Phase]:
         return {s: vp.phase for s, vp in self.vehicles.items()}
