@@ -73,7 +73,8 @@ def heartbeat(custom_mode: int, armed: bool, guided_like: bool) -> mav.MAVLink_m
 
 
 def sys_status(ekf_ready: bool) -> mav.MAVLink_message:
-    """SYS_STATUS: gyro, accel, mag, baro, GPS present; healthy once the EKF is ready."""
+    """SYS_STATUS: gyro, accel, mag, baro, GPS, AHRS and pre-arm checks present;
+    GPS, AHRS and pre-arm healthy once the EKF is ready; geofence healthy."""
     present = (
         mav.MAV_SYS_STATUS_SENSOR_3D_GYRO
         | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
@@ -81,12 +82,17 @@ def sys_status(ekf_ready: bool) -> mav.MAVLink_message:
         | mav.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
         | mav.MAV_SYS_STATUS_SENSOR_GPS
         | mav.MAV_SYS_STATUS_AHRS
+        # ArduPilot reports its pre-arm checks as a sensor: enabled, healthy
+        # when arming would pass (here: once the EKF is ready).
+        | mav.MAV_SYS_STATUS_PREARM_CHECK
     )
-    health = (
-        present
-        if ekf_ready
-        else present & ~(mav.MAV_SYS_STATUS_SENSOR_GPS | mav.MAV_SYS_STATUS_AHRS)
+    not_ready = (
+        mav.MAV_SYS_STATUS_SENSOR_GPS | mav.MAV_SYS_STATUS_AHRS | mav.MAV_SYS_STATUS_PREARM_CHECK
     )
+    health = present if ekf_ready else present & ~not_ready
+    # ArduPilot sets the geofence health bit whenever the fence is not breached,
+    # also with no fence configured; without it MAVProxy announces "fence breach".
+    health |= mav.MAV_SYS_STATUS_GEOFENCE
     return mav.MAVLink_sys_status_message(
         onboard_control_sensors_present=present,
         onboard_control_sensors_enabled=present,
