@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,7 +30,14 @@ from typing import Any, Literal
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink.codec import Codec, MessageSpec
 
-__all__ = ["MESSAGE_QUEUE_SIZE", "Endpoint", "Link", "LinkStats", "parse_connection"]
+__all__ = [
+    "MESSAGE_QUEUE_SIZE",
+    "Endpoint",
+    "LatencyRing",
+    "Link",
+    "LinkStats",
+    "parse_connection",
+]
 
 _log = logging.getLogger("gcs_swarm.link")
 
@@ -90,6 +98,41 @@ class LinkStats:
     peers: set[str] = field(default_factory=set)
 
 
+class LatencyRing:
+    """The last ``size`` setpoint latencies [s]: from the arrival of the
+    telemetry a setpoint answers (``Link.rx_time_s`` when its datagram came
+    in, ``time.monotonic`` clock) to that setpoint's write to the socket.
+    Fixed memory, one list store per setpoint; ``count`` and ``max_s`` cover
+    every sample since the start, the percentiles the last ``size``."""
+
+    def __init__(self, size: int = 16384) -> None:
+        self._buf = [0.0] * size
+        self._i = 0
+        self.count = 0
+        self.max_s = 0.0
+
+    def add(self, latency_s: float) -> None:
+        self._buf[self._i] = latency_s
+        self._i = (self._i + 1) % len(self._buf)
+        self.count += 1
+        if latency_s > self.max_s:
+            self.max_s = latency_s
+
+    def samples(self) -> list[float]:
+        """The retained samples [s], oldest first."""
+        if self.count < len(self._buf):
+            return self._buf[: self.count]
+        return self._buf[self._i :] + self._buf[: self._i]
+
+    def percentile(self, q: float) -> float:
+        """The ``q``-th percentile (0..100, nearest rank) of the retained samples [s]."""
+        data = sorted(self.samples())
+        if not data:
+            return float("nan")
+        rank = min(len(data) - 1, max(0, round(q / 100.0 * len(data) + 0.5) - 1))
+        return data[rank]
+
+
 class _Udp(asyncio.DatagramProtocol):
     def __init__(self, link: Link) -> None:
         self._link = link
@@ -114,11 +157,16 @@ class Link:
     ) -> None:
         self.endpoint = parse_connection(connection)
         self.stats = LinkStats()
+        self.latency = LatencyRing()
+        """Telemetry-arrival-to-setpoint-write times of this link's setpoints."""
+        self.rx_time_s = 0.0
+        """``time.monotonic()`` when the datagram (or stream chunk) being decoded arrived."""
         self._on_message = on_message
         self._on_frame = on_frame
         self._codecs: dict[Peer, Codec] = {}
         self._routes: dict[int, Peer] = {}
         self._setpoints: dict[int, MessageSpec] = {}
+        self._since: dict[int, float] = {}
         self._messages: deque[tuple[MessageSpec, int | None]] = deque()
         self._wake = asyncio.Event()
         self._udp: asyncio.DatagramTransport | None = None
@@ -188,14 +236,20 @@ class Link:
             self._tasks.append(self._tg.create_task(self._tcp_client()))
 
     # ------------------------------------------------------------ sending
-    def send(self, spec: MessageSpec, sysid: int | None = None) -> None:
-        """Queue ``spec`` for vehicle ``sysid`` (None: every peer). Never blocks."""
+    def send(
+        self, spec: MessageSpec, sysid: int | None = None, *, since_s: float | None = None
+    ) -> None:
+        """Queue ``spec`` for vehicle ``sysid`` (None: every peer). Never blocks.
+        ``since_s``: for a setpoint, when the telemetry it answers arrived
+        (``rx_time_s``); its write then adds a sample to ``latency``."""
         if sysid is None and not self._codecs:
             return  # a broadcast (HEARTBEAT) with nobody connected yet goes nowhere
         if spec.kind == "setpoint" and sysid is not None:
             if sysid in self._setpoints:
                 self.stats.setpoints_dropped += 1
             self._setpoints[sysid] = spec
+            if since_s is not None:
+                self._since[sysid] = since_s
         else:
             if len(self._messages) >= MESSAGE_QUEUE_SIZE:
                 self._messages.popleft()
@@ -213,8 +267,12 @@ class Link:
                 spec, sysid = self._messages.popleft()
                 self._write(spec, sysid)
             setpoints, self._setpoints = self._setpoints, {}
+            since, self._since = self._since, {}
             for sysid, spec in setpoints.items():
                 self._write(spec, sysid)
+                t0 = since.get(sysid)
+                if t0 is not None:
+                    self.latency.add(time.monotonic() - t0)
             for stream in self._streams:
                 with contextlib.suppress(ConnectionError):
                     await stream.writer.drain()
@@ -245,6 +303,7 @@ class Link:
 
     # ---------------------------------------------------------- receiving
     def _on_bytes(self, data: bytes, peer: Peer, *, datagram: bool) -> None:
+        self.rx_time_s = time.monotonic()
         codec = self._codecs.get(peer)
         if codec is None:
             codec = self._codecs[peer] = Codec()

@@ -1,0 +1,104 @@
+"""The codec floor: pymavlink's cost per vehicle per control cycle.
+
+Run from the repository root: ``python benchmarks/bench_codec.py`` (about 10 s).
+
+A pymavlink-based station must, for every vehicle and every cycle, at least
+decode one LOCAL_POSITION_NED and encode one SET_POSITION_TARGET_LOCAL_NED.
+This measures exactly that with the generated ``ardupilotmega`` dialect (the
+cheapest pymavlink path: ``parse_buffer`` on a one-frame datagram, then
+``set_position_target_local_ned_encode(...).pack``), and the same two steps
+through the station's own code (``Codec.decode`` + ``from_pymavlink`` and
+``VehicleProtocol.accel_setpoint`` + ``Codec.encode``). Medians of 7 rounds.
+
+``floor_us`` is printed last as ``FLOOR_US=<value>`` so that other
+benchmarks (``bench_station.py``) can quote the ratio to it.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+ROUNDS = 7
+CALLS = 20_000
+
+
+def _median_us(fn: Callable[[], object], calls: int = CALLS) -> tuple[float, float, float]:
+    """(median, min, max) over ROUNDS of the mean cost of one call [us]."""
+    per = []
+    for _ in range(ROUNDS):
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        per.append((time.perf_counter() - t0) / calls * 1e6)
+    return statistics.median(per), min(per), max(per)
+
+
+def lpn_frame() -> bytes:
+    enc = mav.MAVLink(None, 7, 1)
+    return bytes(enc.local_position_ned_encode(123456, 1.5, -2.25, -10.0, 0.1, 0.2, -0.3).pack(enc))
+
+
+def main() -> float:
+    frame = lpn_frame()
+    dec = mav.MAVLink(None, 255, 190)
+    dec.robust_parsing = True
+    enc = mav.MAVLink(None, 255, 190)
+
+    def py_decode() -> object:
+        return dec.parse_buffer(frame)
+
+    def py_encode() -> object:
+        msg = enc.set_position_target_local_ned_encode(
+            123456, 7, 1, 1, 3135, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, -0.25, 0.125, 0.0, 0.0
+        )
+        return msg.pack(enc)
+
+    from gcs_swarm.mavlink.codec import Codec
+    from gcs_swarm.mavlink.inbound import from_pymavlink
+    from gcs_swarm.mavlink.states import ProtocolConfig
+    from gcs_swarm.mavlink.vehicle import VehicleProtocol
+
+    codec = Codec()
+    vp = VehicleProtocol(7, ProtocolConfig(), goto_m=(0.0, 0.0, 0.0))
+
+    def gcs_decode() -> object:
+        return [from_pymavlink(m) for m in codec.decode(frame)]
+
+    accel = (0.5, -0.25, 0.125)
+
+    def gcs_encode() -> object:
+        return codec.encode(vp.accel_setpoint(accel))
+
+    rows = [
+        ("pymavlink decode LOCAL_POSITION_NED (parse_buffer)", py_decode),
+        ("pymavlink encode SET_POSITION_TARGET_LOCAL_NED (_encode + pack)", py_encode),
+        ("station decode (Codec.decode + from_pymavlink)", gcs_decode),
+        ("station encode (accel_setpoint + Codec.encode)", gcs_encode),
+    ]
+    print(f"codec floor, median of {ROUNDS} x {CALLS} calls (us per call, [min..max])")
+    res = {}
+    for name, fn in rows:
+        med, lo, hi = _median_us(fn)
+        res[name] = med
+        print(f"  {name:66s} {med:7.2f}  [{lo:.2f}..{hi:.2f}]", flush=True)
+    floor = rows[0][0], rows[1][0]
+    floor_us = res[floor[0]] + res[floor[1]]
+    station_us = res[rows[2][0]] + res[rows[3][0]]
+    print(f"pymavlink floor per vehicle per cycle: {floor_us:.1f} us "
+          f"-> {1e6 / floor_us / 50:.0f} vehicles at 50 Hz on one core")  # fmt: skip
+    print(f"station codec path per vehicle per cycle: {station_us:.1f} us "
+          f"({station_us / floor_us:.2f} x floor)")  # fmt: skip
+    print(f"FLOOR_US={floor_us:.2f}")
+    return floor_us
+
+
+if __name__ == "__main__":
+    main()

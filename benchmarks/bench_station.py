@@ -1,0 +1,221 @@
+"""Station capacity: N vehicles at 50 Hz in real time, station and emulator apart.
+
+Run from the repository root: ``python benchmarks/bench_station.py`` (about
+90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change).
+
+The emulator runs in a child process (this file with ``--emulator``) pinned
+to core 0, the station in this process pinned to core 1 (when the machine has
+two cores). Vehicles start airborne in GUIDED (``spawn: air``), all on one
+shared UDP endpoint per group of at most 250 (MAVLink system ids are 8 bits
+and the station keys vehicles by system id, so N = 500 is two groups, each
+with its own ``Station`` on the same event loop, i.e. the same core). Each
+station readies its vehicles, then flies the formation law (Example 1 gains,
+leader at rest, vehicles on a 3 m grid) answering every LOCAL_POSITION_NED.
+
+Measured over a window after one second of flight:
+- setpoints/s written by the station and telemetry/s received;
+- latency from a telemetry datagram's arrival to its setpoint's write
+  (``Link.latency``, measured inside the station) p50 / p99 / max;
+- missed: N x 50 x window minus setpoints written (vehicle-cycles without a
+  setpoint), and control steps vs 50 x window;
+- station CPU: process time / wall time (one core = 1.0), and the station's
+  cost per vehicle per cycle (CPU time / setpoints) as a ratio to the
+  pymavlink codec floor of ``bench_codec.py`` (measured again here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+GROUP = 250
+RATE_HZ = 50
+
+
+def _pin(core: int) -> str:
+    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
+        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
+        return f"core {core}"
+    return "not pinned"
+
+
+def mission_yaml(n: int) -> str:
+    side = math.ceil(n ** (1 / 3))
+    lines = [
+        "mission: {name: bench, duration: 100000, rate: 50, end: hold}",
+        "emulator: {dynamics: ideal, spawn: air, shared: true}",
+        "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}",
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
+        "vehicles:",
+    ]
+    for i in range(n):
+        x, y, z = i % side, (i // side) % side, i // (side * side)
+        c = (side - 1) / 2
+        pos = f"[{3 * (x - c)}, {3 * (y - c)}, {3 * (z - c)}]"
+        lines.append(f"  - {{sysid: {i + 1}, start: {pos}}}")
+    return "\n".join(lines) + "\n"
+
+
+def load(n: int):  # type: ignore[no-untyped-def]
+    from gcs_swarm.mission import load_mission
+
+    with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as f:
+        f.write(mission_yaml(n))
+    try:
+        return load_mission(f.name)
+    finally:
+        os.unlink(f.name)
+
+
+def groups(n: int) -> list[int]:
+    return [min(GROUP, n - k) for k in range(0, n, GROUP)]
+
+
+async def emulator_main(n: int) -> None:
+    """Child: one realtime emulator per group, shared endpoint each; ports on stdout."""
+    from dataclasses import replace
+
+    from gcs_swarm.runtime.run import emulator_config
+    from sim_vehicle import Emulator
+
+    _pin(0)
+    async with contextlib_stack() as stack:
+        emus = []
+        for size in groups(n):
+            cfg = replace(emulator_config(load(size), airborne=True), shared_port=0)
+            emus.append(await stack.enter_async_context(Emulator(cfg)))
+        print(" ".join(str(e.endpoints[1][1]) for e in emus), flush=True)
+        loop = asyncio.get_running_loop()
+        reader = asyncio.StreamReader()
+        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+        await reader.readline()  # the parent's window starts
+        late0 = sum(e.stats.late_steps for e in emus)
+        steps0, c0, w0 = emus[0].step_count, time.process_time(), time.monotonic()
+        await reader.readline()  # the window ends
+        c1, w1 = time.process_time(), time.monotonic()
+        rt = (emus[0].step_count - steps0) / RATE_HZ / (w1 - w0)
+        late = sum(e.stats.late_steps for e in emus) - late0
+        print(f"late_steps={late} cpu={(c1 - c0) / (w1 - w0):.3f} rt={rt:.3f}", flush=True)
+        await reader.read()  # until the parent closes stdin
+
+
+def contextlib_stack():  # type: ignore[no-untyped-def]
+    import contextlib
+
+    return contextlib.AsyncExitStack()
+
+
+async def station_run(n: int, seconds: float) -> dict[str, float]:
+    import logging
+
+    from gcs_swarm.runtime.links import LatencyRing
+    from gcs_swarm.runtime.run import station_config
+    from gcs_swarm.runtime.station import Station
+
+    logging.getLogger("gcs_swarm").setLevel(logging.WARNING)
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, __file__, "--emulator", str(n),
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stdin is not None
+    ports = [int(p) for p in (await proc.stdout.readline()).split()]
+    stations = []
+    async with contextlib_stack() as stack:
+        for size, port in zip(groups(n), ports, strict=True):
+            mission = load(size)
+            links = {v.sysid: f"udpout:127.0.0.1:{port}" for v in mission.vehicles}
+            cfg = station_config(mission, links)
+            stations.append(await stack.enter_async_context(Station(cfg)))
+        t_ready = time.monotonic()
+        await asyncio.gather(*(s.ready() for s in stations))
+        t_ready = time.monotonic() - t_ready
+        flying = [asyncio.create_task(s.fly()) for s in stations]
+        await asyncio.sleep(1.0)
+        links = [lk for s in stations for lk in s.links.values()]
+        for lk in links:
+            lk.latency = LatencyRing(size=RATE_HZ * GROUP * int(seconds + 2))
+        rx0 = sum(lk.stats.received for lk in links)
+        steps0 = sum(s.steps for s in stations)
+        drop0 = sum(lk.stats.setpoints_dropped for lk in links)
+        proc.stdin.write(b"start\n")
+        c0, w0 = time.process_time(), time.monotonic()
+        await asyncio.sleep(seconds)
+        c1, w1 = time.process_time(), time.monotonic()
+        proc.stdin.write(b"stop\n")
+        lat = sorted(x for lk in links for x in lk.latency.samples())
+        sent = sum(lk.latency.count for lk in links)
+        rx = sum(lk.stats.received for lk in links) - rx0
+        steps = sum(s.steps for s in stations) - steps0
+        drops = sum(lk.stats.setpoints_dropped for lk in links) - drop0
+        for task in flying:
+            task.cancel()
+        await asyncio.gather(*(s.end() for s in stations))
+    proc.stdin.close()
+    tail = (await proc.stdout.read()).decode()
+    await proc.wait()
+    emu = dict(kv.split("=") for kv in tail.split()) if "late_steps=" in tail else {}
+    wall = w1 - w0
+
+    def pct(q: float) -> float:
+        return lat[min(len(lat) - 1, int(q / 100 * len(lat)))] * 1e3 if lat else math.nan
+
+    return {
+        "ready_s": t_ready,
+        "setpoints_per_s": sent / wall,
+        "rx_per_s": rx / wall,
+        "p50_ms": pct(50),
+        "p99_ms": pct(99),
+        "max_ms": lat[-1] * 1e3 if lat else math.nan,
+        "missed": max(0.0, n * RATE_HZ * wall - sent),
+        "missed_steps": max(0.0, RATE_HZ * wall * len(stations) - steps),
+        "drops": drops,
+        "cpu": (c1 - c0) / wall,
+        "us_per_vehicle_cycle": (c1 - c0) / max(sent, 1) * 1e6,
+        "emu_late": float(emu.get("late_steps", -1)),
+        "emu_cpu": float(emu.get("cpu", -1)),
+        "emu_rt": float(emu.get("rt", -1)),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--emulator", type=int)
+    ap.add_argument("--counts", default="50,100,250,500")
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--repeat", type=int, default=1)
+    args = ap.parse_args()
+    if args.emulator:
+        asyncio.run(emulator_main(args.emulator))
+        return
+    import bench_codec
+
+    floor_us = bench_codec.main()
+    where = _pin(1)
+    print(f"\nstation capacity, {RATE_HZ} Hz real time, station on {where}, emulator on core 0,"
+          f" {args.seconds:g} s window")  # fmt: skip
+    print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
+          f"{'max ms':>7} {'missed':>7} {'miss st':>7} {'cpu':>5} {'us/veh':>6} {'x floor':>7} "
+          f"{'emu late':>8} {'emu cpu':>7} {'emu rt':>6}")  # fmt: skip
+    for n in (int(c) for c in args.counts.split(",")):
+        runs = [asyncio.run(station_run(n, args.seconds)) for _ in range(args.repeat)]
+        r = {k: statistics.median(x[k] for x in runs) for k in runs[0]}
+        print(f"{n:4d} {r['ready_s']:7.1f} {r['setpoints_per_s']:8.0f} {r['rx_per_s']:8.0f} "
+              f"{r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} {r['missed']:7.0f} "
+              f"{r['missed_steps']:7.0f} {r['cpu']:5.2f} {r['us_per_vehicle_cycle']:6.1f} "
+              f"{r['us_per_vehicle_cycle'] / floor_us:7.2f} {r['emu_late']:8.0f} "
+              f"{r['emu_cpu']:7.2f} {r['emu_rt']:6.3f}",
+              flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
