@@ -38,12 +38,37 @@ _PAY_DTYPE = np.dtype(
 )
 
 
+def _crc_table() -> NDArray[np.uint32]:
+    table = np.zeros(256, dtype=np.uint32)
+    for i in range(256):
+        crc = i
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0x8408 if crc & 1 else crc >> 1
+        table[i] = crc
+    return table
+
+
+_CRC_TABLE = _crc_table()
+"""CRC-16/MCRF4XX (X.25, reflected 0x1021) of each byte value from 0."""
+_CRC_LIST = [int(x) for x in _CRC_TABLE]
+_SMALL_N = 64
+"""Below this many frames the CRC runs per frame over bytes (a numpy step per
+byte costs more than the whole frame in plain Python)."""
+
+
 def _crc_step(crc: NDArray[Any], byte: NDArray[Any]) -> NDArray[Any]:
     """One byte of CRC-16/MCRF4XX (X.25) for every row at once."""
-    tmp = (byte ^ (crc & 0xFF)) & 0xFF
-    tmp = (tmp ^ (tmp << 4)) & 0xFF
-    out: NDArray[Any] = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    out: NDArray[Any] = (crc >> 8) ^ _CRC_TABLE[(crc ^ byte) & 0xFF]
     return out
+
+
+def _crc_bytes(data: bytes) -> int:
+    """CRC-16/MCRF4XX of ``data`` followed by LOCAL_POSITION_NED's CRC_EXTRA."""
+    crc = 0xFFFF
+    table = _CRC_LIST
+    for byte in data:
+        crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+    return (crc >> 8) ^ table[(crc ^ LPN_CRC_EXTRA) & 0xFF]
 
 
 def encode_local_position_ned(
@@ -78,6 +103,14 @@ def encode_local_position_ned(
     buf[:, 7] = LPN_MSGID
     buf[:, _HDR : _HDR + _PAYLOAD] = pb
     buf[:, _HDR : _HDR + _PAYLOAD][~(np.arange(_PAYLOAD)[None, :] < plen[:, None])] = 0
+    end = _HDR + plen
+    rows = np.arange(n)
+    if n < _SMALL_N:
+        for i, e in enumerate(end.tolist()):
+            crc_i = _crc_bytes(buf[i, 1:e].tobytes())
+            buf[i, e] = crc_i & 0xFF
+            buf[i, e + 1] = crc_i >> 8
+        return buf, end + 2
     crc = np.full(n, 0xFFFF, dtype=np.uint32)
     b32 = buf.astype(np.uint32)
     for j in range(1, _HDR):
@@ -86,8 +119,6 @@ def encode_local_position_ned(
         col = _HDR + j
         crc = np.where(j < plen, _crc_step(crc, b32[:, col]), crc)
     crc = _crc_step(crc, np.full(n, LPN_CRC_EXTRA, dtype=np.uint32))
-    end = _HDR + plen
-    rows = np.arange(n)
     buf[rows, end] = crc & 0xFF
     buf[rows, end + 1] = crc >> 8
     return buf, end + 2

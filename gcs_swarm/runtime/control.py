@@ -132,10 +132,36 @@ class ControlLoop:
         return start - leader0 + self.controller.leader_pos_m
 
 
+_GRAM_FROM_N = 48
+"""From this many vehicles the minimum separation is searched with one Gram
+product (O(N^2) memory of floats, not N x N x 3 differences)."""
+
+
 def _min_separation(pos_m: FloatArray) -> float:
+    """Smallest pairwise distance [m] of ``pos_m (N, 3)``, inf below two vehicles.
+
+    Small swarms: every difference directly. Large swarms: squared distances
+    from the Gram matrix of the centred positions pick the candidate pairs (all
+    within the Gram form's rounding bound of the smallest), whose distances are
+    then computed directly, so the result is the same float either way.
+    """
     n = pos_m.shape[0]
     if n < 2:
         return math.inf
-    d = pos_m[:, None, :] - pos_m[None, :, :]
-    dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
-    return float(dist[np.triu_indices(n, 1)].min())
+    if n < _GRAM_FROM_N:
+        d = pos_m[:, None, :] - pos_m[None, :, :]
+        dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
+        return float(dist[np.triu_indices(n, 1)].min())
+    c = pos_m - pos_m.mean(axis=0)
+    sq = np.einsum("ij,ij->i", c, c)
+    d2 = c @ c.T
+    d2 *= -2.0
+    d2 += sq[:, None]
+    d2 += sq[None, :]
+    np.fill_diagonal(d2, np.inf)
+    # |error| of each Gram entry <= ~8 eps (|c_i|^2 + |c_j|^2): keep every pair
+    # that could be the true minimum.
+    tol = 64.0 * np.finfo(np.float64).eps * 2.0 * float(sq.max()) + 1e-300
+    i, j = np.nonzero(d2 <= float(d2.min()) + tol)
+    diff = pos_m[i] - pos_m[j]
+    return float(np.sqrt(np.einsum("ij,ij->i", diff, diff)).min())
