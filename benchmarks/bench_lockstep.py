@@ -1,0 +1,124 @@
+"""Lockstep speed with the real station in the loop.
+
+Run from the repository root: ``python benchmarks/bench_lockstep.py`` (about
+30 s; ``--runs``).
+
+Example 1 (``config/missions/example1_octahedron.yaml``, N = 6, 50 Hz) with
+the emulator in lockstep (``clock: lockstep``: step k+1 waits for every
+vehicle's answer to step k's telemetry) in a child process pinned to core 0,
+and the station here on core 1, vehicles spawned airborne. Reported: control
+steps per wall second over a window of the flight (= emulator steps, one
+setpoint per telemetry), as a multiple of real time (50 steps/s), and the
+emulator's lockstep timeouts (0 = every step was answered). The emulator
+alone with a minimal stand-in for the station is ``bench_emulator.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+ROOT = Path(__file__).resolve().parents[1]
+MISSION = ROOT / "config" / "missions" / "example1_octahedron.yaml"
+RATE_HZ = 50.0
+
+
+def _pin(core: int) -> str:
+    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
+        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
+        return f"core {core}"
+    return "not pinned"
+
+
+def _mission():  # type: ignore[no-untyped-def]
+    from gcs_swarm.mission import load_mission
+
+    m = load_mission(MISSION)
+    return replace(m, settings=replace(m.settings, duration=1e6))
+
+
+async def emulator_main() -> None:
+    from gcs_swarm.runtime.run import emulator_config
+    from sim_vehicle import Emulator
+
+    _pin(0)
+    cfg = replace(emulator_config(_mission(), airborne=True), clock="lockstep", shared_port=0)
+    async with Emulator(cfg) as emu:
+        print(emu.endpoints[1][1], flush=True)
+        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.readline)
+        print(emu.stats.lockstep_timeouts, flush=True)
+        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+
+
+async def one_run(seconds: float) -> dict[str, float]:
+    import logging
+
+    from gcs_swarm.runtime.run import station_config
+    from gcs_swarm.runtime.station import Station
+
+    logging.getLogger("gcs_swarm").setLevel(logging.WARNING)
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, __file__, "--emulator",
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stdin is not None
+    port = int(await proc.stdout.readline())
+    mission = _mission()
+    links = {v.sysid: f"udpout:127.0.0.1:{port}" for v in mission.vehicles}
+    async with Station(station_config(mission, links, lockstep=True)) as st:
+        await st.ready()
+        fly = asyncio.create_task(st.fly())
+        await asyncio.sleep(1.0)
+        s0, w0, c0 = st.steps, time.monotonic(), time.process_time()
+        await asyncio.sleep(seconds)
+        s1, w1, c1 = st.steps, time.monotonic(), time.process_time()
+        proc.stdin.write(b"stop\n")
+        timeouts = int(await proc.stdout.readline())
+        fly.cancel()
+        await st.end()
+    proc.stdin.close()
+    await proc.wait()
+    rate = (s1 - s0) / (w1 - w0)
+    return {
+        "steps_per_s": rate,
+        "speedup": rate / RATE_HZ,
+        "station_cpu": (c1 - c0) / (w1 - w0),
+        "timeouts": timeouts,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--emulator", action="store_true")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=5.0)
+    args = ap.parse_args()
+    if args.emulator:
+        asyncio.run(emulator_main())
+        return
+    where = _pin(1)
+    print(f"lockstep, Example 1 (N = 6, 50 Hz), station on {where}, emulator on core 0")
+    rows = []
+    for i in range(args.runs):
+        r = asyncio.run(one_run(args.seconds))
+        rows.append(r)
+        print(f"run {i + 1}: {r['steps_per_s']:.0f} steps/s = {r['speedup']:.1f}x real time, "
+              f"station cpu {r['station_cpu']:.2f}, {r['timeouts']:.0f} timeouts",
+              flush=True)  # fmt: skip
+    med = statistics.median(r["steps_per_s"] for r in rows)
+    lo, hi = min(r["steps_per_s"] for r in rows), max(r["steps_per_s"] for r in rows)
+    print(f"median of {len(rows)}: {med:.0f} steps/s = {med / RATE_HZ:.1f}x real time "
+          f"(range {lo:.0f}..{hi:.0f}; target 50x = 2500 steps/s)")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
