@@ -115,6 +115,9 @@ class EmulatorConfig:
     HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
     vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
     address from the start (like SITL ``--out``), in addition to peers heard.
+    ``signing_key``: 32 bytes turn MAVLink 2 signing on: every frame sent is
+    signed, and unsigned, wrongly signed or replayed frames received are
+    dropped and counted (``LinkStats.signature_rejected``); never shown.
     """
 
     vehicles: tuple[VehicleSpec, ...] = ()
@@ -136,8 +139,11 @@ class EmulatorConfig:
     downlink: Impairment = field(default_factory=Impairment)
     streams: Mapping[int, float] = field(default_factory=dict)
     params: Mapping[str, float] = field(default_factory=dict)
+    signing_key: bytes | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.signing_key is not None:
+            _check(len(self.signing_key) == 32, "signing_key: expected 32 bytes")
         _check(self.rate_hz > 0.0, f"rate_hz: expected > 0, got {self.rate_hz}")
         _check(self.speedup > 0.0, f"speedup: expected > 0, got {self.speedup}")
         _check(self.clock in ("realtime", "lockstep"), f"clock: unknown {self.clock!r}")

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from sim_vehicle import signing
 from sim_vehicle.config import Impairment
 
 __all__ = ["MAX_DATAGRAM", "Endpoint", "Impairer", "LinkStats"]
@@ -38,6 +39,7 @@ class LinkStats:
     tx_dropped_full: int = 0
     bad_frames: int = 0
     unknown_frames: int = 0
+    signature_rejected: int = 0
 
 
 class Impairer:
@@ -76,10 +78,11 @@ class Endpoint(asyncio.DatagramProtocol):
     peers: dict[Addr, None] = field(default_factory=dict)
     outbox: list[tuple[bytes, int]] = field(default_factory=list)
     transport: asyncio.DatagramTransport | None = None
+    signing_key: bytes | None = field(default=None, repr=False)
+    silent: bool = False  # radio off: nothing sent, nothing heard (Emulator.set_silent)
 
     def __post_init__(self) -> None:
-        self.parser = mav.MAVLink(None, 0, 0)
-        self.parser.robust_parsing = True
+        self.parser = signing.mavlink(0, 0, self.signing_key)
         if self.out is not None:
             self.peers[self.out] = None
         host, port = self.sock.getsockname()[:2]
@@ -96,10 +99,12 @@ class Endpoint(asyncio.DatagramProtocol):
 
     def parse(self, data: bytes) -> list[mav.MAVLink_message]:
         """Decode every frame of a datagram (bad frames are counted and skipped)."""
-        fast = _fast_setpoint(data)
-        if fast is not None:
-            return [fast]
         parser = self.parser
+        if self.signing_key is None:
+            fast = _fast_setpoint(data)  # unsigned frames only
+            if fast is not None:
+                return [fast]
+        rejected = parser.signing.reject_count
         try:
             msgs = parser.parse_buffer(data) or []
         except (mav.MAVError, ValueError, IndexError):
@@ -111,6 +116,9 @@ class Endpoint(asyncio.DatagramProtocol):
             parser.buf_index = 0
             parser.expected_length = mav.HEADER_LEN_V1 + 2
             parser.have_prefix_error = False
+        rejected = parser.signing.reject_count - rejected
+        self.stats.signature_rejected += rejected
+        self.stats.bad_frames -= rejected  # pymavlink reports them as bad data
         good = []
         for m in msgs:
             if isinstance(m, mav.MAVLink_bad_data):

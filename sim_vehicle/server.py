@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from sim_vehicle import signing
 from sim_vehicle.autopilot import Autopilot
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
@@ -100,6 +101,7 @@ class Emulator:
         self._delayed_in: list[tuple[float, int, Endpoint, list[Any]]] = []
         self._delayed_out: list[tuple[float, int, Endpoint, Addr, bytes, list[int]]] = []
         self._waiters: list[tuple[Callable[[], bool], asyncio.Future[None]]] = []
+        self._out_heard: set[int] = set()
         self._wake = asyncio.Event()
         self._tg: asyncio.TaskGroup | None = None
         self._clock_task: asyncio.Task[None] | None = None
@@ -162,6 +164,7 @@ class Emulator:
             on_datagram=self._on_datagram,
             stats=self.stats.link,
             out=cfg.out,
+            signing_key=cfg.signing_key,
         )
         loop = asyncio.get_running_loop()
         await loop.create_datagram_endpoint(lambda: ep, sock=sock)
@@ -216,13 +219,27 @@ class Emulator:
         self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
         self.fleet.boot[row] = now
         noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
-        enc = mav.MAVLink(None, spec.sysid, spec.compid)
+        enc = signing.mavlink(spec.sysid, spec.compid, cfg.signing_key)
         v = _Vehicle(spec, ap, enc, ep, row, noise_rng, initial)
         self._vehicles[key] = v
         self._rows.append(v)
         ep.sysids[spec.sysid] = key
         self._sync(v, now)
         return v
+
+    def set_silent(self, sysid: int, silent: bool = True) -> None:
+        """Switch vehicle ``sysid``'s radio off (``silent``) or on again: while
+        silent it neither sends nor hears anything but keeps flying (its own
+        GUID_TIMEOUT brakes it); back on, it sends a HEARTBEAT at once. Only
+        for a vehicle on its own endpoint."""
+        v = self._vehicle(sysid)
+        if v.ep.shared:
+            raise ValueError("set_silent needs a vehicle on its own endpoint, not a shared one")
+        v.ep.silent = silent
+        self.fleet.awaiting[v.row] = False  # an answer it cannot hear never blocks lockstep
+        if not silent:  # back on the air: a HEARTBEAT at once, as to a new peer (rule 1)
+            self._transmit(v.ep, [(self._pack(v, v.ap.heartbeat()), 0)])
+        self._wake.set()
 
     def remove_vehicle(self, sysid: int) -> None:
         """Stop serving ``sysid`` (its own endpoint is closed)."""
@@ -310,14 +327,18 @@ class Emulator:
 
     # ------------------------------------------------------------ inbound
     def _on_datagram(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
+        if ep.silent:
+            return
         self.stats.link.rx_datagrams += 1
         self._wake.set()
-        new_peer = addr not in ep.peers
+        msgs = ep.parse(data)
+        # Only a peer that sent one good (with signing: well-signed) frame is
+        # served: garbage or forgeries from elsewhere never evict the station.
+        new_peer = bool(msgs) and addr not in ep.peers
         if new_peer:
             ep.peers[addr] = None
             if len(ep.peers) > _MAX_PEERS:
                 ep.peers.pop(next(iter(ep.peers)))
-        msgs = ep.parse(data)
         for m in msgs:  # lockstep rule 3: an answer counts even if the link then loses it
             if m.get_msgId() == _SETPOINT_ID:
                 ts = m.target_system
@@ -330,6 +351,12 @@ class Emulator:
                 v = self._vehicles[ep.sysids[sysid]]
                 v.contacted = True
                 self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
+        elif msgs and ep.out == addr and id(ep) not in self._out_heard:
+            # The fixed ``out`` peer is known from the start: its first good
+            # frame is its contact (rule 1), or a lockstep clock would never start.
+            self._out_heard.add(id(ep))
+            for key in ep.sysids.values():
+                self._vehicles[key].contacted = True
         delays = ep.uplink.delivery_delays()
         if not delays:
             self.stats.link.rx_lost += 1
@@ -372,6 +399,8 @@ class Emulator:
         self, ep: Endpoint, frames: list[tuple[bytes, int]], only: Addr | None = None
     ) -> None:
         """Send frames now through the downlink impairment to every peer (or ``only``)."""
+        if ep.silent:
+            return
         peers = [only] if only is not None else list(ep.peers)
         for data, lpn in ep.batch(frames):
             for peer in peers:
@@ -429,6 +458,15 @@ class Emulator:
                 z = v.noise_rng.standard_normal(6)
                 pos[i] += f.noise_pos[rows[i]] * z[:3]
                 vel[i] += f.noise_vel[rows[i]] * z[3:]
+        if self.config.signing_key is not None:  # signed: pymavlink packs (and signs) each
+            lpn = mav.MAVLink_local_position_ned_message
+            return [
+                (
+                    self._pack(v, lpn(int(t_ms[i]), *map(float, pos[i]), *map(float, vel[i]))),
+                    v.spec.key,
+                )
+                for i, v in enumerate(self._rows[r] for r in rows.tolist())
+            ]
         buf, lens = f.encode_lpn(rows, t_ms, pos, vel)
         return [
             (buf[i, : lens[i]].tobytes(), self._rows[r].spec.key)
@@ -448,12 +486,12 @@ class Emulator:
     def _emit(self, now: float) -> None:
         while self._delayed_in and self._delayed_in[0][0] <= now + _EPS:
             _t, _n, ep, msgs = heapq.heappop(self._delayed_in)
-            if not ep.sysids:
+            if not ep.sysids or ep.silent:
                 continue
             self._deliver(ep, msgs)
         while self._delayed_out and self._delayed_out[0][0] <= now + _EPS:
             _t, _n, ep, peer, data, lpn = heapq.heappop(self._delayed_out)
-            if ep.sysids:
+            if ep.sysids and not ep.silent:
                 ep.sendto(data, peer)
                 self._lpn_left(lpn)
         f = self.fleet

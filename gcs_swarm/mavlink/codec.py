@@ -9,7 +9,15 @@ dialect (``MAVLink(None, sysid, compid)``, ``*_encode`` + ``pack``,
 
 Bad packets (CRC errors, garbage, truncated frames) are counted and dropped;
 messages of ids the dialect does not know are counted and dropped too.
-Nothing here does I/O.
+
+MAVLink 2 signing (issue 9): with a 32-byte ``signing_key`` every frame sent
+is signed (pymavlink's ``MAVLink.signing``: ``secret_key``, ``link_id``,
+``timestamp`` in 10 us units since 2015-01-01 UTC, ``sign_outgoing``) and a
+received frame is accepted only if its signature is good and its timestamp
+newer than the last of its stream (link id, system, component): unsigned,
+wrongly signed and replayed frames are counted in ``signature_rejected`` and
+dropped. Only RADIO_STATUS may come unsigned, as on ArduPilot. The key is
+never logged or shown (``repr`` hides it). Nothing here does I/O.
 """
 
 from __future__ import annotations
@@ -20,7 +28,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
-__all__ = ["STATION_COMPID", "STATION_SYSID", "Codec", "CodecStats", "MessageSpec"]
+__all__ = [
+    "SIGNING_KEY_BYTES",
+    "STATION_COMPID",
+    "STATION_SYSID",
+    "Codec",
+    "CodecStats",
+    "MessageSpec",
+    "setup_signing",
+    "signing_timestamp",
+]
 
 STATION_SYSID = 255
 """System id of the ground station (mavlink-protocol.md, Identity)."""
@@ -28,6 +45,52 @@ STATION_COMPID = 190
 """Component id of the ground station (MAV_COMP_ID_MISSIONPLANNER)."""
 
 FieldValue = int | float | str | bytes | tuple[int, ...]
+
+SIGNING_KEY_BYTES = 32
+"""Length of a MAVLink 2 signing secret key."""
+_SIGNING_EPOCH_S = 1420070400.0  # 2015-01-01T00:00:00Z, the signing timestamp's origin
+_UNSIGNED_OK = frozenset({_dialect.MAVLINK_MSG_ID_RADIO_STATUS})
+
+
+def signing_timestamp(unix_s: float) -> int:
+    """The signing timestamp of Unix time ``unix_s``: 10 us units since 2015."""
+    return max(0, int((unix_s - _SIGNING_EPOCH_S) * 1e5))
+
+
+def _allow_unsigned(mav: Any, msg_id: int) -> bool:
+    return msg_id in _UNSIGNED_OK
+
+
+class _MAVLink(_dialect.MAVLink):  # type: ignore[misc]
+    """pymavlink's parser, except that a frame whose signature is wrong does not
+    move its stream's timestamp: pymavlink records the timestamp before it
+    checks the signature, so one forged frame stamped far in the future would
+    make every genuine frame after it look replayed."""
+
+    def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        key = (msgbuf[-13], src_system, src_component)
+        before = self.signing.stream_timestamps.get(key)
+        ok: bool = super().check_signature(msgbuf, src_system, src_component)
+        if not ok:
+            if before is None:
+                self.signing.stream_timestamps.pop(key, None)
+            else:
+                self.signing.stream_timestamps[key] = before
+        return ok
+
+
+def setup_signing(mav: Any, key: bytes, unix_s: float, *, link_id: int = 0) -> None:
+    """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends with ``key``,
+    timestamps starting at Unix time ``unix_s`` (the caller's clock: this
+    layer has none), and accept only well-signed, fresh frames (RADIO_STATUS
+    may be unsigned)."""
+    if len(key) != SIGNING_KEY_BYTES:
+        raise ValueError(f"a MAVLink signing key has {SIGNING_KEY_BYTES} bytes, not {len(key)}")
+    mav.signing.secret_key = bytes(key)
+    mav.signing.link_id = link_id
+    mav.signing.timestamp = signing_timestamp(unix_s)
+    mav.signing.sign_outgoing = True
+    mav.signing.allow_unsigned_callback = _allow_unsigned
 
 
 @dataclass(frozen=True, eq=True)
@@ -63,6 +126,7 @@ class CodecStats:
     received: int = 0
     bad_packets: int = 0
     unknown_messages: int = 0
+    signature_rejected: int = 0
 
 
 @dataclass
@@ -73,15 +137,33 @@ class Codec:
     ``decode`` parses received bytes and returns pymavlink message objects;
     ``datagram=True`` (UDP) drops any partial frame left at the end of the
     datagram so that one bad datagram cannot corrupt the next.
+    ``signing_key`` (32 bytes) turns MAVLink 2 signing on, both ways, with
+    timestamps from ``unix_s`` (the Unix time now, required with a key);
+    ``streams`` shares the last timestamp of each signed stream (link id,
+    system, component) between the codecs of one link, so that a frame
+    replayed from another peer is as old as it is from the first.
     """
 
     sysid: int = STATION_SYSID
     compid: int = STATION_COMPID
     stats: CodecStats = field(default_factory=CodecStats)
+    signing_key: bytes | None = field(default=None, repr=False)
+    streams: dict[tuple[int, int, int], int] | None = field(default=None, repr=False)
+    unix_s: float | None = None
 
     def __post_init__(self) -> None:
-        self._mav: Any = _dialect.MAVLink(None, self.sysid, self.compid)
+        self._mav: Any = _MAVLink(None, self.sysid, self.compid)
         self._mav.robust_parsing = True
+        if self.signing_key is not None:
+            if self.unix_s is None:
+                raise ValueError("a signing codec needs unix_s, the time now")
+            setup_signing(self._mav, self.signing_key, self.unix_s)
+            if self.streams is not None:
+                self._mav.signing.stream_timestamps = self.streams
+
+    @property
+    def signing(self) -> bool:
+        return self.signing_key is not None
 
     def encode(self, spec: MessageSpec) -> bytes:
         """Pack ``spec`` into one MAVLink 2 frame and advance the sequence."""
@@ -104,6 +186,7 @@ class Codec:
     def decode(self, data: bytes, *, datagram: bool = True) -> list[Any]:
         """Parse ``data``; return the good messages, count and drop the rest."""
         mav = self._mav
+        rejected = mav.signing.reject_count
         try:
             parsed = mav.parse_buffer(data) or []
         except (_dialect.MAVError, ValueError, IndexError) as err:  # pragma: no cover - robust
@@ -122,6 +205,10 @@ class Codec:
         if datagram and mav.buf_len() > 0:
             self.stats.bad_packets += 1
             self._reset_parser()
+        rejected = mav.signing.reject_count - rejected
+        if rejected:  # pymavlink reports them as bad data: count them apart
+            self.stats.signature_rejected += rejected
+            self.stats.bad_packets -= rejected
         self.stats.received += len(good)
         return good
 

@@ -43,6 +43,7 @@ from gcs_swarm.mission.model import (
     LogSettings,
     Mission,
     Settings,
+    Signing,
     Startup,
     Vehicle,
 )
@@ -122,6 +123,34 @@ def _build_settings(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str)
     return Settings(**v)
 
 
+def _build_signing(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
+    if (v["key_file"] is None) == (v["key_env"] is None):
+        ctx.add(node, path, "expected exactly one of key_file or key_env")
+        return INVALID
+    return Signing(**v)
+
+
+SIGNING = Obj(
+    name="signing",
+    cls=Signing,
+    build=_build_signing,
+    keys=(
+        Key(
+            "key_file",
+            Str(),
+            None,
+            "file holding the 32-byte key (raw, or 64 hex digits), relative to the mission",
+        ),
+        Key(
+            "key_env",
+            Str(pattern=r"[A-Za-z_][A-Za-z0-9_]*"),
+            None,
+            "environment variable holding the key as 64 hex digits",
+        ),
+    ),
+)
+
+
 SETTINGS = Obj(
     name="mission",
     cls=Settings,
@@ -186,6 +215,12 @@ SETTINGS = Obj(
             ),
             Startup,
             "start-up sequence settings",
+        ),
+        Key(
+            "signing",
+            SIGNING,
+            None,
+            "MAVLink 2 message signing, both ways: where the key is (never the key itself)",
         ),
     ),
 )

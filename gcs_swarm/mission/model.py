@@ -32,6 +32,7 @@ __all__ = [
     "LogSettings",
     "Mission",
     "Settings",
+    "Signing",
     "Spawn",
     "Startup",
     "Vehicle",
@@ -101,6 +102,20 @@ class Startup:
 
 
 @dataclass(frozen=True)
+class Signing:
+    """The ``mission.signing`` block: MAVLink 2 message signing, both ways.
+
+    Exactly one of ``key_file`` (a path, relative to the mission file, holding
+    the 32-byte key raw or as 64 hex digits) or ``key_env`` (the name of an
+    environment variable holding 64 hex digits). The key itself is never in
+    the mission and never logged.
+    """
+
+    key_file: str | None = None
+    key_env: str | None = None
+
+
+@dataclass(frozen=True)
 class Settings:
     """The ``mission:`` block.
 
@@ -108,7 +123,8 @@ class Settings:
     the telemetry asked for; origin of the mission frame (a geodetic point, or
     ``"first-vehicle"``: see ``Mission.origin_geo``); end action; stale_timeout
     [s] after which a silent vehicle is dropped from the formation;
-    link_budget [setpoints/s] that one link may carry (vehicles on it x rate).
+    link_budget [setpoints/s] that one link may carry (vehicles on it x rate);
+    signing: where the MAVLink 2 signing key is (None: no signing).
     """
 
     name: str
@@ -119,6 +135,7 @@ class Settings:
     stale_timeout: float = 1.0
     link_budget: float = 2000.0
     startup: Startup = field(default_factory=Startup)
+    signing: Signing | None = None
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,12 @@ One ``Codec`` per peer (sequence numbers and parser state). Outbound policy
 - other messages: FIFO of ``MESSAGE_QUEUE_SIZE``; when full the oldest is
   dropped and counted (commands are resent by the protocol on timeout).
 A ``Link`` is an ``async with`` lifetime owning one ``asyncio.TaskGroup``.
+
+Security (issue 9): a system id is bound to the peer it was first heard
+from; frames carrying that id from another peer are spoofing, counted in
+``LinkStats.spoofed`` and dropped, until the bound peer has been silent for
+``REBIND_S`` (a vehicle that rebooted onto a new port). With a
+``signing_key`` every codec signs and checks MAVLink 2 signatures.
 """
 
 from __future__ import annotations
@@ -43,6 +49,8 @@ _log = logging.getLogger("gcs_swarm.link")
 
 MESSAGE_QUEUE_SIZE = 256
 """Bound of a link's FIFO of non-setpoint messages."""
+REBIND_S = 5.0
+"""Silence [s] of a system id's peer after which another peer may take it over."""
 _RECONNECT_S = 1.0
 
 Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
@@ -95,6 +103,8 @@ class LinkStats:
     setpoints_dropped: int = 0
     messages_dropped: int = 0
     reconnects: int = 0
+    spoofed: int = 0
+    signature_rejected: int = 0
     peers: set[str] = field(default_factory=set)
 
 
@@ -153,9 +163,17 @@ class Link:
     """One MAVLink connection shared by any number of vehicles."""
 
     def __init__(
-        self, connection: str, on_message: OnMessage, *, on_frame: OnFrame | None = None
+        self,
+        connection: str,
+        on_message: OnMessage,
+        *,
+        on_frame: OnFrame | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self.endpoint = parse_connection(connection)
+        self._signing_key = signing_key
+        self._sig_streams: dict[tuple[int, int, int], int] = {}
+        self._heard: dict[int, float] = {}
         self.stats = LinkStats()
         self.latency = LatencyRing()
         """Telemetry-arrival-to-setpoint-write times of this link's setpoints."""
@@ -229,7 +247,7 @@ class Link:
                 lambda: _Udp(self), remote_addr=(ep.host, ep.port)
             )
             self._udp = transport
-            self._codecs[(ep.host, ep.port)] = Codec()
+            self._codecs[(ep.host, ep.port)] = self._codec()
         elif ep.scheme == "tcpin":
             self._server = await asyncio.start_server(self._serve, ep.host, ep.port)
         else:
@@ -306,22 +324,40 @@ class Link:
         self.rx_time_s = time.monotonic()
         codec = self._codecs.get(peer)
         if codec is None:
-            codec = self._codecs[peer] = Codec()
+            codec = self._codecs[peer] = self._codec()
             self.stats.peers.add(str(peer if not isinstance(peer, _Stream) else "tcp"))
-        bad, unknown = codec.stats.bad_packets, codec.stats.unknown_messages
+        cs = codec.stats
+        bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
         msgs = codec.decode(data, datagram=datagram)
-        self.stats.bad_packets += codec.stats.bad_packets - bad
-        self.stats.unknown_messages += codec.stats.unknown_messages - unknown
+        self.stats.bad_packets += cs.bad_packets - bad
+        self.stats.unknown_messages += cs.unknown_messages - unknown
+        self.stats.signature_rejected += cs.signature_rejected - rejected
         for msg in msgs:
+            if not self._bound(msg.get_srcSystem(), peer):
+                self.stats.spoofed += 1
+                continue
             self.stats.received += 1
             if self._on_frame is not None:
                 self._on_frame(bytes(msg.get_msgbuf()), "in")
-            self._routes[msg.get_srcSystem()] = peer
             self._on_message(msg, self)
+
+    def _codec(self) -> Codec:
+        key = self._signing_key
+        return Codec(signing_key=key, streams=self._sig_streams, unix_s=time.time())
+
+    def _bound(self, sysid: int, peer: Peer) -> bool:
+        """True if ``peer`` may speak for ``sysid`` (binding it on first contact)."""
+        now = time.monotonic()
+        bound = self._routes.get(sysid)
+        if bound is not None and bound != peer and now - self._heard.get(sysid, now) < REBIND_S:
+            return False
+        self._routes[sysid] = peer
+        self._heard[sysid] = now
+        return True
 
     async def _read_stream(self, reader: asyncio.StreamReader, stream: _Stream) -> None:
         self._streams.append(stream)
-        self._codecs[stream] = Codec()
+        self._codecs[stream] = self._codec()
         self._wake.set()  # flush what was queued while nobody was connected
         try:
             while data := await reader.read(65536):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import signal
 import sys
 import time
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES
 from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, load_mission
@@ -37,7 +39,14 @@ if TYPE_CHECKING:
     # below so that importing either package first works.
     from gcs_swarm.report.artefacts import RunFolder
 
-__all__ = ["END_MODES", "emulator_config", "run_command", "run_mission", "station_config"]
+__all__ = [
+    "END_MODES",
+    "emulator_config",
+    "run_command",
+    "run_mission",
+    "signing_key",
+    "station_config",
+]
 
 _log = logging.getLogger("gcs_swarm.run")
 
@@ -55,6 +64,45 @@ LOCKSTEP_GROUND_SPEEDUP = 20.0
 
 def _geo(point: MissionGeoPoint | None) -> GeoPoint | None:
     return None if point is None else GeoPoint(point.lat, point.lon, point.alt)
+
+
+def _key_bytes(raw: bytes, where: str) -> bytes:
+    if len(raw) == SIGNING_KEY_BYTES:
+        return raw
+    text = raw.strip()
+    if len(text) == 2 * SIGNING_KEY_BYTES:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    # Never echo the content: only its length.
+    raise StartupError(
+        f"{where}: expected a {SIGNING_KEY_BYTES}-byte signing key "
+        f"(raw, or {2 * SIGNING_KEY_BYTES} hex digits), got {len(raw)} bytes"
+    )
+
+
+def signing_key(mission: Mission) -> bytes | None:
+    """The MAVLink 2 signing key ``mission.signing`` names (None: no signing),
+    read from its file or environment variable. ``StartupError`` when it is
+    missing or malformed; the message never contains the key."""
+    sig = mission.settings.signing
+    if sig is None:
+        return None
+    if sig.key_env is not None:
+        value = os.environ.get(sig.key_env)
+        if value is None:
+            raise StartupError(f"signing key: environment variable {sig.key_env} is not set")
+        return _key_bytes(value.encode("utf-8", "replace"), f"signing key in ${sig.key_env}")
+    assert sig.key_file is not None
+    path = Path(sig.key_file)
+    if not path.is_absolute() and mission.source:
+        path = Path(mission.source).parent / path
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise StartupError(f"signing key file {path}: {err.strerror or err}") from None
+    return _key_bytes(raw, f"signing key file {path}")
 
 
 def station_config(
@@ -82,6 +130,7 @@ def station_config(
         mission_origin=_geo(mission.origin_geo()),
         events=tuple((e.t, e.action, e.sysid) for e in mission.events),
         lockstep=lockstep,
+        signing_key=signing_key(mission),
     )
 
 
@@ -147,6 +196,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
         seed=imp.seed,
         uplink=link,
         downlink=link,
+        signing_key=signing_key(mission),
     )
 
 

@@ -26,7 +26,7 @@ import logging
 import math
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -85,6 +85,8 @@ class StationConfig:
     mission_origin: GeoPoint | None = None
     events: tuple[tuple[float, str, int], ...] = ()
     lockstep: bool = False
+    signing_key: bytes | None = field(default=None, repr=False)
+    """MAVLink 2 signing key (32 bytes) of every link; never shown."""
 
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(
@@ -163,7 +165,8 @@ class Station:
             for plan in self.config.vehicles:
                 link = self._links.get(plan.link)
                 if link is None:
-                    link = Link(plan.link, self._on_message, on_frame=self._on_frame)
+                    link = Link(plan.link, self._on_message, on_frame=self._on_frame,
+                                signing_key=self.config.signing_key)  # fmt: skip
                     self._links[plan.link] = await self._stack.enter_async_context(link)
                     link = self._links[plan.link]
                 self._link_of[plan.sysid] = link
