@@ -156,7 +156,8 @@ class Station:
         self.steps = 0
         self.peak_accel_mps2 = 0.0
         self.min_separation_m = math.inf
-        self._status_mark: tuple[float, int] | None = None
+        self._status_mark: tuple[float, float, int] | None = None
+        """(wall time, mission time, steps) at the last status line."""
 
     # ------------------------------------------------------------ lifetime
     async def __aenter__(self) -> Station:
@@ -475,10 +476,15 @@ class Station:
         last = self.control.last
         parts = [f"t={self.control.t_s:7.2f}s"]
         now = self.now()
-        if self._status_mark is not None and now > self._status_mark[0]:
-            rate = (self.steps - self._status_mark[1]) / (now - self._status_mark[0])
-            parts.append(f"{rate:5.1f} Hz")
-        self._status_mark = (now, self.steps)
+        t = self.control.t_s
+        if self._status_mark is not None and t > self._status_mark[1]:
+            # Control steps per second of vehicle time (the mission rate when
+            # keeping up, in real time or lockstep alike), and the pace.
+            wall0, t0, steps0 = self._status_mark
+            parts.append(f"{(self.steps - steps0) / (t - t0):5.1f} Hz")
+            if now > wall0:
+                parts.append(f"x{(t - t0) / (now - wall0):.1f}")
+        self._status_mark = (now, t, self.steps)
         if last is not None and last.ids:
             r = last.radii_m
             parts.append(f"{last.law.behaviour:9s} r={r.min():.3f}..{r.max():.3f} m")

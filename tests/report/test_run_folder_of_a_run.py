@@ -47,19 +47,22 @@ def _mission() -> Mission:
 class Flown:
     summary: RunSummary
     folder: RunFolder
+    status: list[str]
 
 
 @cache
 def _flown(base: str) -> Flown:
     folders: list[RunFolder] = []
+    status: list[str] = []
 
     async def fly() -> RunSummary:
         async with asyncio.timeout(120):
             return await run_mission(_mission(), sim_airborne=True, end_timeout_s=5.0,
-                                     log_dir=base, on_folder=folders.append)  # fmt: skip
+                                     log_dir=base, on_folder=folders.append,
+                                     on_status=status.append)  # fmt: skip
 
     summary = asyncio.run(fly())
-    return Flown(summary, folders[0])
+    return Flown(summary, folders[0], status)
 
 
 @pytest.fixture(scope="module")
@@ -77,6 +80,17 @@ def test_run_folder_holds_log_mission_summary_and_picture(flown: Flown) -> None:
     assert live["overall"]["vehicles_final"] == [1, 2, 3, 4]
     assert live["overall"]["avoidance_episodes"] >= 1
     assert len(live["overall"]["behaviour_switches"]) >= 1
+
+
+def test_live_status_shows_the_figures_as_they_evolve(flown: Flown) -> None:
+    flying = [line for line in flown.status if "formation" in line or "avoidance" in line]
+    assert flying, flown.status
+    for line in flying:
+        # Control rate in vehicle time: the mission's 50 Hz, lockstep or not.
+        assert " 50.0 Hz" in line or line is flying[0], line
+        assert "sep " in line and "peak |a|" in line and "1:flying/GUIDED" in line
+    # The mission has a box: the minimum clearance so far is shown.
+    assert any("min clearance" in line for line in flying)
 
 
 def test_pymavlink_reads_every_counted_frame(flown: Flown) -> None:
