@@ -121,6 +121,12 @@ class Autopilot:
         )
 
     @property
+    def control(self) -> str:
+        """What the flight controller does now: ground, takeoff, hold, brake,
+        accel, vel, pos, posvel, land, rtl_*, ..."""
+        return self._ctl
+
+    @property
     def mode_name(self) -> str:
         """Copter mode name (``MODE<n>`` for numbers without a name)."""
         return MODE_NAMES.get(self.mode, f"MODE{self.mode}")

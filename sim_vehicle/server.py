@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import signing
 from sim_vehicle.autopilot import Autopilot
-from sim_vehicle.config import EmulatorConfig, VehicleSpec
+from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, bind_udp
 from sim_vehicle.params import ParamStore
@@ -57,6 +57,7 @@ class VehicleState:
     home_ned_m: Vec3
     endpoint: Addr
     params: dict[str, float]
+    control: str = ""  # what GUIDED tracks now: "accel" once the station's law flies it
 
 
 @dataclass
@@ -227,6 +228,13 @@ class Emulator:
         self._sync(v, now)
         return v
 
+    def set_impairment(self, uplink: Impairment, downlink: Impairment) -> None:
+        """Change every link's impairments from now on (each keeps its seeded
+        random stream), e.g. to fly lossy links after a clean start-up."""
+        for ep in self._endpoints:
+            ep.uplink.imp = uplink
+            ep.downlink.imp = downlink
+
     def set_silent(self, sysid: int, silent: bool = True) -> None:
         """Switch vehicle ``sysid``'s radio off (``silent``) or on again: while
         silent it neither sends nor hears anything but keeps flying (its own
@@ -290,6 +298,7 @@ class Emulator:
             home_ned_m=ap.home,
             endpoint=v.ep.address,
             params=dict(ap.params.values),
+            control=ap.control,
         )
 
     def set_param(self, sysid: int, name: str, value: float) -> None:
