@@ -51,6 +51,9 @@ def test_station_receive_path_survives_hostile_datagrams() -> None:
             assert stats.received > N // 10, stats
             vp = station.vehicles[1]
             assert vp.rejected_values > N // 100  # NaN / 1e30 telemetry was seen, and refused
+            print(f"station path, {N} datagrams: {stats.received} messages decoded,"
+                  f" {stats.bad_packets} bad packets, {stats.unknown_messages} unknown ids,"
+                  f" {vp.rejected_values} implausible values refused")  # fmt: skip
             if vp.position is not None:
                 p = vp.position
                 values = (p.x, p.y, p.z, p.vx, p.vy, p.vz)
@@ -80,6 +83,9 @@ def test_emulator_receive_path_survives_hostile_datagrams() -> None:
             assert stats.unknown_frames > 0, stats
             assert emu.step_count > 0
             assert emu._vehicles[1].ap.rejected > N // 1000  # NaN / 1e30 commands refused
+            print(f"emulator path, {N} datagrams: {stats.bad_frames} bad frames,"
+                  f" {stats.unknown_frames} unknown ids,"
+                  f" {emu._vehicles[1].ap.rejected} hostile numbers refused")  # fmt: skip
             f = emu.fleet
             for arr in (f.pos, f.vel, f.acc):
                 assert np.isfinite(arr).all()
