@@ -22,6 +22,7 @@ never logged or shown (``repr`` hides it). Nothing here does I/O.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -166,16 +167,23 @@ class Codec:
         return self.signing_key is not None
 
     def encode(self, spec: MessageSpec) -> bytes:
-        """Pack ``spec`` into one MAVLink 2 frame and advance the sequence."""
-        encoder = getattr(self._mav, spec.name.lower() + "_encode", None)
-        if encoder is None:
-            raise ValueError(f"unknown MAVLink message {spec.name!r}")
-        fields = {
-            key: (value.encode("ascii") if isinstance(value, str) else value)
-            for key, value in spec.fields.items()
-        }
-        msg = encoder(**fields)
-        buf: bytes = msg.pack(self._mav)
+        """Pack ``spec`` into one MAVLink 2 frame and advance the sequence.
+
+        Unsigned SET_POSITION_TARGET_LOCAL_NED (the setpoint, 50 Hz per
+        vehicle) is packed here with the dialect's struct and CRC, the bytes
+        pymavlink's ``pack`` makes, without a message object per setpoint."""
+        if spec.name == _SP.msgname and not self._mav.signing.sign_outgoing:
+            buf = _pack_setpoint(self._mav, spec.fields)
+        else:
+            encoder = getattr(self._mav, spec.name.lower() + "_encode", None)
+            if encoder is None:
+                raise ValueError(f"unknown MAVLink message {spec.name!r}")
+            fields = {
+                key: (value.encode("ascii") if isinstance(value, str) else value)
+                for key, value in spec.fields.items()
+            }
+            msg = encoder(**fields)
+            buf = msg.pack(self._mav)
         # pymavlink's MAVLink.send() would write to a file and then advance
         # the sequence; we own the I/O, so advance it here.
         self._mav.seq = (self._mav.seq + 1) % 256
@@ -278,3 +286,24 @@ def _fast_lpn(data: bytes, i: int, end: int) -> Any:
     msg._msgbuf = bytearray(data[i:end])
     msg._crc = crc.crc
     return msg
+
+
+_SP = _dialect.MAVLink_set_position_target_local_ned_message
+_SP_NAMES = tuple(_SP.ordered_fieldnames)
+_SP_EXTRA = bytes((_SP.crc_extra,))
+_V2_HEADER = struct.Struct("<BBBBBBBHB")
+
+
+def _pack_setpoint(mav: Any, fields: Mapping[str, FieldValue]) -> bytes:
+    """``SET_POSITION_TARGET_LOCAL_NED`` ``fields`` as pymavlink's unsigned
+    MAVLink 2 ``pack`` would frame them with ``mav``'s ids and sequence."""
+    payload: bytes = _SP.unpacker.pack(*[fields[name] for name in _SP_NAMES])
+    plen = len(payload)
+    while plen > 1 and payload[plen - 1] == 0:  # MAVLink 2 trims trailing zeros
+        plen -= 1
+    frame = _V2_HEADER.pack(0xFD, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent,
+                            _SP.id & 0xFFFF, _SP.id >> 16) + payload[:plen]  # fmt: skip
+    crc = _dialect.x25crc(frame[1:])
+    crc.accumulate(_SP_EXTRA)
+    value: int = crc.crc
+    return frame + value.to_bytes(2, "little")
