@@ -33,7 +33,7 @@ last command one step longer: the kind of perturbation this test is about."""
 
 
 def test_example1_n6_forms_over_lossy_jittery_duplicating_links() -> None:
-    mission = mission_from("example1_octahedron.yaml", n=6, duration=70.0)
+    mission = mission_from("example1_octahedron.yaml", n=6, duration=60.0)
     cfg = lockstep_config(mission, seed=9, lockstep_timeout_s=LOCKSTEP_TIMEOUT_S)
 
     async def impair(emu: Emulator, run: asyncio.Task[RunSummary]) -> None:

@@ -1,13 +1,14 @@
-"""The station is killed (SIGKILL) mid-flight, then restarted (issue 9): ``gcs-swarm run``
-runs in a subprocess against an emulator in this process (real time, ideal
-dynamics, real UDP on 127.0.0.1). Once the law has flown every vehicle for a
-second, the station gets SIGKILL: no goodbye, no zero setpoint. Each
-emulated vehicle must then, as ArduCopter does, start braking within its
-GUID_TIMEOUT (0.5 s, set by the station at start-up) of the last setpoint
-and come to a stop (< 0.05 m/s, then holding) within its braking time.
-A second ``gcs-swarm run`` then finds them hovering, armed in GUIDED, and
-takes them over without a second take-off (never landed, never in take-off)
-and flies the formation to the end."""
+"""The station is killed (SIGKILL) mid-flight, then restarted (issue 9):
+``gcs-swarm run`` runs in a subprocess against an emulator in this process
+(real time at 2 x, ideal dynamics, real UDP on 127.0.0.1; every time below is
+emulator time). Once the law has flown every vehicle for a second, the
+station gets SIGKILL: no goodbye, no zero setpoint. Each emulated vehicle
+must then, as ArduCopter does, start braking within its GUID_TIMEOUT (0.5 s,
+set by the station at start-up) of the last setpoint and come to a stop
+(< 0.05 m/s, then holding) within its braking time. A second
+``gcs-swarm run`` then finds them hovering, armed in GUIDED, and takes them
+over without a second take-off (never landed, never in take-off) and flies
+the formation to the end."""
 
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ def test_every_vehicle_brakes_and_stops_on_its_own_when_the_station_is_killed(
         VehicleSpec(sysid=s, start_ned_m=(y, x, -z), airborne=True)
         for s, (x, y, z) in STARTS.items()
     )
-    cfg = EmulatorConfig(vehicles=specs, dynamics="ideal", clock="realtime")
+    cfg = EmulatorConfig(vehicles=specs, dynamics="ideal", clock="realtime", speedup=2.0)
 
     async def main() -> None:
         async with asyncio.timeout(60), Emulator(cfg) as emu:
