@@ -95,6 +95,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="stream from the start (default: HEARTBEAT only)")  # fmt: skip
     p.add_argument("--param", type=_keyval, action="append", default=[], metavar="NAME=VALUE")
     p.add_argument("--out", type=_hostport, help="also send to HOST:PORT from the start")
+    p.add_argument("--signing-key-env", metavar="NAME",
+                   help="MAVLink 2 signing: key (64 hex digits) in $NAME")  # fmt: skip
     return p.parse_args(argv)
 
 
@@ -124,6 +126,15 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
             )
         )
     imp = Impairment(loss=args.loss, delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup)
+    key: bytes | None = None
+    if getattr(args, "signing_key_env", None):
+        text = os.environ.get(args.signing_key_env, "")
+        try:
+            key = bytes.fromhex(text.strip())
+        except ValueError:
+            key = b""
+        if len(key) != 32:  # never echo the value
+            raise ValueError(f"--signing-key-env: ${args.signing_key_env} is not 64 hex digits")
     return EmulatorConfig(
         vehicles=tuple(vehicles),
         host=args.host,
@@ -144,6 +155,7 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         downlink=imp,
         streams=dict((int(k), v) for k, v in args.stream),
         params=dict(args.param),
+        signing_key=key,
     )
 
 

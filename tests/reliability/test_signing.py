@@ -174,3 +174,20 @@ def test_the_key_comes_from_the_environment_or_a_file_and_is_never_shown(
     monkeypatch.delenv(ENV)
     with pytest.raises(StartupError, match=f"{ENV} is not set"):
         signing_key(mission)
+
+
+def test_standalone_emulator_takes_the_key_from_the_environment(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from sim_vehicle.cli import build_config, parse_args
+
+    monkeypatch.setenv(ENV, KEY.hex())
+    assert build_config(parse_args(["--signing-key-env", ENV])).signing_key == KEY
+    monkeypatch.setenv(ENV, "00" * 31)
+    with pytest.raises(ValueError, match="not 64 hex digits") as err:
+        build_config(parse_args(["--signing-key-env", ENV]))
+    assert "00" * 31 not in str(err.value)
+    # Without a key there is no signing, and the station listens where it is told:
+    # the bundled emulator and every shipped sim link bind 127.0.0.1.
+    assert build_config(parse_args([])).signing_key is None
+    assert lockstep_config(mission_from("example1_octahedron.yaml")).host == "127.0.0.1"
