@@ -10,6 +10,10 @@ cheapest pymavlink path: ``parse_buffer`` on a one-frame datagram, then
 through the station's own code (``Codec.decode`` + ``from_pymavlink`` and
 ``VehicleProtocol.accel_setpoint`` + ``Codec.encode``). Medians of 7 rounds.
 
+Before timing, ``check_identity`` confirms on 500 seeded cases that the
+station's LOCAL_POSITION_NED and setpoint fast paths (``gcs_swarm.mavlink.codec``)
+give exactly pymavlink's messages and bytes.
+
 ``floor_us`` is printed last as ``FLOOR_US=<value>`` so that other
 benchmarks (``bench_station.py``) can quote the ratio to it.
 """
@@ -46,7 +50,36 @@ def lpn_frame() -> bytes:
     return bytes(enc.local_position_ned_encode(123456, 1.5, -2.25, -10.0, 0.1, 0.2, -0.3).pack(enc))
 
 
+def check_identity(cases: int = 500) -> None:
+    """The station's fast paths give pymavlink's bytes and messages (seeded)."""
+    import random
+
+    from gcs_swarm.mavlink import builders as b
+    from gcs_swarm.mavlink.codec import Codec
+
+    rng = random.Random(8)
+    for _ in range(cases):
+        sysid, seq = rng.randrange(1, 255), rng.randrange(256)
+        ref = mav.MAVLink(None, sysid, 1)
+        ref.seq = seq
+        vals = [rng.choice([0.0, rng.uniform(-99, 99)]) for _ in range(6)]
+        frame = bytes(ref.local_position_ned_encode(rng.randrange(2**32), *vals).pack(ref))
+        hb = bytes(ref.heartbeat_encode(2, 3, 81, 4, 4).pack(ref))
+        data = frame + hb + frame
+        fast, slow = Codec(), mav.MAVLink(None, 255, 190)
+        got = [(m.get_type(), m.to_dict(), bytes(m.get_msgbuf())) for m in fast.decode(data)]
+        want = [(m.get_type(), m.to_dict(), bytes(m.get_msgbuf())) for m in slow.parse_buffer(data)]
+        assert got == want, (got, want)
+        acc = (rng.uniform(-9, 9), 0.0, rng.uniform(-9, 9))
+        spec = b.accel_setpoint(sysid, 1, rng.randrange(2**32), acc)
+        codec, enc = Codec(), mav.MAVLink(None, 255, 190)
+        codec._mav.seq = enc.seq = seq
+        want_sp = bytes(enc.set_position_target_local_ned_encode(**dict(spec.fields)).pack(enc))
+        assert codec.encode(spec) == want_sp
+
+
 def main() -> float:
+    check_identity()
     frame = lpn_frame()
     dec = mav.MAVLink(None, 255, 190)
     dec.robust_parsing = True
