@@ -27,9 +27,16 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-## bench: run the benchmarks (not part of the tests)
+## bench: run every benchmark (not part of the tests; ~10 min; results in benchmarks/README.md)
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_law.py
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python benchmarks/bench_law.py
+	$(BIN)/python benchmarks/bench_safety.py
+	$(BIN)/python benchmarks/bench_codec.py
+	$(BIN)/python benchmarks/bench_station.py --repeat 3
+	$(BIN)/python benchmarks/bench_baseline.py
+	$(BIN)/python benchmarks/bench_lookahead.py --runs 3
+	$(BIN)/python benchmarks/bench_lockstep.py --runs 3
+	$(BIN)/python benchmarks/bench_emulator.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .hypothesis

@@ -461,7 +461,7 @@ MISSION = Obj(
     name="top",
     partial=True,
     cls=Mission,
-    extra_fields=("source", "law"),
+    extra_fields=("source", "law", "text"),
     what="a mapping of sections (mission, vehicles, gains, ...)",
     keys=(
         Key(

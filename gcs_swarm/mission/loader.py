@@ -112,7 +112,7 @@ def parse_mission(text: str, source: str = "<string>", *, name: str = "mission")
     mission = _assemble(ctx, source, name, sections)
     if ctx.problems or mission is None:
         raise _fail(source, ctx.problems)
-    return mission
+    return replace(mission, text=text)
 
 
 #: PyYAML's token names, in words a user recognises.

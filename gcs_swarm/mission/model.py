@@ -253,6 +253,9 @@ class Mission:
     emulator: Emulator = field(default_factory=Emulator)
     events: tuple[Event, ...] = ()
     log: LogSettings = field(default_factory=LogSettings)
+    text: str = field(default="", repr=False, compare=False)
+    """The YAML exactly as read and validated: a run folder's copy of the
+    mission is this, not the file re-read later (it may have changed)."""
 
     def law_config(self) -> LawConfig:
         """The law's parameters (same object as ``self.law``)."""

@@ -95,7 +95,7 @@ def create_run_folder(
     when: datetime | None = None,
 ) -> RunFolder:
     """Create a new run folder under ``base_dir`` (default the mission's
-    ``log.dir``) and copy the mission file into it; ``-2``, ``-3``... are
+    ``log.dir``) and write the mission into it (the text that was loaded); ``-2``, ``-3``... are
     appended when two runs start in the same second."""
     base = Path(base_dir if base_dir is not None else mission.log.dir)
     name = run_folder_name(mission.settings.name, when or datetime.now())
@@ -111,7 +111,9 @@ def create_run_folder(
                 path = base / f"{name}-{k}"
         folder = RunFolder(path)
         source = Path(mission.source)
-        if source.is_file():
+        if mission.text:  # the text that was validated, even if the file changed since
+            folder.mission.write_text(mission.text, encoding="utf-8")
+        elif source.is_file():
             shutil.copyfile(source, folder.mission)
     except OSError as err:
         raise SwarmError(f"{base}: cannot create the run folder: {err.strerror or err}") from None

@@ -336,6 +336,8 @@ async def _write_run_report(
             "messages_dropped": summary.messages_dropped,
             "bad_packets": summary.bad_packets,
             "unknown_sysid_messages": summary.unknown_sysid_messages,
+            "spoofed": summary.spoofed,
+            "signature_rejected": summary.signature_rejected,
         },
     }
     from gcs_swarm.report.artefacts import write_report

@@ -56,6 +56,8 @@ class RunSummary:
     messages_dropped: int
     bad_packets: int
     unknown_sysid_messages: int
+    spoofed: int
+    signature_rejected: int
     safety: str
     log: tuple[str, ...]
 
@@ -101,10 +103,13 @@ class RunSummary:
             messages_dropped=sum(lk.stats.messages_dropped for lk in links),
             bad_packets=sum(lk.stats.bad_packets for lk in links),
             unknown_sysid_messages=sum(station.unknown_sysids.values()),
+            spoofed=sum(lk.stats.spoofed for lk in links),
+            signature_rejected=sum(lk.stats.signature_rejected for lk in links),
             safety=(
                 str(station.control.safety_stats.summary())
                 if station.control.filtering
-                else "safety filter: off (disabled in the mission, no finite limit)"
+                else "safety filter: off (limits.safety.enabled false or all-sim default, "
+                "no finite limit)"
             ),
             log=tuple(station.log),
         )
@@ -137,7 +142,8 @@ class RunSummary:
         lines.append(
             f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
             f"and {self.messages_dropped} messages dropped, {self.bad_packets} bad packets, "
-            f"{self.unknown_sysid_messages} from unknown systems"
+            f"{self.unknown_sysid_messages} from unknown systems, {self.spoofed} spoofed, "
+            f"{self.signature_rejected} with bad signatures"
         )
         lines.append(self.safety)
         return "\n".join(lines)

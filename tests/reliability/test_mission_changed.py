@@ -52,3 +52,15 @@ def test_a_mission_file_changed_mid_run_is_not_re_read(tmp_path: Path) -> None:
     assert re.search(r"outcome: completed; mission time 6\.0\d s", out), out
     (folder,) = logs.iterdir()
     assert (folder / "mission.yaml").read_text() == MISSION
+
+
+def test_the_run_folder_holds_the_text_that_was_loaded(tmp_path: Path) -> None:
+    from gcs_swarm.mission import load_mission
+    from gcs_swarm.report import create_run_folder
+
+    path = tmp_path / "m.yaml"
+    path.write_text(MISSION)
+    mission = load_mission(path)
+    path.write_text("mission: [changed after loading")  # before the folder exists
+    folder = create_run_folder(mission, base_dir=tmp_path / "runs")
+    assert folder.mission.read_text() == MISSION

@@ -27,6 +27,7 @@ from gcs_swarm.mavlink.codec import Codec, MessageSpec
 from gcs_swarm.mission import Mission, Signing
 from gcs_swarm.runtime.run import signing_key, station_config
 from gcs_swarm.runtime.station import Station
+from gcs_swarm.runtime.summary import RunSummary
 from sim_vehicle import Emulator
 from tests.station.station_harness import lockstep_config, mission_from
 
@@ -126,6 +127,9 @@ async def _fly(mission: Mission, *, attack: bool) -> _Flight:
                 await task
             await station.end()
             link = next(iter(station.links.values()))
+            # The run summary (summary.json's "links") reports the same count.
+            summary = RunSummary.from_station(station, outcome="completed", wall_time_s=0.0)
+            assert summary.signature_rejected == link.stats.signature_rejected
             return _Flight(
                 {s: vp.state_mission()[0] for s, vp in station.vehicles.items()},
                 {vp.mode_name for vp in station.vehicles.values()},
