@@ -1,7 +1,9 @@
-"""Lossy links (issue 9): once the formation flies, every emulator link loses
-20 % of its datagrams, duplicates 10 % and delays each by a uniform jitter,
-both directions (seeded). Example 1 with N = 6 still forms (every radius
-within 1 % of 2.48418 m) and no vehicle is dropped from the formation.
+"""Lossy links (issue 9): from the first datagram, start-up included, every
+emulator link loses 20 % of its datagrams, duplicates 10 % and delays each by
+a uniform jitter, both directions (seeded). The swarm is readied (commands
+retried, ProtocolConfig.command_attempts), Example 1 with N = 6 still forms
+(every radius within 1 % of 2.48418 m) and no vehicle is dropped from the
+formation. Seeds 0-5 all passed when this was written (2.4842 m each).
 
 Jitter: 40 ms here. With the issue's 200 ms the formation does NOT settle
 (measured, 70 s: radii 2.26..2.97 m; 100 ms: 2.40..2.54 m; 40 ms: 2.4842 m
@@ -21,8 +23,7 @@ import asyncio
 
 import numpy as np
 
-from gcs_swarm.runtime import RunSummary
-from sim_vehicle import Emulator, Impairment
+from sim_vehicle import Impairment
 from tests.station.station_harness import fly, lockstep_config, mission_from, radii
 
 LOSSY = Impairment(loss=0.2, delay_s=0.0, jitter_s=0.04, duplicate=0.1)
@@ -34,14 +35,9 @@ last command one step longer: the kind of perturbation this test is about."""
 
 def test_example1_n6_forms_over_lossy_jittery_duplicating_links() -> None:
     mission = mission_from("example1_octahedron.yaml", n=6, duration=60.0)
-    cfg = lockstep_config(mission, seed=9, lockstep_timeout_s=LOCKSTEP_TIMEOUT_S)
-
-    async def impair(emu: Emulator, run: asyncio.Task[RunSummary]) -> None:
-        ids = list(emu.endpoints)
-        await emu.wait_until(lambda: all(emu.vehicle_state(s).control == "accel" for s in ids))
-        emu.set_impairment(LOSSY, LOSSY)
-
-    flown = asyncio.run(fly(mission, cfg, lockstep=False, during=impair))
+    cfg = lockstep_config(mission, seed=9, lockstep_timeout_s=LOCKSTEP_TIMEOUT_S,
+                          uplink=LOSSY, downlink=LOSSY)  # fmt: skip
+    flown = asyncio.run(fly(mission, cfg, lockstep=False))
     s = flown.ok
     assert s.outcome == "completed"
     link = flown.emu.stats.link
