@@ -113,6 +113,9 @@ class VehicleProtocol:
         self.params: dict[str, float] = {}
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
         self._hb_at = -math.inf
+        self._heard_at = -math.inf
+        """Last message of any kind: the link watchdog (a lost HEARTBEAT with
+        telemetry still flowing is a lossy link, not a lost vehicle)."""
         self._ekf_flags = 0
         self._gps_fix = 0
         self._texts: deque[tuple[float, int, str]] = deque(maxlen=16)
@@ -151,6 +154,11 @@ class VehicleProtocol:
             np.array((p.vy, p.vx, -p.vz)),
         )
 
+    def _silent_since(self) -> float:
+        """Since when nothing has been heard from the vehicle (a HEARTBEAT or
+        any other message); the watchdog runs only after a first HEARTBEAT."""
+        return max(self._hb_at, self._heard_at)
+
     def next_deadline(self) -> float | None:
         """The earliest time [s] at which ``handle_timer`` has work, or None."""
         deadlines = list(self._timers.values())
@@ -158,7 +166,7 @@ class VehicleProtocol:
         if command is not None:
             deadlines.append(command)
         if self.phase not in IDLE_PHASES:
-            deadlines.append(self._hb_at + self.config.heartbeat_timeout_s)
+            deadlines.append(self._silent_since() + self.config.heartbeat_timeout_s)
             if self.phase in TELEMETRY_PHASES:
                 deadlines.append(self.position_at + self.config.stale_timeout_s)
         return min(deadlines) if deadlines else None
@@ -236,6 +244,7 @@ class VehicleProtocol:
         if not plausible(msg):
             self.rejected_values += 1  # never reaches the law; the vehicle goes stale
             return
+        self._heard_at = now
         if isinstance(msg, Heartbeat):
             self._on_heartbeat(msg, now)
         elif isinstance(msg, LocalPositionNed):
@@ -263,8 +272,8 @@ class VehicleProtocol:
         """Do whatever is due at ``now``: resends, retries, stale checks."""
         cfg = self.config
         if self.phase not in IDLE_PHASES:
-            if now >= self._hb_at + cfg.heartbeat_timeout_s:
-                self._lose(now, f"no HEARTBEAT for {cfg.heartbeat_timeout_s:g} s")
+            if now >= self._silent_since() + cfg.heartbeat_timeout_s:
+                self._lose(now, f"no HEARTBEAT or other message for {cfg.heartbeat_timeout_s:g} s")
                 return
             if self.phase in TELEMETRY_PHASES and now >= self.position_at + cfg.stale_timeout_s:
                 self._lose(now, f"no LOCAL_POSITION_NED for {cfg.stale_timeout_s:g} s")

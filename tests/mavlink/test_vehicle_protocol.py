@@ -267,6 +267,24 @@ def test_stale_telemetry_loses_the_vehicle_and_a_return_readies_it_again() -> No
     assert commands(vp.take_outbound(), MAV_CMD_SET_MESSAGE_INTERVAL)
 
 
+def test_lost_heartbeats_with_telemetry_flowing_do_not_lose_the_vehicle() -> None:
+    # A lossy link drops a few HEARTBEATs in a row (1 Hz); telemetry (50 Hz)
+    # still arrives, so the vehicle is there: only silence of every message
+    # for heartbeat_timeout_s loses it.
+    vp = make(stale_timeout_s=1.0, heartbeat_timeout_s=3.0)
+    _flying(vp, 0.0)
+    t = 0.0
+    for k in range(1, 301):  # 6 s of telemetry at 50 Hz, no HEARTBEAT at all
+        t = 0.02 * k
+        vp.handle_message(pos(1000 + 20 * k, (-100.0, 5.0, -22.0)), t)
+        vp.handle_timer(t)
+    assert vp.phase is Phase.FLYING
+    assert not [e for e in vp.take_events() if e.kind == "lost"]
+    # Then total silence: lost once the first watchdog is due (stale telemetry, 1 s).
+    vp.handle_timer(t + 1.0)
+    assert vp.phase is Phase.LOST
+
+
 def test_someone_else_taking_the_vehicle_removes_it_for_good() -> None:
     vp = make()
     _flying(vp, 0.0)
