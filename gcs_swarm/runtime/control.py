@@ -14,6 +14,7 @@ job is handed to the caller to run in a worker thread.
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -76,27 +77,44 @@ class ControlLoop:
         """Smallest signed distance [m] of any vehicle to any box seen at a
         step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
         self._boot_ms: dict[int, int] = {}
+        """Each vehicle's last time_boot_ms."""
+        self._offset_ms: dict[int, int] = {}
+        """time_boot_ms - mission time [ms], per vehicle (``advance_clock``)."""
+        self._t_ms = 0
+        """The mission clock in whole ms (vehicle time's resolution)."""
         self.last: StepResult | None = None
 
     def advance_clock(self, boot_ms: Mapping[int, int]) -> float:
-        """Advance the mission clock from the fresh vehicles' ``time_boot_ms``.
+        """Advance the mission clock to the fresh vehicles' ``time_boot_ms``.
 
-        Increments are taken against each vehicle's value at its previous
-        step; new, rebooted (time going back) vehicles add nothing. Returns
-        the mission time [s].
+        Each vehicle's boot clock maps to mission time by an offset [ms] fixed
+        when it is first seen (new, returning after ``forget``, or rebooted:
+        time going back); it then adds nothing. The clock moves to the median
+        (low) of the fresh vehicles' mapped times, never back; a vehicle whose
+        clock leaps ahead by more than ``MAX_CLOCK_JUMP_S`` since its last
+        report counts only that much. Steps that see different subsets of the
+        vehicles (late or reordered telemetry) therefore cannot push the
+        clock past vehicle time, which summing per-step increments did.
+        Returns the mission time [s].
         """
-        increments = []
+        jump_ms = round(MAX_CLOCK_JUMP_S * 1000)
+        mapped = []
         for sysid, ms in boot_ms.items():
-            prev = self._boot_ms.get(sysid)
+            last = self._boot_ms.get(sysid)
             self._boot_ms[sysid] = ms
-            if prev is not None and ms >= prev:
-                increments.append((ms - prev) * 1e-3)
-        if increments:
-            self.t_s += min(float(np.median(increments)), MAX_CLOCK_JUMP_S)
+            if last is None or ms < last:
+                self._offset_ms[sysid] = ms - self._t_ms
+                continue
+            if ms - last > jump_ms:
+                self._offset_ms[sysid] += ms - last - jump_ms
+            mapped.append(ms - self._offset_ms[sysid])
+        if mapped:
+            self._t_ms = max(self._t_ms, statistics.median_low(mapped))
+            self.t_s = self._t_ms * 1e-3
         return self.t_s
 
     def forget(self, sysid: int) -> None:
-        """A vehicle left: its next telemetry starts a new increment chain."""
+        """A vehicle left: its next telemetry maps its clock afresh."""
         self._boot_ms.pop(sysid, None)
 
     def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:

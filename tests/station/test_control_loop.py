@@ -25,6 +25,19 @@ def test_mission_clock_follows_vehicle_time_not_the_wall() -> None:
     assert loop.advance_clock({1: 65060}) == pytest.approx(0.06 + MAX_CLOCK_JUMP_S)
 
 
+def test_steps_on_different_subsets_never_run_ahead_of_vehicle_time() -> None:
+    # Two vehicles on one clock; vehicle 1's reports arrive late (jitter), so
+    # steps see {2}, {2}, then vehicle 1's 60 ms report. Summing each step's
+    # increments counted vehicle 1's 40 ms on top of vehicle 2's (0.10 s at
+    # 60 ms of vehicle time): measured, a 20 s mission ended after 10 s of
+    # flight through 200 ms jitter. The clock is vehicle time, 0.06 s.
+    loop = ControlLoop(LawConfig(), {1: 10.0, 2: 10.0}, 50.0)
+    for boot in ({1: 0, 2: 0}, {1: 20, 2: 20}, {2: 40}, {2: 60}, {1: 60}):
+        t = loop.advance_clock(boot)
+    assert t == pytest.approx(0.06, abs=1e-12)
+    assert loop.advance_clock({1: 80, 2: 80}) == pytest.approx(0.08, abs=1e-12)
+
+
 def test_leader_moves_in_vehicle_time() -> None:
     force = ConstantForce((10.0, 0.0, 0.0))  # terminal speed 1 m/s (total damping 10)
     law = LawConfig(leader=Leader(force=force))
