@@ -67,7 +67,11 @@ from gcs_swarm.mavlink.states import (
     mode_name,
 )
 
-__all__ = ["VehicleProtocol"]
+__all__ = ["ACCEL_CEILING_MPS2", "VehicleProtocol"]
+
+ACCEL_CEILING_MPS2 = 1000.0
+"""Largest acceleration setpoint sent [m/s^2] (about 100 g): beyond any
+multicopter, far inside float32, and above every figure of the paper."""
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -106,6 +110,8 @@ class VehicleProtocol:
         self.last_accel_ned: FloatArray = np.zeros(3)
         self.failure: str | None = None
         self.took_over = False
+        self.clipped_setpoints = 0
+        """Acceleration setpoints scaled to ACCEL_CEILING_MPS2 or zeroed (NaN)."""
         self.rejected_values = 0
         """Messages refused for implausible numbers (NaN, 1e30 m, ...)."""
         self.stale_telemetry = 0
@@ -208,8 +214,18 @@ class VehicleProtocol:
         self._set_phase(Phase.FLYING, now)
 
     def accel_setpoint(self, accel_mps2: npt.ArrayLike) -> MessageSpec:
-        """The SET_POSITION_TARGET_LOCAL_NED for a mission-frame acceleration [m/s^2]."""
+        """The SET_POSITION_TARGET_LOCAL_NED for a mission-frame acceleration [m/s^2].
+
+        Whatever the law asks, the frame is sendable: a norm above
+        ``ACCEL_CEILING_MPS2`` is scaled down to it (direction kept; the cubic
+        spring of Eq. 7 asks 10^4 m/s^2 at 30 m, more than float32 holds
+        further out, and no vehicle follows either), and a non-finite
+        command becomes zero; both are counted in ``clipped_setpoints``."""
         a = np.asarray(accel_mps2, dtype=np.float64)
+        norm = float(np.sqrt(a @ a)) if np.isfinite(a).all() else math.nan
+        if not norm <= ACCEL_CEILING_MPS2:
+            self.clipped_setpoints += 1
+            a = a * (ACCEL_CEILING_MPS2 / norm) if math.isfinite(norm) else np.zeros(3)
         a_ned = (float(a[1]), float(a[0]), float(-a[2]))  # a_ned = (a_y, a_x, -a_z)
         self.last_accel_ned = np.array(a_ned)
         return b.accel_setpoint(self.sysid, self.compid, self._boot_ms(), a_ned)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import struct
 import time
 from collections import deque
 from collections.abc import Callable
@@ -105,6 +106,7 @@ class LinkStats:
     reconnects: int = 0
     spoofed: int = 0
     signature_rejected: int = 0
+    unencodable: int = 0
     peers: set[str] = field(default_factory=set)
 
 
@@ -300,7 +302,14 @@ class Link:
         for peer in peers:
             if peer is None:
                 continue
-            data = self._codecs[peer].encode(spec)
+            try:
+                data = self._codecs[peer].encode(spec)
+            except (struct.error, OverflowError, ValueError, TypeError) as err:
+                # A message that cannot be framed (a value out of its field's
+                # range) is counted and dropped; the link and the station go on.
+                self.stats.unencodable += 1
+                _log.error("%s: %s not sent: %s", self.endpoint, spec.name, err)
+                continue
             self.stats.sent += 1
             if self._on_frame is not None:
                 self._on_frame(data, "out")
