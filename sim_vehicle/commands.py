@@ -118,6 +118,14 @@ def dispatch(ap: Autopilot, msg: Any, now: float, kin: Kin) -> Msgs:
         for msgid in DATA_STREAMS.get(msg.req_stream_id, ()):
             ap.set_interval(msgid, 1.0 / msg.req_message_rate if on else -1.0, now)
         return []
+    if kind == "TIMESYNC":
+        # ArduPilot answers a request (tc1 = 0) with its boot time in ns and the
+        # request's ts1, which lets a station measure round trip and clock offset.
+        if msg.tc1 == 0:
+            return [
+                mav.MAVLink_timesync_message(tc1=max(1, int((now - ap.boot) * 1e9)), ts1=msg.ts1)
+            ]
+        return []
     if kind == "MISSION_REQUEST_LIST" and _for_me(ap, msg):
         return [
             mav.MAVLink_mission_count_message(

@@ -45,6 +45,8 @@ def run_checks(
         if emulator is not None:
             _check_ground(ctx, vehicles, emulator, settings)
             _check_ports(ctx, vehicles, emulator)
+            if settings is not None:
+                _check_compensation(ctx, vehicles, emulator, settings)
         if settings is not None:
             _check_links(ctx, vehicles, settings)
         if events is not None:
@@ -124,6 +126,21 @@ def _check_ports(ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator
             f"{n_sim} sim vehicles need ports up to {emulator.base_port} + 10 x {n_sim - 1}"
             f" = {last}, over 65535",
         )
+
+
+def _check_compensation(
+    ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator, settings: Settings
+) -> None:
+    """Delay compensation maps vehicle time to the station's clock: it needs
+    the bundled emulator in real time at speed-up 1 (lockstep: ignored)."""
+    sims = any(v.is_sim for v in vehicles)
+    if settings.delay_compensation and sims and emulator.mode == "realtime":
+        if emulator.speedup != 1.0:
+            ctx.add(
+                ctx.line_of("mission.delay_compensation"),
+                "mission.delay_compensation",
+                f"needs real time: emulator.speedup 1, got {emulator.speedup:g}",
+            )
 
 
 def _check_links(ctx: Context, vehicles: tuple[Vehicle, ...], settings: Settings) -> None:

@@ -188,6 +188,13 @@ SETTINGS = Obj(
             "most setpoints per second one link carries (vehicles on it x rate)",
         ),
         Key(
+            "delay_compensation",
+            Bool(),
+            _SET.delay_compensation,
+            "predict each state to when its setpoint lands (TIMESYNC round trips); "
+            "real-time links only",
+        ),
+        Key(
             "startup",
             Obj(
                 name="startup",

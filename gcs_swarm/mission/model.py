@@ -124,6 +124,8 @@ class Settings:
     ``"first-vehicle"``: see ``Mission.origin_geo``); end action; stale_timeout
     [s] after which a silent vehicle is dropped from the formation;
     link_budget [setpoints/s] that one link may carry (vehicles on it x rate);
+    delay_compensation: predict each vehicle's state to the time its setpoint
+    will land, from TIMESYNC round trips (for real-time radio links);
     signing: where the MAVLink 2 signing key is (None: no signing).
     """
 
@@ -134,6 +136,7 @@ class Settings:
     end: EndAction = "hold"
     stale_timeout: float = 1.0
     link_budget: float = 2000.0
+    delay_compensation: bool = False
     startup: Startup = field(default_factory=Startup)
     signing: Signing | None = None
 

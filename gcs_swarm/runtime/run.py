@@ -130,6 +130,7 @@ def station_config(
         mission_origin=_geo(mission.origin_geo()),
         events=tuple((e.t, e.action, e.sysid) for e in mission.events),
         lockstep=lockstep,
+        delay_compensation=s.delay_compensation,
         signing_key=signing_key(mission),
     )
 

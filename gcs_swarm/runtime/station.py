@@ -31,11 +31,13 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.inbound import LocalPositionNed, from_pymavlink
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolConfig, ProtocolEvent
@@ -85,6 +87,10 @@ class StationConfig:
     mission_origin: GeoPoint | None = None
     events: tuple[tuple[float, str, int], ...] = ()
     lockstep: bool = False
+    delay_compensation: bool = False
+    predict_accel_max_mps2: float = 5.0
+    """Acceleration a vehicle is taken to follow when its state is predicted
+    over the commands in flight (the emulator's SIM_ACC_MAX default)."""
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
 
@@ -154,6 +160,10 @@ class Station:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._idle_since: float | None = None
         self.steps = 0
+        self._sync: dict[int, deque[tuple[float, float]]] = {}
+        """TIMESYNC samples per vehicle: (round trip [s], vehicle - station clock [s])."""
+        self._sent: dict[int, deque[tuple[float, npt.NDArray[np.float64]]]] = {}
+        """Commands in flight per vehicle: (vehicle time it lands [s], accel [m/s^2])."""
         self.peak_accel_mps2 = 0.0
         self.min_separation_m = math.inf
         self._status_mark: tuple[float, float, int] | None = None
@@ -175,7 +185,10 @@ class Station:
         except BaseException:
             await self._stack.aclose()
             raise
-        for coro in (self._heartbeat(), self._control_task(), self._status_task()):
+        coros = [self._heartbeat(), self._control_task(), self._status_task()]
+        if self.config.delay_compensation and not self.config.lockstep:
+            coros.append(self._timesync_task())
+        for coro in coros:
             self._tasks.append(self._tg.create_task(coro))
         return self
 
@@ -264,6 +277,9 @@ class Station:
                 self._note(f"ignoring traffic from system {sysid} on {link.endpoint}",
                            level=logging.WARNING)  # fmt: skip
             self.unknown_sysids[sysid] += 1
+            return
+        if msg.get_type() == "TIMESYNC":
+            self._on_timesync(sysid, msg)
             return
         inbound = from_pymavlink(msg)
         if inbound is None:
@@ -384,6 +400,10 @@ class Station:
             states = [self.vehicles[s].state_mission() for s in ids]
             pos = np.array([p for p, _ in states])
             vel = np.array([v for _, v in states])
+            compensate = self.config.delay_compensation and not self.config.lockstep
+            if compensate:
+                for i, s in enumerate(ids):
+                    pos[i], vel[i] = self._predict(s, now, pos[i], vel[i])
             res = self.control.step(ids, pos, vel)
             self.steps += 1
             if len(ids):
@@ -404,6 +424,8 @@ class Station:
                     vp = self.vehicles[sysid]
                     self._link_of[sysid].send(vp.accel_setpoint(res.accel_mps2[i]), sysid,
                                               since_s=self._arrival.get(sysid))  # fmt: skip
+                    if compensate:
+                        self._in_flight(sysid, now, res.accel_mps2[i])
             job = self.control.pending_lookahead()
             if job is not None:
                 self._tasks.append(self._tg.create_task(self._lookahead(job)))
@@ -442,6 +464,79 @@ class Station:
             self._service(vp, now)
 
     # ------------------------------------------------------ periodic tasks
+    # --------------------------------------------- delay compensation
+    # Opt-in (mission.delay_compensation), real time only. Each vehicle's clock
+    # offset and round trip come from TIMESYNC (the vehicle answers with its
+    # boot time); a report's state at its own time_boot_ms is integrated
+    # forward, as a double integrator (Eq. 1's state), over the commands sent
+    # since, to the vehicle time the new setpoint will land: now + offset +
+    # half the round trip. One-way delay cannot be told from clock offset, so
+    # the round trip is split in halves.
+
+    async def _timesync_task(self) -> None:
+        while True:
+            stamp = int(self.now() * 1e9)
+            for link in self._links.values():
+                link.send(MessageSpec("TIMESYNC", {"tc1": 0, "ts1": stamp}))
+            await asyncio.sleep(0.2)
+
+    def _on_timesync(self, sysid: int, msg: Any) -> None:
+        if not self.config.delay_compensation or msg.tc1 == 0:
+            return
+        now = self.now()
+        rtt = now - msg.ts1 * 1e-9
+        if 0.0 <= rtt < 2.0:
+            offset = msg.tc1 * 1e-9 - (msg.ts1 * 1e-9 + now) / 2
+            self._sync.setdefault(sysid, deque(maxlen=50)).append((rtt, offset))
+
+    def clock_estimate(self, sysid: int) -> tuple[float, float] | None:
+        """(vehicle clock - station clock [s], one-way delay [s]) of ``sysid``
+        from its last 50 TIMESYNC round trips (None before 5): the median
+        round trip halved, and the median offset of the quicker half."""
+        samples = self._sync.get(sysid)
+        if samples is None or len(samples) < 5:
+            return None
+        rtts = sorted(r for r, _ in samples)
+        median = rtts[len(rtts) // 2]
+        offsets = sorted(o for r, o in samples if r <= median)
+        return offsets[len(offsets) // 2], median / 2
+
+    def _in_flight(self, sysid: int, now: float, accel: npt.NDArray[np.float64]) -> None:
+        est = self.clock_estimate(sysid)
+        if est is None:
+            return
+        a = np.array(accel, dtype=np.float64)
+        norm = float(np.linalg.norm(a))
+        ceiling = self.config.predict_accel_max_mps2
+        if norm > ceiling:
+            a *= ceiling / norm
+        lands = now + est[0] + est[1]
+        self._sent.setdefault(sysid, deque(maxlen=200)).append((lands, a))
+
+    def _predict(
+        self, sysid: int, now: float, p: npt.NDArray[np.float64], v: npt.NDArray[np.float64]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        est = self.clock_estimate(sysid)
+        position = self.vehicles[sysid].position
+        if est is None or position is None:
+            return p, v
+        t = position.time_boot_ms * 1e-3
+        t_land = now + est[0] + est[1]
+        if not 0.0 <= t_land - t <= 1.0:  # nothing sensible to predict over
+            return p, v
+        sent = self._sent.get(sysid, ())
+        a = np.zeros(3)
+        for lands, acc in sent:  # the command in force at the report's time
+            if lands <= t:
+                a = acc
+        for lands, acc in sent:
+            if t < lands < t_land:
+                dt = lands - t
+                p, v = p + v * dt + 0.5 * a * dt * dt, v + a * dt
+                t, a = lands, acc
+        dt = t_land - t
+        return p + v * dt + 0.5 * a * dt * dt, v + a * dt
+
     async def _heartbeat(self) -> None:
         """HEARTBEAT at 1 Hz on every link (also wakes udpout peers at once)."""
         while True:

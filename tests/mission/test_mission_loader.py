@@ -225,3 +225,14 @@ def test_safety_filter_defaults_on_for_real_autopilots(
     law = parse_mission(text, "m.yaml").law
     assert law.safety.enabled is enabled
     assert law.avoidance.heading == heading
+
+
+def test_delay_compensation_needs_real_time_for_sim_vehicles() -> None:
+    ok = "mission: {delay_compensation: true}\n" + TWO
+    assert parse_mission(ok, "m.yaml").settings.delay_compensation is True
+    lockstep = "mission: {delay_compensation: true}\nemulator: {mode: lockstep}\n" + TWO
+    assert parse_mission(lockstep, "m.yaml").settings.delay_compensation  # ignored there
+    fast = "mission: {delay_compensation: true}\nemulator: {speedup: 5}\n" + TWO
+    assert problems(fast) == [
+        "m.yaml:1: mission.delay_compensation: needs real time: emulator.speedup 1, got 5"
+    ]
