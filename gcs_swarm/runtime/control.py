@@ -73,6 +73,8 @@ class ControlLoop:
         self.t_s = 0.0
         self.steps = 0
         self.min_separation_m = math.inf
+        self.peak_accel_mps2 = 0.0
+        """Largest commanded |a| [m/s^2] (after limits) of any step so far."""
         self.min_clearance_m = math.inf
         """Smallest signed distance [m] of any vehicle to any box seen at a
         step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
@@ -128,6 +130,9 @@ class ControlLoop:
         radii = np.linalg.norm(pos_m - out.leader_pos_m, axis=1)
         sep = _min_separation(pos_m)
         self.min_separation_m = min(self.min_separation_m, sep)
+        if len(ids):
+            peak = float(np.sqrt((accel**2).sum(axis=1)).max())
+            self.peak_accel_mps2 = max(self.peak_accel_mps2, peak)
         obstacles = self.controller.obstacles
         if obstacles.count and len(ids):
             clearance = float(box_signed_distance(pos_m, obstacles).min())

@@ -159,13 +159,10 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._idle_since: float | None = None
-        self.steps = 0
         self._sync: dict[int, deque[tuple[float, float]]] = {}
         """TIMESYNC samples per vehicle: (round trip [s], vehicle - station clock [s])."""
         self._sent: dict[int, deque[tuple[float, npt.NDArray[np.float64]]]] = {}
         """Commands in flight per vehicle: (vehicle time it lands [s], accel [m/s^2])."""
-        self.peak_accel_mps2 = 0.0
-        self.min_separation_m = math.inf
         self._status_mark: tuple[float, float, int] | None = None
         """(wall time, mission time, steps) at the last status line."""
 
@@ -405,11 +402,6 @@ class Station:
                 for i, s in enumerate(ids):
                     pos[i], vel[i] = self._predict(s, now, pos[i], vel[i])
             res = self.control.step(ids, pos, vel)
-            self.steps += 1
-            if len(ids):
-                peak = float(np.sqrt((res.accel_mps2**2).sum(axis=1)).max())
-                self.peak_accel_mps2 = max(self.peak_accel_mps2, peak)
-            self.min_separation_m = min(self.min_separation_m, res.min_separation_m)
             if res.law.event is not None:
                 what = "starts" if res.law.event == "start" else "ends: formation resumes"
                 self._note(f"t={t:.2f} s: avoidance episode {res.law.episode} {what}")
@@ -576,20 +568,20 @@ class Station:
             # Control steps per second of vehicle time (the mission rate when
             # keeping up, in real time or lockstep alike), and the pace.
             wall0, t0, steps0 = self._status_mark
-            parts.append(f"{(self.steps - steps0) / (t - t0):5.1f} Hz")
+            parts.append(f"{(self.control.steps - steps0) / (t - t0):5.1f} Hz")
             if now > wall0:
                 parts.append(f"x{(t - t0) / (now - wall0):.1f}")
-        self._status_mark = (now, t, self.steps)
+        self._status_mark = (now, t, self.control.steps)
         if last is not None and last.ids:
             r = last.radii_m
             parts.append(f"{last.law.behaviour:9s} r={r.min():.3f}..{r.max():.3f} m")
             sep = last.min_separation_m
             if math.isfinite(sep):
-                parts.append(f"sep {sep:.3f} (min {self.min_separation_m:.3f}) m")
+                parts.append(f"sep {sep:.3f} (min {self.control.min_separation_m:.3f}) m")
             clr = self.control.min_clearance_m
             if math.isfinite(clr):
                 parts.append(f"min clearance {clr:.3f} m")
-            parts.append(f"peak |a| {self.peak_accel_mps2:.2f} m/s^2")
+            parts.append(f"peak |a| {self.control.peak_accel_mps2:.2f} m/s^2")
         parts.append(" ".join(f"{s}:{vp.phase.value}/{vp.mode_name}"
                               for s, vp in sorted(self.vehicles.items())))  # fmt: skip
         drops = sum(link.stats.setpoints_dropped for link in self._links.values())

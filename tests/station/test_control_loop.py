@@ -57,6 +57,7 @@ def test_acceleration_limit_is_applied_to_every_setpoint() -> None:
     res = loop.step([1, 2], far, np.zeros((2, 3)))
     assert np.linalg.norm(res.law.accel_mps2, axis=1).min() > 1e3
     np.testing.assert_allclose(np.linalg.norm(res.accel_mps2, axis=1), 2.0, rtol=1e-9)
+    assert loop.peak_accel_mps2 == pytest.approx(2.0, rel=1e-9)  # what was commanded
 
 
 def test_slot_of_a_returning_vehicle_moves_with_the_leader() -> None:
