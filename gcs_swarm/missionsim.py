@@ -14,10 +14,9 @@ Pure computation: no I/O apart from what the caller asks of the result.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary
+from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary, filter_acts
 from gcs_swarm.mission import Mission
 from gcs_swarm.simulation import SimResult, simulate
 
@@ -40,18 +39,6 @@ class MissionSimResult:
         return "\n".join(lines)
 
 
-def _needs_filter(mission: Mission) -> bool:
-    lim = mission.law.limits
-    return (
-        mission.law.safety.enabled
-        or math.isfinite(lim.a_max)
-        or math.isfinite(lim.v_max)
-        or math.isfinite(lim.z_floor)
-        or lim.geofence_min is not None
-        or lim.geofence_max is not None
-    )
-
-
 def simulate_mission(
     mission: Mission, *, dt_s: float = 0.01, duration_s: float | None = None
 ) -> MissionSimResult:
@@ -60,7 +47,7 @@ def simulate_mission(
     law = mission.law
     vehicles = mission.vehicles
     hook: SafetyHook | None = None
-    if _needs_filter(mission):
+    if filter_acts(law.limits, law.safety):
         period = 1.0 / mission.settings.rate
         hook = SafetyHook(SafetyFilter(law.limits, law.safety, law.obstacles, dt=period))
     result = simulate(

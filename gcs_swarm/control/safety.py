@@ -73,7 +73,18 @@ __all__ = [
     "SafetySummary",
     "SafetyTuning",
     "box_signed_distance",
+    "filter_acts",
 ]
+
+
+def filter_acts(limits: Limits, safety: Safety) -> bool:
+    """Whether the filter can change anything: enabled, or any finite limit.
+    Otherwise it is the identity (module docstring) and callers skip it."""
+    return safety.enabled or not (
+        math.isinf(limits.a_max) and math.isinf(limits.v_max) and math.isinf(limits.z_floor)
+        and limits.geofence_min is None and limits.geofence_max is None
+    )  # fmt: skip
+
 
 _ENV, _PAIR, _SPEED = 0, 1, 2  # row classes, in the order the best effort keeps them
 _RELAX_STEPS = 40  # bisection steps of the best-effort relaxation (2^-40 of the range)

@@ -29,7 +29,6 @@ Two ways to find the control steps, the leader and the behaviour:
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,6 +36,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
+from gcs_swarm.control.safety import filter_acts
 from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL
 from gcs_swarm.mavlink.frames import GeoPoint, origin_offset_m, vector_ned_to_mission
 from gcs_swarm.mission import Mission
@@ -73,12 +73,8 @@ class ReplayStats:
 
 def safety_applied(mission: Mission) -> bool:
     """Whether the station runs the limits/safety filter for this mission
-    (as ``ControlLoop.filtering``: enabled, or any finite limit)."""
-    lim = mission.law.limits
-    return mission.law.safety.enabled or not (
-        math.isinf(lim.a_max) and math.isinf(lim.v_max) and math.isinf(lim.z_floor)
-        and lim.geofence_min is None and lim.geofence_max is None
-    )  # fmt: skip
+    (``ControlLoop.filtering``)."""
+    return filter_acts(mission.law.limits, mission.law.safety)
 
 
 class _State:

@@ -25,7 +25,7 @@ from gcs_swarm.control.law import ControlOutput, SwarmController
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.obstacles import box_signed_distance
 from gcs_swarm.control.params import LawConfig
-from gcs_swarm.control.safety import SafetyFilter, SafetyReport, SafetyStats
+from gcs_swarm.control.safety import SafetyFilter, SafetyReport, SafetyStats, filter_acts
 
 __all__ = ["ControlLoop", "StepResult"]
 
@@ -64,12 +64,8 @@ class ControlLoop:
         self.controller = SwarmController(law, t0=0.0, defer_lookahead=defer)
         self.safety = SafetyFilter(law.limits, law.safety, law.obstacles, dt=1.0 / rate_hz)
         self.safety_stats = SafetyStats()
-        lim = law.limits
         # A disabled filter with no finite limit is the identity (safety.py): skip it.
-        self.filtering: bool = law.safety.enabled or not (
-            math.isinf(lim.a_max) and math.isinf(lim.v_max) and math.isinf(lim.z_floor)
-            and lim.geofence_min is None and lim.geofence_max is None
-        )  # fmt: skip
+        self.filtering: bool = filter_acts(law.limits, law.safety)
         self.t_s = 0.0
         self.steps = 0
         self.min_separation_m = math.inf
