@@ -31,7 +31,6 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import LawConfig, Vec3
@@ -44,6 +43,7 @@ from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolConfig, Protoc
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.control import ControlLoop
+from gcs_swarm.runtime.delay import DelayCompensator
 from gcs_swarm.runtime.links import Link, OnFrame
 
 __all__ = ["Station", "StationConfig", "VehiclePlan"]
@@ -159,10 +159,9 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._idle_since: float | None = None
-        self._sync: dict[int, deque[tuple[float, float]]] = {}
-        """TIMESYNC samples per vehicle: (round trip [s], vehicle - station clock [s])."""
-        self._sent: dict[int, deque[tuple[float, npt.NDArray[np.float64]]]] = {}
-        """Commands in flight per vehicle: (vehicle time it lands [s], accel [m/s^2])."""
+        self.delay: DelayCompensator | None = None
+        if config.delay_compensation and not config.lockstep:
+            self.delay = DelayCompensator(config.predict_accel_max_mps2)
         self._status_mark: tuple[float, float, int] | None = None
         """(wall time, mission time, steps) at the last status line."""
 
@@ -183,7 +182,7 @@ class Station:
             await self._stack.aclose()
             raise
         coros = [self._heartbeat(), self._control_task(), self._status_task()]
-        if self.config.delay_compensation and not self.config.lockstep:
+        if self.delay is not None:
             coros.append(self._timesync_task())
         for coro in coros:
             self._tasks.append(self._tg.create_task(coro))
@@ -276,7 +275,8 @@ class Station:
             self.unknown_sysids[sysid] += 1
             return
         if msg.get_type() == "TIMESYNC":
-            self._on_timesync(sysid, msg)
+            if self.delay is not None and msg.tc1 != 0:
+                self.delay.timesync(sysid, msg.tc1, msg.ts1, self.now())
             return
         inbound = from_pymavlink(msg)
         if inbound is None:
@@ -397,10 +397,12 @@ class Station:
             states = [self.vehicles[s].state_mission() for s in ids]
             pos = np.array([p for p, _ in states])
             vel = np.array([v for _, v in states])
-            compensate = self.config.delay_compensation and not self.config.lockstep
-            if compensate:
+            if self.delay is not None:
                 for i, s in enumerate(ids):
-                    pos[i], vel[i] = self._predict(s, now, pos[i], vel[i])
+                    report = self.vehicles[s].position
+                    if report is not None:
+                        t_s = report.time_boot_ms * 1e-3
+                        pos[i], vel[i] = self.delay.predict(s, t_s, now, pos[i], vel[i])
             res = self.control.step(ids, pos, vel)
             if res.law.event is not None:
                 what = "starts" if res.law.event == "start" else "ends: formation resumes"
@@ -416,8 +418,8 @@ class Station:
                     vp = self.vehicles[sysid]
                     self._link_of[sysid].send(vp.accel_setpoint(res.accel_mps2[i]), sysid,
                                               since_s=self._arrival.get(sysid))  # fmt: skip
-                    if compensate:
-                        self._in_flight(sysid, now, res.accel_mps2[i])
+                    if self.delay is not None:
+                        self.delay.sent(sysid, now, res.accel_mps2[i])
             job = self.control.pending_lookahead()
             if job is not None:
                 self._tasks.append(self._tg.create_task(self._lookahead(job)))
@@ -456,78 +458,13 @@ class Station:
             self._service(vp, now)
 
     # ------------------------------------------------------ periodic tasks
-    # --------------------------------------------- delay compensation
-    # Opt-in (mission.delay_compensation), real time only. Each vehicle's clock
-    # offset and round trip come from TIMESYNC (the vehicle answers with its
-    # boot time); a report's state at its own time_boot_ms is integrated
-    # forward, as a double integrator (Eq. 1's state), over the commands sent
-    # since, to the vehicle time the new setpoint will land: now + offset +
-    # half the round trip. One-way delay cannot be told from clock offset, so
-    # the round trip is split in halves.
-
     async def _timesync_task(self) -> None:
+        """TIMESYNC requests at 5 Hz on every link (delay compensation)."""
         while True:
             stamp = int(self.now() * 1e9)
             for link in self._links.values():
                 link.send(MessageSpec("TIMESYNC", {"tc1": 0, "ts1": stamp}))
             await asyncio.sleep(0.2)
-
-    def _on_timesync(self, sysid: int, msg: Any) -> None:
-        if not self.config.delay_compensation or msg.tc1 == 0:
-            return
-        now = self.now()
-        rtt = now - msg.ts1 * 1e-9
-        if 0.0 <= rtt < 2.0:
-            offset = msg.tc1 * 1e-9 - (msg.ts1 * 1e-9 + now) / 2
-            self._sync.setdefault(sysid, deque(maxlen=50)).append((rtt, offset))
-
-    def clock_estimate(self, sysid: int) -> tuple[float, float] | None:
-        """(vehicle clock - station clock [s], one-way delay [s]) of ``sysid``
-        from its last 50 TIMESYNC round trips (None before 5): the median
-        round trip halved, and the median offset of the quicker half."""
-        samples = self._sync.get(sysid)
-        if samples is None or len(samples) < 5:
-            return None
-        rtts = sorted(r for r, _ in samples)
-        median = rtts[len(rtts) // 2]
-        offsets = sorted(o for r, o in samples if r <= median)
-        return offsets[len(offsets) // 2], median / 2
-
-    def _in_flight(self, sysid: int, now: float, accel: npt.NDArray[np.float64]) -> None:
-        est = self.clock_estimate(sysid)
-        if est is None:
-            return
-        a = np.array(accel, dtype=np.float64)
-        norm = float(np.linalg.norm(a))
-        ceiling = self.config.predict_accel_max_mps2
-        if norm > ceiling:
-            a *= ceiling / norm
-        lands = now + est[0] + est[1]
-        self._sent.setdefault(sysid, deque(maxlen=200)).append((lands, a))
-
-    def _predict(
-        self, sysid: int, now: float, p: npt.NDArray[np.float64], v: npt.NDArray[np.float64]
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        est = self.clock_estimate(sysid)
-        position = self.vehicles[sysid].position
-        if est is None or position is None:
-            return p, v
-        t = position.time_boot_ms * 1e-3
-        t_land = now + est[0] + est[1]
-        if not 0.0 <= t_land - t <= 1.0:  # nothing sensible to predict over
-            return p, v
-        sent = self._sent.get(sysid, ())
-        a = np.zeros(3)
-        for lands, acc in sent:  # the command in force at the report's time
-            if lands <= t:
-                a = acc
-        for lands, acc in sent:
-            if t < lands < t_land:
-                dt = lands - t
-                p, v = p + v * dt + 0.5 * a * dt * dt, v + a * dt
-                t, a = lands, acc
-        dt = t_land - t
-        return p + v * dt + 0.5 * a * dt * dt, v + a * dt
 
     async def _heartbeat(self) -> None:
         """HEARTBEAT at 1 Hz on every link (also wakes udpout peers at once)."""
