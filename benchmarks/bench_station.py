@@ -151,7 +151,7 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
             for lk in links:
                 lk.latency = LatencyRing(size=RATE_HZ * GROUP * int(seconds + 2))
             rx0 = sum(lk.stats.received for lk in links)
-            steps0 = sum(s.steps for s in stations)
+            steps0 = sum(s.control.steps for s in stations)
             drop0 = sum(lk.stats.setpoints_dropped for lk in links)
             proc.stdin.write(b"start\n")
             c0, w0 = time.process_time(), time.monotonic()
@@ -161,7 +161,7 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
             lat = sorted(x for lk in links for x in lk.latency.samples())
             sent = sum(lk.latency.count for lk in links)
             rx = sum(lk.stats.received for lk in links) - rx0
-            steps = sum(s.steps for s in stations) - steps0
+            steps = sum(s.control.steps for s in stations) - steps0
             drops = sum(lk.stats.setpoints_dropped for lk in links) - drop0
             for task in flying:
                 task.cancel()
