@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import subprocess
 import sys
 import time
@@ -27,20 +26,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _common import pin
+
 RATE_HZ = 50
-
-
-def _pin(core: int) -> str:
-    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
-        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
-        return f"core {core}"
-    return "not pinned"
 
 
 async def emulator_main(n: int) -> None:
     from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
 
-    _pin(0)
+    pin(0)
     specs = tuple(
         VehicleSpec(sysid=i + 1, start_ned_m=(3.0 * (i % 16), 3.0 * (i // 16), -10.0),
                     airborne=True)
@@ -111,7 +105,7 @@ def main() -> None:
     if args.emulator:
         asyncio.run(emulator_main(args.emulator))
         return
-    where = _pin(1)
+    where = pin(1)
     print(f"mavutil baseline (one connection per vehicle, recv_match loop), {RATE_HZ} Hz, "
           f"baseline on {where}, emulator on core 0, {args.seconds:g} s window")  # fmt: skip
     print(f"{'N':>4} {'setpt/s':>8} {'telem/s':>8} {'missed':>7} {'cpu':>5} {'us/setpt':>8}")

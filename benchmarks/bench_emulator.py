@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import socket
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _common import pin
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
@@ -36,14 +36,9 @@ from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
 RATE_HZ = 50.0
 
 
-def _pin(core: int) -> None:
-    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
-        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
-
-
 def sink(ports: list[int], seconds: float, answer: bool) -> None:
     """Ground-station stand-in: one socket, asks every vehicle for 50 Hz reports, drains."""
-    _pin(1)
+    pin(1)
     enc = mav.MAVLink(None, 255, 190)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
@@ -149,7 +144,7 @@ def main() -> None:
         ports = [int(p) for p in sys.stdin.readline().split()]
         sink(ports, float(args.sink[0]), args.sink[1] == "1")
         return
-    _pin(0)
+    pin(0)
     print(f"emulator benchmark, {RATE_HZ:g} Hz telemetry, one emulator process (one core)")
     print(f"{'mode':>6} {'N':>5} {'rt factor':>9} {'cpu':>6} {'delivered':>9} {'late':>5}")
     for mode in ("open", "closed"):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import statistics
 import subprocess
 import sys
@@ -27,16 +26,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _common import pin
+
 ROOT = Path(__file__).resolve().parents[1]
 MISSION = ROOT / "config" / "missions" / "example1_octahedron.yaml"
 RATE_HZ = 50.0
-
-
-def _pin(core: int) -> str:
-    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
-        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
-        return f"core {core}"
-    return "not pinned"
 
 
 def _mission():  # type: ignore[no-untyped-def]
@@ -50,7 +44,7 @@ async def emulator_main() -> None:
     from gcs_swarm.runtime.run import emulator_config
     from sim_vehicle import Emulator
 
-    _pin(0)
+    pin(0)
     cfg = replace(emulator_config(_mission(), airborne=True), clock="lockstep", shared_port=0)
     async with Emulator(cfg) as emu:
         print(emu.endpoints[1][1], flush=True)
@@ -105,7 +99,7 @@ def main() -> None:
     if args.emulator:
         asyncio.run(emulator_main())
         return
-    where = _pin(1)
+    where = pin(1)
     print(f"lockstep, Example 1 (N = 6, 50 Hz), station on {where}, emulator on core 0")
     rows = []
     for i in range(args.runs):

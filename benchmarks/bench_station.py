@@ -41,15 +41,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _common import pin
+
 GROUP = 250
 RATE_HZ = 50
-
-
-def _pin(core: int) -> str:
-    if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
-        os.sched_setaffinity(0, {core % (os.cpu_count() or 1)})
-        return f"core {core}"
-    return "not pinned"
 
 
 def mission_yaml(n: int) -> str:
@@ -91,7 +86,7 @@ async def emulator_main(n: int) -> None:
     from gcs_swarm.runtime.run import emulator_config
     from sim_vehicle import Emulator
 
-    _pin(0)
+    pin(0)
     async with contextlib_stack() as stack:
         emus = []
         for size in groups(n):
@@ -212,7 +207,7 @@ def main() -> None:
     from gcs_swarm.errors import StartupError
 
     floor_us = bench_codec.main()
-    where = _pin(1)
+    where = pin(1)
     print(f"\nstation capacity, {RATE_HZ} Hz real time, station on {where}, emulator on core 0,"
           f" {args.seconds:g} s window")  # fmt: skip
     print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
