@@ -36,6 +36,7 @@ from typing import Any, Literal
 
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink.codec import Codec, MessageSpec
+from gcs_swarm.runtime.lifetime import close_task_group
 
 __all__ = [
     "MESSAGE_QUEUE_SIZE",
@@ -209,14 +210,8 @@ class Link:
     async def __aexit__(
         self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
     ) -> None:
-        for task in self._tasks:
-            task.cancel()
         try:
-            # Our own tasks are cancelled above; hand the TaskGroup only a cancellation
-            # (its bookkeeping needs it), so that an error of the body (e.g.
-            # StartupError) propagates as itself, not wrapped in an ExceptionGroup.
-            cancelled = et is not None and issubclass(et, asyncio.CancelledError)
-            await self._tg.__aexit__(*((et, ev, tb) if cancelled else (None, None, None)))
+            await close_task_group(self._tg, self._tasks, et, ev, tb)
         finally:
             if self._udp is not None:
                 self._udp.close()

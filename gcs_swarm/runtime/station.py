@@ -44,6 +44,7 @@ from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.control import ControlLoop
 from gcs_swarm.runtime.delay import DelayCompensator
+from gcs_swarm.runtime.lifetime import close_task_group
 from gcs_swarm.runtime.links import Link, OnFrame
 
 __all__ = ["Station", "StationConfig", "VehiclePlan"]
@@ -191,18 +192,12 @@ class Station:
     async def __aexit__(
         self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
     ) -> None:
-        for task in self._tasks:
-            task.cancel()
         for _, handle in self._timers.values():
             handle.cancel()
         if self._fallback is not None:
             self._fallback.cancel()
         try:
-            # Our own tasks are cancelled above; hand the TaskGroup only a cancellation
-            # (its bookkeeping needs it), so that an error of the body (e.g.
-            # StartupError) propagates as itself, not wrapped in an ExceptionGroup.
-            cancelled = et is not None and issubclass(et, asyncio.CancelledError)
-            await self._tg.__aexit__(*((et, ev, tb) if cancelled else (None, None, None)))
+            await close_task_group(self._tg, self._tasks, et, ev, tb)
         finally:
             await self._stack.aclose()
 
