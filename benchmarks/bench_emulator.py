@@ -1,10 +1,11 @@
 """Benchmark of the emulator: vehicles kept in real time, and lockstep speed.
 
 Run from the repository root: ``python benchmarks/bench_emulator.py`` (about a
-minute). The emulator runs in this process (single-threaded asyncio: at most
-one core); the ground-station side is a separate process (this file with
-``--sink``) so its cost is not counted. Both are pinned to different cores
-when the machine has two.
+minute; ``--lockstep-only`` runs part 2 alone, ``--profile FILE`` writes a
+cProfile of the emulator side of part 2). The emulator runs in this process
+(single-threaded asyncio: at most one core); the ground-station side is a
+separate process (this file with ``--sink``) so its cost is not counted. Both
+are pinned to different cores when the machine has two.
 
 1. Real time: N airborne vehicles, each on its own UDP endpoint, streaming
    LOCAL_POSITION_NED at 50 Hz (plus 1 Hz HEARTBEAT); ``open`` mode only
@@ -124,14 +125,15 @@ async def lockstep(n: int, seconds: float) -> dict[str, float]:
         await proc.stdin.drain()
         proc.stdin.close()
         await emu.wait_steps(50)
-        s0, w0 = emu.step_count, time.monotonic()
+        s0, w0, c0 = emu.step_count, time.monotonic(), time.process_time()
         await asyncio.sleep(seconds)
-        s1, w1 = emu.step_count, time.monotonic()
+        s1, w1, c1 = emu.step_count, time.monotonic(), time.process_time()
         timeouts = emu.stats.lockstep_timeouts
         await proc.stdout.read()
         await proc.wait()
     rate = (s1 - s0) / (w1 - w0)
-    return {"steps_per_s": rate, "speedup": rate / RATE_HZ, "timeouts": timeouts}
+    cpu = (c1 - c0) / (w1 - w0)
+    return {"steps_per_s": rate, "speedup": rate / RATE_HZ, "timeouts": timeouts, "cpu": cpu}
 
 
 def main() -> None:
@@ -139,6 +141,10 @@ def main() -> None:
     ap.add_argument("--sink", nargs=2, metavar=("SECONDS", "ANSWER"))
     ap.add_argument("--counts", default="100,250,500,750,1000")
     ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--lockstep-only", action="store_true", help="skip the real-time part")
+    ap.add_argument(
+        "--profile", metavar="FILE", help="cProfile the lockstep part (emulator side) into FILE"
+    )
     args = ap.parse_args()
     if args.sink:
         ports = [int(p) for p in sys.stdin.readline().split()]
@@ -147,7 +153,7 @@ def main() -> None:
     pin(0)
     print(f"emulator benchmark, {RATE_HZ:g} Hz telemetry, one emulator process (one core)")
     print(f"{'mode':>6} {'N':>5} {'rt factor':>9} {'cpu':>6} {'delivered':>9} {'late':>5}")
-    for mode in ("open", "closed"):
+    for mode in () if args.lockstep_only else ("open", "closed"):
         for n in (int(c) for c in args.counts.split(",")):
             r = asyncio.run(realtime(n, args.seconds, answer=mode == "closed"))
             print(
@@ -155,10 +161,17 @@ def main() -> None:
                 f"{r['delivered']:9.3f} {int(r['late']):5d}",
                 flush=True,
             )
-    r = asyncio.run(lockstep(6, args.seconds))
+    if args.profile:
+        import cProfile
+
+        with cProfile.Profile() as prof:
+            r = asyncio.run(lockstep(6, args.seconds))
+        prof.dump_stats(args.profile)
+    else:
+        r = asyncio.run(lockstep(6, args.seconds))
     print(
         f"lockstep N=6: {r['steps_per_s']:.0f} steps/s = {r['speedup']:.1f}x real time "
-        f"({int(r['timeouts'])} timeouts)"
+        f"({int(r['timeouts'])} timeouts, emulator cpu {r['cpu']:.2f})"
     )
 
 
