@@ -98,27 +98,50 @@ class Endpoint(asyncio.DatagramProtocol):
         pass  # ICMP port unreachable from a station that went away: keep serving
 
     def parse(self, data: bytes) -> list[mav.MAVLink_message]:
-        """Decode every frame of a datagram (bad frames are counted and skipped)."""
+        """Decode every frame of a datagram (bad frames are counted and skipped).
+
+        Unsigned: each whole unsigned SET_POSITION_TARGET_LOCAL_NED frame is
+        decoded by ``_setpoint_frame``; every other run of bytes goes through
+        pymavlink's parser, so messages and counters are what that parser gives
+        for the whole datagram (a test checks it)."""
+        if self.signing_key is not None:
+            return self._general(data)
+        pieces = _split_setpoints(data)
+        if len(pieces) == 1 and not isinstance(pieces[0], bytes):
+            return pieces  # the hot case: one setpoint
         parser = self.parser
-        if self.signing_key is None:
-            fast = _fast_setpoint(data)  # unsigned frames only
-            if fast is not None:
-                return [fast]
+        msgs: list[mav.MAVLink_message] = []
+        for piece in pieces:
+            if not isinstance(piece, bytes):
+                msgs.append(piece)
+                continue
+            try:
+                msgs.extend(parser.parse_buffer(piece) or [])
+            except (mav.MAVError, ValueError, IndexError):
+                # the general parser would have dropped the whole datagram: do just that
+                self._reset_parser()
+                return self._general(data)
+        return self._sort(msgs)
+
+    def _general(self, data: bytes) -> list[mav.MAVLink_message]:
+        """pymavlink's parser over the whole datagram, with the counters."""
+        parser = self.parser
         rejected = parser.signing.reject_count
         try:
             msgs = parser.parse_buffer(data) or []
         except (mav.MAVError, ValueError, IndexError):
             self.stats.bad_frames += 1
             msgs = []
-        if parser.buf_len() > 0:  # a truncated frame: never glue it to the next datagram
-            self.stats.bad_frames += 1
-            parser.buf = bytearray()
-            parser.buf_index = 0
-            parser.expected_length = mav.HEADER_LEN_V1 + 2
-            parser.have_prefix_error = False
         rejected = parser.signing.reject_count - rejected
         self.stats.signature_rejected += rejected
         self.stats.bad_frames -= rejected  # pymavlink reports them as bad data
+        return self._sort(msgs)
+
+    def _sort(self, msgs: list[mav.MAVLink_message]) -> list[mav.MAVLink_message]:
+        """Count a truncated tail, bad and unknown frames; return the good messages."""
+        if self.parser.buf_len() > 0:  # a truncated frame: never glue it to the next datagram
+            self.stats.bad_frames += 1
+            self._reset_parser()
         good = []
         for m in msgs:
             if isinstance(m, mav.MAVLink_bad_data):
@@ -128,6 +151,13 @@ class Endpoint(asyncio.DatagramProtocol):
             else:
                 good.append(m)
         return good
+
+    def _reset_parser(self) -> None:
+        parser = self.parser
+        parser.buf = bytearray()
+        parser.buf_index = 0
+        parser.expected_length = mav.HEADER_LEN_V1 + 2
+        parser.have_prefix_error = False
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
         """Join frames into datagrams of at most MAX_DATAGRAM bytes; each with its LPN sysids."""
@@ -181,27 +211,68 @@ def bind_udp(host: str, port: int) -> socket.socket:
 
 _SP = mav.MAVLink_set_position_target_local_ned_message
 _SP_SIZE = _SP.unpacker.size
+_SP_EXTRA = bytes((_SP.crc_extra,))
 
 
-def _fast_setpoint(data: bytes) -> mav.MAVLink_message | None:
-    """Decode a datagram holding exactly one unsigned SET_POSITION_TARGET_LOCAL_NED frame.
+def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
+    """Decode the unsigned SET_POSITION_TARGET_LOCAL_NED frame that fills ``data[i:]`` exactly.
 
     The hot inbound message (50 Hz per vehicle) skips pymavlink's byte-by-byte
     parser: same CRC check (CRC-16/MCRF4XX with CRC_EXTRA), same struct, same
-    message class. Anything else returns None and takes the general parser.
+    message class and header. Anything else returns None.
     """
-    n = len(data)
-    if n < 13 or data[0] != 0xFD or data[2] != 0 or data[7:10] != b"\x54\x00\x00":
+    n = len(data) - i
+    if n < 12 or data[i] != 0xFD or data[i + 2] != 0:
         return None
-    plen = data[1]
-    if n != 12 + plen or plen > _SP_SIZE:
+    plen = data[i + 1]
+    if n != 12 + plen:
         return None
-    crc = mav.x25crc(data[1 : 10 + plen])
-    crc.accumulate(bytes((_SP.crc_extra,)))
-    if crc.crc != data[10 + plen] | (data[11 + plen] << 8):
+    return _setpoint_frame(data, i, plen)
+
+
+def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | None:
+    """The setpoint in the whole unsigned MAVLink 2 frame at ``data[i:]`` of payload ``plen``,
+    or None when it is another message, longer than the struct, or its CRC is wrong."""
+    if data[i + 7 : i + 10] != b"\x54\x00\x00" or plen > _SP_SIZE:
         return None
-    payload = data[10 : 10 + plen] + bytes(_SP_SIZE - plen)
+    end = i + 10 + plen
+    crc = mav.x25crc(data[i + 1 : end])
+    crc.accumulate(_SP_EXTRA)
+    if crc.crc != data[end] | (data[end + 1] << 8):
+        return None
+    payload = data[i + 10 : end] + bytes(_SP_SIZE - plen)
     f = _SP.unpacker.unpack(payload)
     msg = _SP(f[0], f[13], f[14], f[15], f[12], *f[1:12])
-    msg._header = mav.MAVLink_header(84, 0, 0, plen, data[4], data[5], data[6])
+    msg._header = mav.MAVLink_header(84, 0, 0, plen, data[i + 4], data[i + 5], data[i + 6])
     return msg
+
+
+def _split_setpoints(data: bytes) -> list[mav.MAVLink_message | bytes]:
+    """Cut a datagram into fast-decoded setpoints and runs of bytes for the general parser.
+
+    Walks whole unsigned MAVLink 2 frames from the start (12 + payload bytes
+    each, as pymavlink frames them); a setpoint with a good CRC is decoded,
+    every other whole frame joins the current run, and everything from the
+    first byte that does not start a whole unsigned MAVLink 2 frame (garbage,
+    MAVLink 1, a signed or truncated frame) is one final run. Runs start and
+    end on frame boundaries, where pymavlink's parser keeps no state, so it
+    decodes each run exactly as it would inside the whole datagram.
+    """
+    n = len(data)
+    out: list[mav.MAVLink_message | bytes] = []
+    run = i = 0
+    while i + 12 <= n and data[i] == 0xFD and data[i + 2] == 0:
+        plen = data[i + 1]
+        end = i + 12 + plen
+        if end > n:
+            break
+        sp = _setpoint_frame(data, i, plen)
+        if sp is not None:
+            if run < i:
+                out.append(data[run:i])
+            out.append(sp)
+            run = end
+        i = end
+    if run < n:
+        out.append(data[run:] if run else data)
+    return out
