@@ -23,19 +23,21 @@ never logged or shown (``repr`` hides it). Nothing here does I/O.
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 __all__ = [
+    "SETPOINT_FIELDS",
     "SIGNING_KEY_BYTES",
     "STATION_COMPID",
     "STATION_SYSID",
     "Codec",
     "CodecStats",
     "MessageSpec",
+    "RawPosition",
     "setup_signing",
     "signing_timestamp",
 ]
@@ -130,6 +132,19 @@ class CodecStats:
     signature_rejected: int = 0
 
 
+class RawPosition(NamedTuple):
+    """An unsigned LOCAL_POSITION_NED frame decoded without pymavlink's
+    message objects (``Codec.decode(..., raw_positions=True)``): the hot
+    inbound message, 50 Hz per vehicle. ``values`` are the payload's fields
+    in wire order: (time_boot_ms, x, y, z, vx, vy, vz)."""
+
+    sysid: int
+    compid: int
+    seq: int
+    frame: bytes
+    values: tuple[Any, ...]
+
+
 @dataclass
 class Codec:
     """Encoder and decoder for one peer, as system ``sysid`` component ``compid``.
@@ -173,7 +188,7 @@ class Codec:
         vehicle) is packed here with the dialect's struct and CRC, the bytes
         pymavlink's ``pack`` makes, without a message object per setpoint."""
         if spec.name == _SP.msgname and not self._mav.signing.sign_outgoing:
-            buf = _pack_setpoint(self._mav, spec.fields)
+            buf = _pack_setpoint(self._mav, [spec.fields[name] for name in _SP_NAMES])
         else:
             encoder = getattr(self._mav, spec.name.lower() + "_encode", None)
             if encoder is None:
@@ -191,7 +206,22 @@ class Codec:
         self.stats.bytes_sent += len(buf)
         return buf
 
-    def decode(self, data: bytes, *, datagram: bool = True) -> list[Any]:
+    def encode_setpoint(self, values: tuple[FieldValue, ...]) -> bytes:
+        """Like ``encode`` for a SET_POSITION_TARGET_LOCAL_NED given as its
+        field values in wire order (``SETPOINT_FIELDS``): the station's hot
+        path, one per vehicle per control step, with no ``MessageSpec``."""
+        if self._mav.signing.sign_outgoing:
+            spec = MessageSpec(_SP.msgname, dict(zip(_SP_NAMES, values, strict=True)), "setpoint")
+            return self.encode(spec)
+        buf = _pack_setpoint(self._mav, values)
+        self._mav.seq = (self._mav.seq + 1) % 256
+        self.stats.sent += 1
+        self.stats.bytes_sent += len(buf)
+        return buf
+
+    def decode(
+        self, data: bytes, *, datagram: bool = True, raw_positions: bool = False
+    ) -> list[Any]:
         """Parse ``data``; return the good messages, count and drop the rest.
 
         Unsigned datagrams take a fast path for LOCAL_POSITION_NED (50 Hz per
@@ -200,6 +230,8 @@ class Codec:
         pymavlink's byte-by-byte parser; every other frame, and anything from
         the first frame that is not whole and well-formed, goes through
         ``parse_buffer`` as before, so the messages and counters are the same.
+        With ``raw_positions`` those LOCAL_POSITION_NED frames come out as
+        ``RawPosition`` tuples instead of pymavlink messages.
         """
         if not datagram or self.signing_key is not None:
             good = self._parse(data, datagram=datagram)
@@ -214,10 +246,10 @@ class Codec:
             if end > n:
                 break
             if data[i + 7 : i + 10] == _LPN_ID:
-                msg = _fast_lpn(data, i, end)
-                if msg is None:
+                raw = _raw_lpn(data, i, end)
+                if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
-                good.append(msg)
+                good.append(raw if raw_positions else _lpn_message(raw, data, i, end))
             else:
                 good.extend(self._parse(data[i:end], datagram=True))
             i = end
@@ -266,44 +298,69 @@ _LPN = _dialect.MAVLink_local_position_ned_message
 _LPN_SIZE: int = _LPN.unpacker.size
 _LPN_ID = bytes((_LPN.id, 0, 0))
 _LPN_EXTRA = bytes((_LPN.crc_extra,))
+_LPN_UNPACK = _LPN.unpacker.unpack
 
 
-def _fast_lpn(data: bytes, i: int, end: int) -> Any:
-    """The unsigned MAVLink 2 LOCAL_POSITION_NED frame ``data[i:end]`` as
-    pymavlink would decode it, or None if its length or CRC is wrong."""
+_MCRF4XX = getattr(_dialect, "mcrf4xx", None)
+"""pymavlink's C CRC-16/MCRF4XX (the fastcrc package) when installed."""
+
+
+def _frame_crc(buf: bytes | memoryview, extra: bytes) -> int:
+    """The MAVLink checksum of ``buf`` (a frame without its magic byte and
+    CRC) followed by the message's CRC_EXTRA byte ``extra``: the value
+    pymavlink's ``x25crc`` computes, with one call less per frame."""
+    if _MCRF4XX is not None:
+        return int(_MCRF4XX(extra, _MCRF4XX(buf)))
+    crc = _dialect.x25crc(bytes(buf))
+    crc.accumulate(extra)
+    return int(crc.crc)
+
+
+def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
+    """The unsigned MAVLink 2 LOCAL_POSITION_NED frame ``data[i:end]``, or
+    None if its length or CRC is wrong."""
     plen = end - i - 12
     if not 0 < plen <= _LPN_SIZE:
         return None
-    crc = _dialect.x25crc(data[i + 1 : end - 2])
-    crc.accumulate(_LPN_EXTRA)
-    if crc.crc != data[end - 2] | (data[end - 1] << 8):
+    if _frame_crc(memoryview(data)[i + 1 : end - 2], _LPN_EXTRA) != (
+        data[end - 2] | (data[end - 1] << 8)
+    ):
         return None
-    payload = data[i + 10 : end - 2] + bytes(_LPN_SIZE - plen)  # MAVLink 2 trailing zeros
-    msg = _LPN(*_LPN.unpacker.unpack(payload))
-    msg._header = _dialect.MAVLink_header(_LPN.id, 0, 0, plen, data[i + 4], data[i + 5],
-                                          data[i + 6])  # fmt: skip
+    frame = data[i:end]
+    payload = frame[10:-2] if plen == _LPN_SIZE else frame[10:-2] + bytes(_LPN_SIZE - plen)
+    return RawPosition(data[i + 5], data[i + 6], data[i + 4], frame, _LPN_UNPACK(payload))
+
+
+def _lpn_message(raw: RawPosition, data: bytes, i: int, end: int) -> Any:
+    """``raw`` as the pymavlink message its parser would return."""
+    msg = _LPN(*raw.values)
+    plen = end - i - 12
+    msg._header = _dialect.MAVLink_header(_LPN.id, 0, 0, plen, raw.seq, raw.sysid, raw.compid)
     msg._payload = bytearray(data[i + 6 : end - 2])  # what pymavlink's decode stores
-    msg._msgbuf = bytearray(data[i:end])
-    msg._crc = crc.crc
+    msg._msgbuf = bytearray(raw.frame)
+    msg._crc = data[end - 2] | (data[end - 1] << 8)
     return msg
 
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message
 _SP_NAMES = tuple(_SP.ordered_fieldnames)
 _SP_EXTRA = bytes((_SP.crc_extra,))
+_SP_PACK = _SP.unpacker.pack
 _V2_HEADER = struct.Struct("<BBBBBBBHB")
 
 
-def _pack_setpoint(mav: Any, fields: Mapping[str, FieldValue]) -> bytes:
-    """``SET_POSITION_TARGET_LOCAL_NED`` ``fields`` as pymavlink's unsigned
-    MAVLink 2 ``pack`` would frame them with ``mav``'s ids and sequence."""
-    payload: bytes = _SP.unpacker.pack(*[fields[name] for name in _SP_NAMES])
+SETPOINT_FIELDS: tuple[str, ...] = _SP_NAMES
+"""SET_POSITION_TARGET_LOCAL_NED's field names in wire order (``encode_setpoint``)."""
+
+
+def _pack_setpoint(mav: Any, values: Sequence[FieldValue]) -> bytes:
+    """SET_POSITION_TARGET_LOCAL_NED field ``values`` (wire order) as
+    pymavlink's unsigned MAVLink 2 ``pack`` would frame them with ``mav``'s
+    ids and sequence."""
+    payload: bytes = _SP_PACK(*values)
     plen = len(payload)
     while plen > 1 and payload[plen - 1] == 0:  # MAVLink 2 trims trailing zeros
         plen -= 1
     frame = _V2_HEADER.pack(0xFD, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent,
                             _SP.id & 0xFFFF, _SP.id >> 16) + payload[:plen]  # fmt: skip
-    crc = _dialect.x25crc(frame[1:])
-    crc.accumulate(_SP_EXTRA)
-    value: int = crc.crc
-    return frame + value.to_bytes(2, "little")
+    return frame + _frame_crc(memoryview(frame)[1:], _SP_EXTRA).to_bytes(2, "little")
