@@ -209,8 +209,10 @@ class Supervisor:
     def _sync_vehicles(self, key: tuple[int, ...]) -> None:
         k = self._obs.count
         vertical = self._cfg.avoidance.plane == "vertical"
-        for vid in [v for v in self._vehicles if v not in key]:
-            del self._vehicles[vid]
+        if len(self._vehicles) != len(key) or not self._vehicles.keys() <= set(key):
+            members = set(key)  # a set: this runs every step for every vehicle
+            for vid in [v for v in self._vehicles if v not in members]:
+                del self._vehicles[vid]
         for vid in key:
             if vid not in self._vehicles:
                 self._vehicles[vid] = _Vehicle(
@@ -247,12 +249,15 @@ class Supervisor:
 
     def _mode(self, key: tuple[int, ...], targets: F64 | None, inside: NDArray[np.bool_]) -> Mode:
         n, k = len(key), self._obs.count
-        vert = np.zeros((n, k), dtype=bool)
-        sh = np.ones((n, k))
-        sv = np.ones((n, k))
-        for j, vid in enumerate(key):
-            veh = self._vehicles[vid]
-            vert[j], sh[j], sv[j] = veh.vertical, veh.sense_h, veh.sense_v
+        if n and k:  # one stacking call per array, not one row copy per vehicle
+            vehs = [self._vehicles[vid] for vid in key]
+            vert = np.array([veh.vertical for veh in vehs], dtype=bool)
+            sh = np.array([veh.sense_h for veh in vehs], dtype=np.float64)
+            sv = np.array([veh.sense_v for veh in vehs], dtype=np.float64)
+        else:
+            vert = np.zeros((n, k), dtype=bool)
+            sh = np.ones((n, k))
+            sv = np.ones((n, k))
         avoiding = self._episode is not None
         return Mode(
             behaviour="avoidance" if avoiding else "formation",
