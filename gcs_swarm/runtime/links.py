@@ -35,7 +35,7 @@ from types import TracebackType
 from typing import Any, Literal
 
 from gcs_swarm.errors import LinkError
-from gcs_swarm.mavlink.codec import Codec, MessageSpec
+from gcs_swarm.mavlink.codec import Codec, FieldValue, MessageSpec, RawPosition
 from gcs_swarm.runtime.lifetime import close_task_group
 
 __all__ = [
@@ -51,6 +51,13 @@ _log = logging.getLogger("gcs_swarm.link")
 
 MESSAGE_QUEUE_SIZE = 256
 """Bound of a link's FIFO of non-setpoint messages."""
+MAX_DATAGRAM_BYTES = 1472
+"""Largest UDP datagram the link writes when it joins the setpoints of one
+control step that go to the same peer (Ethernet's 1500-byte MTU less the IP
+and UDP headers: never fragmented). A MAVLink receiver reads UDP as a byte
+stream, so several whole frames in one datagram are what it would read from
+a serial port; a lost datagram loses all of them, as it would the frames of
+a lost serial burst."""
 REBIND_S = 5.0
 """Silence [s] of a system id's peer after which another peer may take it over."""
 _RECONNECT_S = 1.0
@@ -59,6 +66,9 @@ Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
 Peer = Any  # a UDP address tuple, or a TCP connection object
 OnMessage = Callable[[Any, "Link"], None]
 """Called with each decoded pymavlink message and the link it came on."""
+OnPosition = Callable[[RawPosition, "Link"], None]
+"""Called with each unsigned LOCAL_POSITION_NED (decoded without pymavlink's
+objects) and its link, when the owner asks for them apart."""
 OnFrame = Callable[[bytes, Literal["in", "out"]], None]
 """Called with every raw frame the link decoded ("in") or sent ("out"), e.g.
 a ``.tlog`` writer; bad packets are counted, not passed on."""
@@ -171,8 +181,12 @@ class Link:
         on_message: OnMessage,
         *,
         on_frame: OnFrame | None = None,
+        on_position: OnPosition | None = None,
         signing_key: bytes | None = None,
     ) -> None:
+        """``on_message`` gets every decoded message, except that with
+        ``on_position`` the unsigned LOCAL_POSITION_NED frames go there as
+        ``RawPosition`` tuples (the station's hot path)."""
         self.endpoint = parse_connection(connection)
         self._signing_key = signing_key
         self._sig_streams: dict[tuple[int, int, int], int] = {}
@@ -184,9 +198,10 @@ class Link:
         """``time.monotonic()`` when the datagram (or stream chunk) being decoded arrived."""
         self._on_message = on_message
         self._on_frame = on_frame
+        self._on_position = on_position
         self._codecs: dict[Peer, Codec] = {}
         self._routes: dict[int, Peer] = {}
-        self._setpoints: dict[int, MessageSpec] = {}
+        self._setpoints: dict[int, MessageSpec | tuple[FieldValue, ...]] = {}
         self._since: dict[int, float] = {}
         self._messages: deque[tuple[MessageSpec, int | None]] = deque()
         self._wake = asyncio.Event()
@@ -272,22 +287,38 @@ class Link:
             self._messages.append((spec, sysid))
         self._wake.set()
 
+    def send_setpoint(
+        self, sysid: int, values: tuple[FieldValue, ...], *, since_s: float | None = None
+    ) -> None:
+        """``send`` for a SET_POSITION_TARGET_LOCAL_NED given as its field
+        values in wire order (``builders.accel_setpoint_values``): the same
+        slot (newest wins) without a ``MessageSpec`` per vehicle per step."""
+        if sysid in self._setpoints:
+            self.stats.setpoints_dropped += 1
+        self._setpoints[sysid] = values
+        if since_s is not None:
+            self._since[sysid] = since_s
+        self._wake.set()
+
+    def flush(self) -> None:
+        """Write what is queued now rather than at the writer task's next turn
+        (the station calls it once a control step's setpoints are queued).
+        Nothing is written while no peer is known: the queues (bounded) wait."""
+        if not self._codecs:
+            return
+        while self._messages:
+            spec, sysid = self._messages.popleft()
+            self._write(spec, sysid)
+        setpoints, self._setpoints = self._setpoints, {}
+        since, self._since = self._since, {}
+        if setpoints:
+            self._write_setpoints(setpoints, since)
+
     async def _writer(self) -> None:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            if not self._codecs:
-                continue  # nobody to send to yet: keep the queues (bounded) until a peer
-            while self._messages:
-                spec, sysid = self._messages.popleft()
-                self._write(spec, sysid)
-            setpoints, self._setpoints = self._setpoints, {}
-            since, self._since = self._since, {}
-            for sysid, spec in setpoints.items():
-                self._write(spec, sysid)
-                t0 = since.get(sysid)
-                if t0 is not None:
-                    self.latency.add(time.monotonic() - t0)
+            self.flush()
             for stream in self._streams:
                 with contextlib.suppress(ConnectionError):
                     await stream.writer.drain()
@@ -297,25 +328,78 @@ class Link:
         for peer in peers:
             if peer is None:
                 continue
-            try:
-                data = self._codecs[peer].encode(spec)
-            except (struct.error, OverflowError, ValueError, TypeError) as err:
-                # A message that cannot be framed (a value out of its field's
-                # range) is counted and dropped; the link and the station go on.
-                self.stats.unencodable += 1
-                _log.error("%s: %s not sent: %s", self.endpoint, spec.name, err)
+            data = self._encode(peer, spec)
+            if data is not None:
+                self._transmit(peer, data)
+
+    def _write_setpoints(
+        self, setpoints: dict[int, MessageSpec | tuple[FieldValue, ...]], since: dict[int, float]
+    ) -> None:
+        """One control step's setpoints: the frames for each peer joined into
+        datagrams of at most ``MAX_DATAGRAM_BYTES``; each setpoint answering a
+        telemetry adds its latency when its datagram is written."""
+        frames: dict[Peer, list[tuple[bytes, int]]] = {}
+        for sysid, entry in setpoints.items():
+            peer = self._route(sysid)
+            if peer is None:
                 continue
-            self.stats.sent += 1
-            if self._on_frame is not None:
-                self._on_frame(data, "out")
-            if isinstance(peer, _Stream):
-                if not peer.writer.is_closing():
-                    peer.writer.write(data)
-            elif self._udp is not None:
-                if self.endpoint.scheme == "udpout":
-                    self._udp.sendto(data)
-                else:
-                    self._udp.sendto(data, peer)
+            data = self._encode(peer, entry)
+            if data is not None:
+                frames.setdefault(peer, []).append((data, sysid))
+        for peer, items in frames.items():
+            chunk: list[bytes] = []
+            sysids: list[int] = []
+            size = 0
+            for data, sysid in items:
+                if chunk and size + len(data) > MAX_DATAGRAM_BYTES:
+                    self._transmit(peer, b"".join(chunk))
+                    self._add_latency(sysids, since)
+                    chunk, sysids, size = [], [], 0
+                chunk.append(data)
+                sysids.append(sysid)
+                size += len(data)
+            if chunk:
+                self._transmit(peer, b"".join(chunk))
+                self._add_latency(sysids, since)
+
+    def _add_latency(self, sysids: list[int], since: dict[int, float]) -> None:
+        now = time.monotonic()
+        latency = self.latency
+        for sysid in sysids:
+            t0 = since.get(sysid)
+            if t0 is not None:
+                latency.add(now - t0)
+
+    def _encode(self, peer: Peer, entry: MessageSpec | tuple[FieldValue, ...]) -> bytes | None:
+        """``entry`` framed by ``peer``'s codec (counted, and passed to
+        ``on_frame``), or None if it cannot be framed."""
+        codec = self._codecs[peer]
+        try:
+            if isinstance(entry, MessageSpec):
+                data = codec.encode(entry)
+            else:
+                data = codec.encode_setpoint(entry)
+        except (struct.error, OverflowError, ValueError, TypeError) as err:
+            # A message that cannot be framed (a value out of its field's
+            # range) is counted and dropped; the link and the station go on.
+            self.stats.unencodable += 1
+            name = entry.name if isinstance(entry, MessageSpec) else "SET_POSITION_TARGET_LOCAL_NED"
+            _log.error("%s: %s not sent: %s", self.endpoint, name, err)
+            return None
+        self.stats.sent += 1
+        if self._on_frame is not None:
+            self._on_frame(data, "out")
+        return data
+
+    def _transmit(self, peer: Peer, data: bytes) -> None:
+        if isinstance(peer, _Stream):
+            if not peer.writer.is_closing():
+                peer.writer.write(data)
+        elif self._udp is not None:
+            if self.endpoint.scheme == "udpout":
+                self._udp.sendto(data)
+            else:
+                self._udp.sendto(data, peer)
 
     def _route(self, sysid: int) -> Peer | None:
         peer = self._routes.get(sysid)
@@ -332,15 +416,22 @@ class Link:
             self.stats.peers.add(str(peer if not isinstance(peer, _Stream) else "tcp"))
         cs = codec.stats
         bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
-        msgs = codec.decode(data, datagram=datagram)
+        on_position = self._on_position
+        msgs = codec.decode(data, datagram=datagram, raw_positions=on_position is not None)
         self.stats.bad_packets += cs.bad_packets - bad
         self.stats.unknown_messages += cs.unknown_messages - unknown
         self.stats.signature_rejected += cs.signature_rejected - rejected
         for msg in msgs:
-            if not self._bound(msg.get_srcSystem(), peer):
+            raw = type(msg) is RawPosition
+            if not self._bound(msg.sysid if raw else msg.get_srcSystem(), peer):
                 self.stats.spoofed += 1
                 continue
             self.stats.received += 1
+            if raw:
+                if self._on_frame is not None:
+                    self._on_frame(msg.frame, "in")
+                on_position(msg, self)  # type: ignore[misc]
+                continue
             if self._on_frame is not None:
                 self._on_frame(bytes(msg.get_msgbuf()), "in")
             self._on_message(msg, self)
@@ -350,8 +441,9 @@ class Link:
         return Codec(signing_key=key, streams=self._sig_streams, unix_s=time.time())
 
     def _bound(self, sysid: int, peer: Peer) -> bool:
-        """True if ``peer`` may speak for ``sysid`` (binding it on first contact)."""
-        now = time.monotonic()
+        """True if ``peer`` may speak for ``sysid`` (binding it on first contact),
+        at the arrival time of the bytes being decoded."""
+        now = self.rx_time_s
         bound = self._routes.get(sysid)
         if bound is not None and bound != peer and now - self._heard.get(sysid, now) < REBIND_S:
             return False

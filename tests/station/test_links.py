@@ -11,7 +11,8 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.runtime.links import Link, parse_connection
+from gcs_swarm.mavlink.codec import Codec, RawPosition
+from gcs_swarm.runtime.links import MAX_DATAGRAM_BYTES, Link, parse_connection
 
 
 def _frame(sysid: int, t_ms: int = 1) -> bytes:
@@ -94,6 +95,52 @@ def test_setpoint_slot_is_newest_wins_and_counts_drops() -> None:
                 assert link.stats.setpoints_dropped == 2
                 await asyncio.sleep(0.05)
                 assert pr.got.empty()
+            tr.close()
+
+    asyncio.run(main())
+
+
+def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes() -> None:
+    """60 vehicles behind one peer: their reports come to ``on_position`` as
+    ``RawPosition``; the 60 answers go out in the fewest datagrams that each
+    fit an Ethernet MTU, every frame whole, and each adds one latency sample."""
+
+    async def main() -> None:
+        raws: list[RawPosition] = []
+        all_in = asyncio.Event()
+
+        def on_position(raw: RawPosition, lk: Link) -> None:
+            raws.append(raw)
+            if len(raws) == 60:
+                all_in.set()
+
+        async with asyncio.timeout(5):
+            loop = asyncio.get_running_loop()
+            tr, pr = await loop.create_datagram_endpoint(_Peer, local_addr=("127.0.0.1", 0))
+            link = Link("udpin:127.0.0.1:0", lambda m, lk: None, on_position=on_position)
+            async with link:
+                addr = link.local_address
+                assert addr is not None
+                tr.sendto(b"".join(_frame(s, 1000 + s) for s in range(1, 61)), addr)
+                await all_in.wait()
+                ids = list(range(1, 61))
+                assert [(r.sysid, r.values[0]) for r in raws] == [(s, 1000 + s) for s in ids]
+                assert raws[0].frame == _frame(1, 1001)
+                for s in range(1, 61):
+                    values = b.accel_setpoint_values(s, 1, 1000 + s, (float(s), 0.0, 0.0))
+                    link.send_setpoint(s, values, since_s=link.rx_time_s)
+                link.flush()
+                got = []
+                sizes = []
+                while len(got) < 60:
+                    data, _ = await pr.got.get()
+                    sizes.append(len(data))
+                    got += pr.parser.parse_buffer(data)
+                assert [(m.target_system, m.afx) for m in got] == [(s, float(s)) for s in ids]
+                frame = len(Codec().encode_setpoint(values))  # every setpoint frame: 65 bytes
+                per = MAX_DATAGRAM_BYTES // frame  # 22
+                assert sizes == [per * frame] * (60 // per) + [60 % per * frame]
+                assert link.latency.count == 60 and link.stats.sent == 60
             tr.close()
 
     asyncio.run(main())
