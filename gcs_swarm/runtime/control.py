@@ -116,13 +116,35 @@ class ControlLoop:
         self._boot_ms.pop(sysid, None)
 
     def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:
-        """The limited accelerations for ``ids`` at their mission-frame states."""
+        """The limited accelerations for ``ids`` at their mission-frame states:
+        ``command`` then ``account``."""
+        out, accel, report = self.command(ids, pos_m, vel_mps)
+        return self.account(ids, pos_m, out, accel, report)
+
+    def command(
+        self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray
+    ) -> tuple[ControlOutput, FloatArray, SafetyReport | None]:
+        """What goes out this step: the law's output, the accelerations after
+        limits/safety (N, 3), and the filter's report (None when it is the
+        identity). The station sends these before ``account``'s bookkeeping."""
         q = np.array([self.charges[i] for i in ids], dtype=np.float64)
         out = self.controller.step(self.t_s, ids, pos_m, vel_mps, q)
         accel, report = out.accel_mps2, None
         if self.filtering:
             accel, report = self.safety.filter(pos_m, vel_mps, out.accel_mps2, ids=ids)
             self.safety_stats.update(report)
+        return out, accel, report
+
+    def account(
+        self,
+        ids: Sequence[int],
+        pos_m: FloatArray,
+        out: ControlOutput,
+        accel: FloatArray,
+        report: SafetyReport | None,
+    ) -> StepResult:
+        """The step's figures (radii, separation, peak |a|, clearance), kept as
+        ``last`` and in the running extremes; counts the step."""
         radii = np.linalg.norm(pos_m - out.leader_pos_m, axis=1)
         sep = _min_separation(pos_m)
         self.min_separation_m = min(self.min_separation_m, sep)
