@@ -3,7 +3,9 @@
 Owns ``encode_local_position_ned``: builds N frames at once with numpy,
 byte-identical to pymavlink's ``MAVLink_local_position_ned_message.pack``
 (a test checks it), so the per-vehicle Python cost of the 50 Hz stream is one
-slice and one ``sendto``. Frame layout (MAVLink 2, unsigned)::
+slice and one ``sendto``; and ``lpn_frames_small``, the same bytes one frame
+at a time with ``struct`` for a handful of vehicles, where numpy's per-call
+cost outweighs the work. Frame layout (MAVLink 2, unsigned)::
 
     0xFD len incompat=0 compat=0 seq sysid compid msgid(3, LE) payload[len] crc(2, LE)
 
@@ -14,12 +16,15 @@ the message's CRC_EXTRA (185). No I/O.
 
 from __future__ import annotations
 
+import struct
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
-__all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "encode_local_position_ned"]
+__all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "crc16", "encode_local_position_ned", "lpn_frames_small"]
 
 LPN_MSGID = 32
 LPN_CRC_EXTRA = 185
@@ -54,6 +59,19 @@ _CRC_LIST = [int(x) for x in _CRC_TABLE]
 _SMALL_N = 64
 """Below this many frames the CRC runs per frame over bytes (a numpy step per
 byte costs more than the whole frame in plain Python)."""
+_LPN_PAYLOAD = struct.Struct("<Iffffff")
+_LPN_EXTRA = bytes((LPN_CRC_EXTRA,))
+_MCRF4XX: Any = getattr(mav, "mcrf4xx", None)  # fastcrc's C function, when pymavlink found it
+
+
+def crc16(body: bytes, extra: bytes) -> int:
+    """CRC-16/MCRF4XX of ``body`` then ``extra`` (a message's CRC_EXTRA byte), as pymavlink."""
+    if _MCRF4XX is not None:
+        crc: int = _MCRF4XX(extra, _MCRF4XX(body, 0xFFFF))
+        return crc
+    x = mav.x25crc(body)
+    x.accumulate(extra)
+    return int(x.crc)
 
 
 def _crc_step(crc: NDArray[Any], byte: NDArray[Any]) -> NDArray[Any]:
@@ -122,3 +140,28 @@ def encode_local_position_ned(
     buf[rows, end] = crc & 0xFF
     buf[rows, end + 1] = crc >> 8
     return buf, end + 2
+
+
+def lpn_frames_small(
+    time_boot_ms: Sequence[int],
+    pos_ned_m: Sequence[Sequence[float]],
+    vel_ned_m_s: Sequence[Sequence[float]],
+    seq: Sequence[int],
+    sysid: Sequence[int],
+    compid: Sequence[int],
+) -> list[bytes] | None:
+    """The frames of ``encode_local_position_ned``, one ``struct.pack`` each (plain Python
+    lists in). None when a value does not fit a float32 (the numpy encoder then decides)."""
+    pack = _LPN_PAYLOAD.pack
+    out = []
+    try:
+        for t, p, v, s, sid, cid in zip(
+            time_boot_ms, pos_ned_m, vel_ned_m_s, seq, sysid, compid, strict=True
+        ):
+            payload = pack(t & 0xFFFFFFFF, p[0], p[1], p[2], v[0], v[1], v[2]).rstrip(b"\x00")
+            body = bytes((len(payload) or 1, 0, 0, s & 0xFF, sid, cid, LPN_MSGID, 0, 0))
+            body += payload or b"\x00"
+            out.append(b"\xfd" + body + crc16(body, _LPN_EXTRA).to_bytes(2, "little"))
+    except OverflowError:
+        return None
+    return out

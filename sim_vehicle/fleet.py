@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from sim_vehicle import dynamics
 from sim_vehicle.autopilot import ControlTarget
-from sim_vehicle.codec import encode_local_position_ned
+from sim_vehicle.codec import _SMALL_N, encode_local_position_ned, lpn_frames_small
 from sim_vehicle.dynamics import DynParams, KinState, Targets
 
 __all__ = ["KP_1_S", "KV_1_S", "Fleet"]
@@ -64,6 +64,7 @@ class Fleet:
 
     def __init__(self) -> None:
         self.n = 0
+        self._views: tuple[Targets, DynParams] | None = None  # step()'s inputs over the arrays
         for name in _V3:
             setattr(self, name, np.zeros((0, 3)))
         for name in _V1:
@@ -91,6 +92,7 @@ class Fleet:
         self.awaiting = np.append(self.awaiting, False)
         self.holding = np.append(self.holding, False)
         self.n += 1
+        self._views = None
         return self.n - 1
 
     def remove(self, row: int) -> None:
@@ -98,10 +100,30 @@ class Fleet:
         for name in (*_V3, *_V1, *_I1, *_B1):
             setattr(self, name, np.delete(getattr(self, name), row, axis=0))
         self.n -= 1
+        self._views = None
 
-    def set_target(self, row: int, tg: ControlTarget) -> None:
-        """Copy one autopilot target into the row (Eq. D3 inputs, dynamics limits)."""
+    def set_target(self, row: int, tg: ControlTarget, prev: ControlTarget | None = None) -> None:
+        """Copy one autopilot target into the row (Eq. D3 inputs, dynamics limits).
+
+        ``prev``: the target last copied into this row, if known. When every
+        field but ``a_ff`` is the very same object as in ``prev`` (a streamed
+        acceleration setpoint) only ``a_ff`` is written; identity, not ``==``,
+        which would take -0.0 for 0.0."""
         self.a_ff[row] = tg.a_ff
+        if (
+            prev is not None
+            and tg.p_t is prev.p_t
+            and tg.v_t is prev.v_t
+            and tg.wp is prev.wp
+            and tg.wv is prev.wv
+            and tg.vmax_xy is prev.vmax_xy
+            and tg.vmax_up is prev.vmax_up
+            and tg.vmax_dn is prev.vmax_dn
+            and tg.acc_lim is prev.acc_lim
+            and tg.acc_max is prev.acc_max
+            and tg.tau_s is prev.tau_s
+        ):
+            return
         self.p_t[row] = tg.p_t
         self.v_t[row] = tg.v_t
         self.wp[row] = tg.wp
@@ -118,12 +140,16 @@ class Fleet:
         if self.n == 0:
             return
         st = KinState(self.pos, self.vel, self.acc, self.landed)
-        tg = Targets(
-            self.a_ff, self.p_t, self.v_t, self.wp, self.wv,
-            self.vmax_xy, self.vmax_up, self.vmax_dn, self.acc_lim,
-        )  # fmt: skip
+        if self._views is None:  # the arrays are written in place; only add/remove replace them
+            self._views = (
+                Targets(
+                    self.a_ff, self.p_t, self.v_t, self.wp, self.wv,
+                    self.vmax_xy, self.vmax_up, self.vmax_dn, self.acc_lim,
+                ),
+                DynParams(self.tau, self.acc_max, self.ground),
+            )  # fmt: skip
+        tg, params = self._views
         cmd = dynamics.tracking_accel(st, tg, KP_1_S, KV_1_S)
-        params = DynParams(self.tau, self.acc_max, self.ground)
         new = dynamics.step(st, cmd, dt, params)
         self.pos, self.vel, self.acc, self.landed = (
             new.pos_ned_m,
@@ -145,3 +171,23 @@ class Fleet:
         )
         self.seq[rows] = (self.seq[rows] + 1) & 0xFF
         return buf, lens
+
+    def lpn_frames(
+        self,
+        rows: NDArray[np.intp],
+        time_boot_ms: NDArray[np.int64],
+        pos: NDArray[np.float64],
+        vel: NDArray[np.float64],
+    ) -> list[bytes]:
+        """The frames of ``encode_lpn`` as bytes, one per row (plain ``struct`` for a few)."""
+        if len(rows) < _SMALL_N:
+            seq = self.seq[rows]
+            frames = lpn_frames_small(
+                time_boot_ms.tolist(), pos.tolist(), vel.tolist(), seq.tolist(),
+                self.sysid[rows].tolist(), self.compid[rows].tolist(),
+            )  # fmt: skip
+            if frames is not None:
+                self.seq[rows] = (seq + 1) & 0xFF
+                return frames
+        buf, lens = self.encode_lpn(rows, time_boot_ms, pos, vel)
+        return [buf[i, :e].tobytes() for i, e in enumerate(lens.tolist())]

@@ -19,6 +19,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import signing
+from sim_vehicle.codec import crc16
 from sim_vehicle.config import Impairment
 
 __all__ = ["MAX_DATAGRAM", "Endpoint", "Impairer", "LinkStats"]
@@ -236,9 +237,7 @@ def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | Non
     if data[i + 7 : i + 10] != b"\x54\x00\x00" or plen > _SP_SIZE:
         return None
     end = i + 10 + plen
-    crc = mav.x25crc(data[i + 1 : end])
-    crc.accumulate(_SP_EXTRA)
-    if crc.crc != data[end] | (data[end + 1] << 8):
+    if crc16(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
         return None
     payload = data[i + 10 : end] + bytes(_SP_SIZE - plen)
     f = _SP.unpacker.unpack(payload)

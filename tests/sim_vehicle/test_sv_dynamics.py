@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle.codec import encode_local_position_ned
+from sim_vehicle.codec import encode_local_position_ned, lpn_frames_small
 from sim_vehicle.dynamics import DynParams, KinState, step
 
 DT = 0.02
@@ -72,7 +72,7 @@ def test_ground_plane_stops_a_descent_and_lands() -> None:
     np.testing.assert_array_equal(st.vel_ned_m_s[0], [0.0, 0.0, 0.0])
 
 
-def test_vectorised_lpn_encoder_is_byte_identical_to_pymavlink() -> None:
+def test_lpn_encoders_are_byte_identical_to_pymavlink() -> None:
     rng = np.random.default_rng(7)
     n = 300
     pos, vel = rng.normal(size=(n, 3)) * 50, rng.normal(size=(n, 3))
@@ -83,6 +83,10 @@ def test_vectorised_lpn_encoder_is_byte_identical_to_pymavlink() -> None:
     t[::10] = 0
     seq, sysid = rng.integers(0, 256, n), rng.integers(1, 255, n)
     buf, lens = encode_local_position_ned(t, pos, vel, seq, sysid, np.ones(n, dtype=np.int64))
+    small = lpn_frames_small(
+        t.tolist(), pos.tolist(), vel.tolist(), seq.tolist(), sysid.tolist(), [1] * n
+    )
+    assert small is not None
     for i in range(n):
         enc = mav.MAVLink(None, int(sysid[i]), 1)
         enc.seq = int(seq[i])
@@ -90,6 +94,8 @@ def test_vectorised_lpn_encoder_is_byte_identical_to_pymavlink() -> None:
             int(t[i]), *map(float, pos[i]), *map(float, vel[i])
         ).pack(enc)
         assert buf[i, : lens[i]].tobytes() == ref, i
+        assert small[i] == ref, i
+    assert lpn_frames_small([0], [[1e39, 0.0, 0.0]], [[0.0] * 3], [0], [1], [1]) is None
 
 
 def test_dynamics_imports_only_numpy() -> None:
