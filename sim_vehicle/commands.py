@@ -76,6 +76,7 @@ _FRAMES = {
     mav.MAV_FRAME_BODY_OFFSET_NED,
 }
 #: Echoed type_mask per tracked kind (ArduCopter 4.5 reports its guided sub-mode).
+ZERO: Vec3 = (0.0, 0.0, 0.0)
 ECHO_MASK = {"accel": 3135, "vel": 3079, "pos": 3576, "posvel": 3072}
 Msgs = list[mav.MAVLink_message]
 #: Largest |value| of a setpoint field the emulator accepts (m, m/s, m/s^2, rad).
@@ -234,22 +235,25 @@ def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
         + ((msg.afx, msg.afy, msg.afz) if not acc_ign else ())
         + ((msg.yaw,) if not yaw_ign else ())
     )
-    if not all(math.isfinite(v) and abs(v) <= SETPOINT_LIMIT for v in used):
+    # abs(NaN) <= x and abs(inf) <= x are False: one test covers "finite and not absurd"
+    if not all(abs(v) <= SETPOINT_LIMIT for v in used):
         ap.rejected += 1
         return  # dropped: the vehicle keeps its last target (GUID_TIMEOUT still runs)
     if not yaw_ign:
         ap.yaw = float(msg.yaw)
     body = frame in (mav.MAV_FRAME_BODY_NED, mav.MAV_FRAME_BODY_OFFSET_NED)
     yaw = ap.yaw if body else 0.0
-    p: Vec3 = (
-        _rot(yaw, (msg.x, msg.y, msg.z))
-        if frame == mav.MAV_FRAME_BODY_OFFSET_NED
-        else (msg.x, msg.y, msg.z)
-    )
-    if frame in (mav.MAV_FRAME_LOCAL_OFFSET_NED, mav.MAV_FRAME_BODY_OFFSET_NED):
-        p = (kin.pos[0] + p[0], kin.pos[1] + p[1], kin.pos[2] + p[2])
-    v = _rot(yaw, (msg.vx, msg.vy, msg.vz))
-    a = _rot(yaw, (msg.afx, msg.afy, msg.afz))
+    p: Vec3 = ZERO  # each group is computed only when used
+    if not pos_ign:
+        p = (
+            _rot(yaw, (msg.x, msg.y, msg.z))
+            if frame == mav.MAV_FRAME_BODY_OFFSET_NED
+            else (msg.x, msg.y, msg.z)
+        )
+        if frame in (mav.MAV_FRAME_LOCAL_OFFSET_NED, mav.MAV_FRAME_BODY_OFFSET_NED):
+            p = (kin.pos[0] + p[0], kin.pos[1] + p[1], kin.pos[2] + p[2])
+    v = _rot(yaw, (msg.vx, msg.vy, msg.vz)) if not vel_ign else ZERO
+    a = _rot(yaw, (msg.afx, msg.afy, msg.afz)) if not acc_ign else ZERO
     sp: dict[str, Any]
     if not pos_ign and not vel_ign:
         kind, sp = "posvel", {"p": p, "v": v, "a": a if not acc_ign else (0.0, 0.0, 0.0)}

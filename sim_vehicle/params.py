@@ -50,6 +50,7 @@ class ParamStore:
 
     def __init__(self, overrides: dict[str, float] | None = None) -> None:
         self.values: dict[str, float] = {k: float(v[0]) for k, v in PARAM_TABLE.items()}
+        self.generation = 0  # bumped by every ``set`` (lets callers cache derived values)
         for name, value in (overrides or {}).items():
             if not self.set(name, value):
                 raise ValueError(f"params: unknown parameter {name!r}")
@@ -64,6 +65,7 @@ class ParamStore:
         if PARAM_TABLE[name][1] in _INT_TYPES:
             value = float(round(value))
         self.values[name] = float(value)
+        self.generation += 1
         return True
 
     def index(self, name: str) -> int:

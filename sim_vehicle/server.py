@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import signing
-from sim_vehicle.autopilot import Autopilot
+from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, bind_udp
@@ -81,6 +81,11 @@ class _Vehicle:
     initial: bool
     contacted: bool = False
     seen_version: int = -1
+    # what _sync last wrote into the fleet row (rows move with their data on removal)
+    row_deadline: float | None = None
+    row_holding: bool | None = None
+    row_target: ControlTarget | None = None
+    row_dyn: tuple[float, float, float] | None = None  # noise_pos, noise_vel, lpn_interval
 
 
 class Emulator:
@@ -271,12 +276,10 @@ class Emulator:
 
     def _kin(self, v: _Vehicle) -> Kin:
         f, r = self.fleet, v.row
-        return Kin(
-            (float(f.pos[r, 0]), float(f.pos[r, 1]), float(f.pos[r, 2])),
-            (float(f.vel[r, 0]), float(f.vel[r, 1]), float(f.vel[r, 2])),
-            (float(f.acc[r, 0]), float(f.acc[r, 1]), float(f.acc[r, 2])),
-            bool(f.landed[r]),
-        )
+        px, py, pz = f.pos[r].tolist()
+        vx, vy, vz = f.vel[r].tolist()
+        ax, ay, az = f.acc[r].tolist()
+        return Kin((px, py, pz), (vx, vy, vz), (ax, ay, az), bool(f.landed[r]))
 
     def vehicle_state(self, sysid: int) -> VehicleState:
         """Snapshot of one vehicle."""
@@ -366,6 +369,9 @@ class Emulator:
             self._out_heard.add(id(ep))
             for key in ep.sysids.values():
                 self._vehicles[key].contacted = True
+        if not ep.uplink.imp.active:  # no impairment: deliver now, no random draw
+            self._deliver(ep, msgs)
+            return
         delays = ep.uplink.delivery_delays()
         if not delays:
             self.stats.link.rx_lost += 1
@@ -411,8 +417,18 @@ class Emulator:
         if ep.silent:
             return
         peers = [only] if only is not None else list(ep.peers)
-        for data, lpn in ep.batch(frames):
+        if len(frames) == 1:  # one frame is its own datagram (the 50 Hz case)
+            frame, key = frames[0]
+            batches = [(frame, [key] if key else [])]
+        else:
+            batches = ep.batch(frames)
+        clean = not ep.downlink.imp.active  # no impairment: no random draw either
+        for data, lpn in batches:
             for peer in peers:
+                if clean:
+                    ep.sendto(data, peer)
+                    self._lpn_left(lpn)
+                    continue
                 delays = ep.downlink.delivery_delays()
                 if not delays:
                     self.stats.link.tx_lost += 1
@@ -436,16 +452,26 @@ class Emulator:
     def _sync(self, v: _Vehicle, now: float) -> None:
         """Copy an autopilot's published state into its fleet row (after handle/poll)."""
         ap, f, row = v.ap, self.fleet, v.row
-        f.deadline[row] = ap.deadline
-        f.holding[row] = ap.holding
+        # Each row value is written only when it changed: a numpy item write costs
+        # more than the comparison, and this runs for every setpoint.
+        if ap.deadline != v.row_deadline:
+            f.deadline[row] = v.row_deadline = ap.deadline
+        holding = ap.holding
+        if holding != v.row_holding:
+            f.holding[row] = v.row_holding = holding
         if ap.version == v.seen_version:
             return
         v.seen_version = ap.version
-        f.set_target(row, ap.target)
-        f.noise_pos[row] = ap.params["SIM_NOISE_POS"]
-        f.noise_vel[row] = ap.params["SIM_NOISE_VEL"]
+        f.set_target(row, ap.target, v.row_target)
+        v.row_target = ap.target
         iv = ap.lpn_interval_s
-        f.lpn_interval[row] = iv if iv is not None else np.inf
+        dyn = (
+            ap.params["SIM_NOISE_POS"],
+            ap.params["SIM_NOISE_VEL"],
+            iv if iv is not None else np.inf,
+        )
+        if dyn != v.row_dyn:
+            f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row] = v.row_dyn = dyn
         if iv is None:
             f.lpn_next[row] = np.inf
         elif ap.lpn_kick:  # rule 1: a newly enabled stream sends its first message at once
@@ -476,11 +502,8 @@ class Emulator:
                 )
                 for i, v in enumerate(self._rows[r] for r in rows.tolist())
             ]
-        buf, lens = f.encode_lpn(rows, t_ms, pos, vel)
-        return [
-            (buf[i, : lens[i]].tobytes(), self._rows[r].spec.key)
-            for i, r in enumerate(rows.tolist())
-        ]
+        frames = f.lpn_frames(rows, t_ms, pos, vel)
+        return [(fr, self._rows[r].spec.key) for fr, r in zip(frames, rows.tolist(), strict=True)]
 
     # --------------------------------------------------------------- clock
     def _step(self) -> None:
@@ -554,30 +577,45 @@ class Emulator:
             await self._wake.wait()
         last = loop.time()
         while True:
-            if self.fleet.holding.any():
-                await self._lockstep_wait(last)
-            else:  # rule 4: nobody holds, pace at speed-up x wall clock
-                delay = last + period - loop.time()
-                await asyncio.sleep(max(delay, 0.0))
+            if self._blocked():  # _lockstep_wait yields: no extra pass of the event loop
+                await self._lockstep_wait(last, blocked=True)
+            else:
+                await asyncio.sleep(0)  # let inbound datagrams in between two steps
+                if self.fleet.holding.any():
+                    await self._lockstep_wait(last)
+                else:  # rule 4: nobody holds, pace at speed-up x wall clock
+                    delay = last + period - loop.time()
+                    await asyncio.sleep(max(delay, 0.0))
             self._step()
             last = loop.time()
-            await asyncio.sleep(0)
 
-    async def _lockstep_wait(self, last: float) -> None:
-        """Rules 2-3: wait until no holding vehicle blocks, or the wall-clock timeout."""
-        loop = asyncio.get_running_loop()
+    def _blocked(self) -> bool:
+        """Rules 2-3: some holding vehicle blocks the next step."""
         f = self.fleet
-        while True:
-            blocking = f.holding & (f.awaiting | np.isinf(f.lpn_interval))
-            if not blocking.any():
-                return
-            remaining = last + self.config.lockstep_timeout_s - loop.time()
-            if remaining <= 0:
-                self.stats.lockstep_timeouts += 1
-                return
-            self._wake.clear()
-            try:
-                async with asyncio.timeout(remaining):
-                    await self._wake.wait()
-            except TimeoutError:
-                pass
+        return bool((f.holding & (f.awaiting | np.isinf(f.lpn_interval))).any())
+
+    async def _lockstep_wait(self, last: float, blocked: bool = False) -> None:
+        """Rules 2-3: wait until no holding vehicle blocks, or the wall-clock timeout
+        (``blocked``: the caller has just found that one does)."""
+        loop = asyncio.get_running_loop()
+        if not blocked and not self._blocked():
+            return
+        # One timer per step (not one per wake-up): it only wakes the loop below.
+        fired: list[bool] = []
+
+        def expire() -> None:
+            fired.append(True)
+            self._wake.set()
+
+        timer = loop.call_at(last + self.config.lockstep_timeout_s, expire)
+        try:
+            while True:
+                self._wake.clear()
+                await self._wake.wait()
+                if not self._blocked():
+                    return
+                if fired or last + self.config.lockstep_timeout_s - loop.time() <= 0:
+                    self.stats.lockstep_timeouts += 1
+                    return
+        finally:
+            timer.cancel()
