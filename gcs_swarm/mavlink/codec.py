@@ -245,7 +245,7 @@ class Codec:
             end = i + 12 + data[i + 1]
             if end > n:
                 break
-            if data[i + 7 : i + 10] == _LPN_ID:
+            if data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
                 raw = _raw_lpn(data, i, end)
                 if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
@@ -296,7 +296,7 @@ class Codec:
 
 _LPN = _dialect.MAVLink_local_position_ned_message
 _LPN_SIZE: int = _LPN.unpacker.size
-_LPN_ID = bytes((_LPN.id, 0, 0))
+_LPN_ID0: int = _LPN.id  # a 24-bit id: (32, 0, 0) on the wire
 _LPN_EXTRA = bytes((_LPN.crc_extra,))
 _LPN_UNPACK = _LPN.unpacker.unpack
 
@@ -322,11 +322,9 @@ def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
     plen = end - i - 12
     if not 0 < plen <= _LPN_SIZE:
         return None
-    if _frame_crc(memoryview(data)[i + 1 : end - 2], _LPN_EXTRA) != (
-        data[end - 2] | (data[end - 1] << 8)
-    ):
-        return None
     frame = data[i:end]
+    if _frame_crc(frame[1:-2], _LPN_EXTRA) != frame[-2] | (frame[-1] << 8):
+        return None
     payload = frame[10:-2] if plen == _LPN_SIZE else frame[10:-2] + bytes(_LPN_SIZE - plen)
     return RawPosition(data[i + 5], data[i + 6], data[i + 4], frame, _LPN_UNPACK(payload))
 

@@ -190,9 +190,12 @@ def _min_separation(pos_m: FloatArray) -> float:
     if n < 2:
         return math.inf
     if n < _GRAM_FROM_N:
+        # Every ordered pair: d_ij and d_ji are the same sums of the same squares,
+        # and sqrt is monotonic, so this is the smallest of the upper triangle.
         d = pos_m[:, None, :] - pos_m[None, :, :]
-        dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
-        return float(dist[np.triu_indices(n, 1)].min())
+        d2 = np.einsum("ijk,ijk->ij", d, d)
+        np.fill_diagonal(d2, np.inf)
+        return math.sqrt(float(d2.min()))
     c = pos_m - pos_m.mean(axis=0)
     sq = np.einsum("ij,ij->i", c, c)
     d2 = c @ c.T
