@@ -227,9 +227,10 @@ class Codec:
         Unsigned datagrams take a fast path for LOCAL_POSITION_NED (50 Hz per
         vehicle): each such frame is CRC-checked and unpacked with the
         dialect's own struct into the dialect's own message class, without
-        pymavlink's byte-by-byte parser; every other frame, and anything from
-        the first frame that is not whole and well-formed, goes through
-        ``parse_buffer`` as before, so the messages and counters are the same.
+        pymavlink's byte-by-byte parser; every other whole unsigned frame goes
+        straight to pymavlink's ``decode`` (its parser's own last step); from
+        the first frame that is not whole and well-formed on, ``parse_buffer``
+        as before, so the messages and counters are the same.
         With ``raw_positions`` those LOCAL_POSITION_NED frames come out as
         ``RawPosition`` tuples instead of pymavlink messages.
         """
@@ -251,12 +252,32 @@ class Codec:
                     break  # bad CRC or length: let the general parser judge (and count)
                 good.append(raw if raw_positions else _lpn_message(raw, data, i, end))
             else:
-                good.extend(self._parse(data[i:end], datagram=True))
+                msg = self._decode_frame(data, i, end)
+                if msg is None:
+                    break  # the general parser judges (and counts) from here
+                if msg is not _SKIP:
+                    good.append(msg)
             i = end
         if i < n:
             good.extend(self._parse(data[i:], datagram=True))
         self.stats.received += len(good)
         return good
+
+    def _decode_frame(self, data: bytes, i: int, end: int) -> Any:
+        """The whole unsigned MAVLink 2 frame ``data[i:end]`` through pymavlink's
+        ``decode`` (what its parser calls once it has framed the bytes, minus
+        the byte-by-byte framing): the message, ``_SKIP`` for an unknown id
+        (counted), or None if pymavlink would call it bad data."""
+        try:
+            msg = self._mav.decode(bytearray(data[i:end]))
+        except (_dialect.MAVError, struct.error, ValueError, IndexError):
+            return None
+        if isinstance(msg, _dialect.MAVLink_bad_data):
+            return None
+        if isinstance(msg, _dialect.MAVLink_unknown):
+            self.stats.unknown_messages += 1
+            return _SKIP
+        return msg
 
     def _parse(self, data: bytes, *, datagram: bool) -> list[Any]:
         """pymavlink's parser; good messages returned, the rest counted."""
@@ -301,6 +322,8 @@ _LPN_EXTRA = bytes((_LPN.crc_extra,))
 _LPN_UNPACK = _LPN.unpacker.unpack
 
 
+_SKIP = object()
+"""``_decode_frame``'s answer for a frame counted and dropped."""
 _MCRF4XX = getattr(_dialect, "mcrf4xx", None)
 """pymavlink's C CRC-16/MCRF4XX (the fastcrc package) when installed."""
 

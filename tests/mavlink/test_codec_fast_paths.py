@@ -25,6 +25,20 @@ def _frame(rng: random.Random, kind: str, sysid: int, seq: int) -> bytes:
         return bytes(enc.local_position_ned_encode(t, *vals).pack(enc))
     if kind == "hb":
         return bytes(enc.heartbeat_encode(2, 3, 81, 4, 4).pack(enc))
+    if kind == "ekf":
+        return bytes(
+            enc.ekf_status_report_encode(rng.randrange(1024), 0.1, 0.0, 0.2, 0.0, 0.0).pack(enc)
+        )
+    if kind == "gps":
+        return bytes(enc.gps_raw_int_encode(0, 3, 1, 2, 3, 4, 5, 6, 7, rng.randrange(20)).pack(enc))
+    if kind == "ack":
+        return bytes(enc.command_ack_encode(rng.randrange(600), rng.randrange(5)).pack(enc))
+    if kind == "text":
+        return bytes(enc.statustext_encode(6, b"PreArm: " + bytes(rng.randrange(20))).pack(enc))
+    if kind == "unknown":  # a well-formed frame of an id the dialect does not know
+        f = bytearray(_frame(rng, "hb", sysid, seq))
+        f[7:10] = (0x60, 0xEA, 0x00)
+        return bytes(f)
     if kind == "v1":
         return bytes(enc.heartbeat_encode(2, 3, 81, 4, 4).pack(enc, force_mavlink1=True))
     if kind == "garbage":
@@ -45,7 +59,8 @@ def _view(m: Any) -> tuple[Any, ...]:
 
 def test_fast_decode_equals_pymavlinks_parser_on_3000_mixed_datagrams() -> None:
     rng = random.Random(3)
-    kinds = ["lpn"] * 6 + ["hb", "v1", "garbage", "badcrc", "trunc"]
+    kinds = ["lpn"] * 6 + ["hb", "ekf", "gps", "ack", "text", "unknown"]
+    kinds += ["v1", "garbage", "badcrc", "trunc"]
     fast_n = 0
     for _ in range(3000):
         parts = [rng.choice(kinds) for _ in range(rng.randrange(1, 8))]
@@ -57,7 +72,7 @@ def test_fast_decode_equals_pymavlinks_parser_on_3000_mixed_datagrams() -> None:
         assert [_view(m) for m in got] == [_view(m) for m in ref], parts
         assert vars(fast.stats) == vars(slow.stats), parts
         fast_n += sum(1 for m in got if m.get_type() == "LOCAL_POSITION_NED")
-    assert fast_n > 5000  # the fast path was really exercised
+    assert fast_n > 3500  # the fast path was really exercised
 
 
 def test_fast_setpoint_encode_equals_pymavlink_pack_on_5000_setpoints() -> None:
@@ -92,7 +107,8 @@ def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
     unsigned LOCAL_POSITION_NED as a ``RawPosition`` holding the header ids,
     the frame's bytes and the field values pymavlink decodes."""
     rng = random.Random(4)
-    kinds = ["lpn"] * 6 + ["hb", "v1", "garbage", "badcrc", "trunc"]
+    kinds = ["lpn"] * 6 + ["hb", "ekf", "gps", "ack", "text", "unknown"]
+    kinds += ["v1", "garbage", "badcrc", "trunc"]
     raw_n = 0
     for _ in range(1500):
         parts = [rng.choice(kinds) for _ in range(rng.randrange(1, 8))]
