@@ -19,8 +19,9 @@ Measured over a window after one second of flight:
 - setpoints/s written by the station and telemetry/s received;
 - latency from a telemetry datagram's arrival to its setpoint's write
   (``Link.latency``, measured inside the station) p50 / p99 / max;
-- missed: N x 50 x window minus setpoints written (vehicle-cycles without a
-  setpoint), and control steps vs 50 x window;
+- missed: reports accepted that got no setpoint (a newer report of the same
+  vehicle came before the step), and control steps short of 50 x window
+  ("miss st", within one step of the window's edges);
 - station CPU: process time / wall time (one core = 1.0), and the station's
   cost per vehicle per cycle (CPU time / setpoints) as a ratio to the
   pymavlink codec floor of ``bench_codec.py`` (measured again here).
@@ -146,6 +147,7 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
             for lk in links:
                 lk.latency = LatencyRing(size=RATE_HZ * GROUP * int(seconds + 2))
             rx0 = sum(lk.stats.received for lk in links)
+            reports0 = sum(s.reports_in - s.reports_waiting for s in stations)
             steps0 = sum(s.control.steps for s in stations)
             drop0 = sum(lk.stats.setpoints_dropped for lk in links)
             proc.stdin.write(b"start\n")
@@ -157,6 +159,11 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
             sent = sum(lk.latency.count for lk in links)
             rx = sum(lk.stats.received for lk in links) - rx0
             steps = sum(s.control.steps for s in stations) - steps0
+            # A report is answered by one setpoint at the next step unless a
+            # newer one of the same vehicle replaced it first: reports accepted
+            # (those still waiting for a step at either edge excluded) minus
+            # setpoints written counts the vehicle-cycles left unanswered.
+            reports = sum(s.reports_in - s.reports_waiting for s in stations) - reports0
             drops = sum(lk.stats.setpoints_dropped for lk in links) - drop0
             for task in flying:
                 task.cancel()
@@ -181,7 +188,7 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
         "p50_ms": pct(50),
         "p99_ms": pct(99),
         "max_ms": lat[-1] * 1e3 if lat else math.nan,
-        "missed": max(0.0, n * RATE_HZ * wall - sent),
+        "missed": float(reports - sent),
         "missed_steps": max(0.0, RATE_HZ * wall * len(stations) - steps),
         "drops": drops,
         "cpu": (c1 - c0) / wall,

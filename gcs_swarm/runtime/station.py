@@ -142,6 +142,10 @@ class Station:
         being lost it goes to its slot beside the leader, not to its start."""
         self.left: set[int] = set()
         self.unknown_sysids: Counter[int] = Counter()
+        self.reports_in = 0
+        """LOCAL_POSITION_NED accepted from flying vehicles; each is answered by
+        one setpoint unless a newer report of the same vehicle replaces it
+        before the step (benchmarks: reports in - setpoints out = missed)."""
         self.log: deque[str] = deque(maxlen=2000)
         self.started = False
         self.ending = False
@@ -206,6 +210,11 @@ class Station:
             await close_task_group(self._tg, self._tasks, et, ev, tb)
         finally:
             await self._stack.aclose()
+
+    @property
+    def reports_waiting(self) -> int:
+        """Reports accepted since the last control step (answered at the next)."""
+        return len(self._fresh)
 
     @property
     def links(self) -> dict[str, Link]:
@@ -306,6 +315,7 @@ class Station:
         now = self.now()
         if vp.flying_position(pos, now):
             self._fresh[sysid] = pos.time_boot_ms
+            self.reports_in += 1
             self._arrival[sysid] = link.rx_time_s
             self._maybe_step(now)
 
@@ -331,6 +341,7 @@ class Station:
         ):
             sysid = vp.sysid
             self._fresh[sysid] = inbound.time_boot_ms
+            self.reports_in += 1
             self._arrival[sysid] = link.rx_time_s
             self._maybe_step(now)
             if sysid in self._timers:
