@@ -15,11 +15,9 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import FieldValue
 from gcs_swarm.mavlink.vehicle import ACCEL_CEILING_MPS2, VehicleProtocol
 
-__all__ = ["accel_setpoint_values", "mission_states"]
+__all__ = ["accel_ned", "boot_ms", "mission_states"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -49,14 +47,12 @@ def mission_states(vps: Sequence[VehicleProtocol]) -> tuple[FloatArray, FloatArr
     return pos, vel
 
 
-def accel_setpoint_values(
-    vps: Sequence[VehicleProtocol], accel_mps2: FloatArray
-) -> list[tuple[FieldValue, ...]]:
-    """For each vehicle, the field values (wire order, ``SETPOINT_FIELDS``) of
-    ``vps[k].accel_setpoint(accel_mps2[k])``, with its side effects:
-    ``last_accel_ned``, and ``clipped_setpoints`` counted for a row whose norm
-    is above ``ACCEL_CEILING_MPS2`` (scaled down to it, direction kept) or
-    not finite (zeroed).
+def accel_ned(vps: Sequence[VehicleProtocol], accel_mps2: FloatArray) -> FloatArray:
+    """The NED accelerations [m/s^2] ``(N, 3)`` that ``vps[k].accel_setpoint(
+    accel_mps2[k])`` would send, with its side effects: ``last_accel_ned``,
+    and ``clipped_setpoints`` counted for a row whose norm is above
+    ``ACCEL_CEILING_MPS2`` (scaled down to it, direction kept) or not finite
+    (zeroed). ``accel_mps2`` (mission frame) is not changed.
 
     The norm here comes from one ``einsum`` over the rows, the one-vehicle
     path's from a dot product; they can differ in the last bit, so a norm
@@ -76,9 +72,11 @@ def accel_setpoint_values(
     ned[:, 0] = a[:, 1]  # a_ned = (a_y, a_x, -a_z)
     ned[:, 1] = a[:, 0]
     ned[:, 2] = -a[:, 2]
-    out: list[tuple[FieldValue, ...]] = []
-    for k, (vp, row) in enumerate(zip(vps, ned.tolist(), strict=True)):
+    for k, vp in enumerate(vps):
         vp.last_accel_ned = ned[k]
-        boot_ms = vp.position.time_boot_ms if vp.position is not None else 0
-        out.append(b.accel_setpoint_values(vp.sysid, vp.compid, boot_ms, row))
-    return out
+    return ned
+
+
+def boot_ms(vp: VehicleProtocol) -> int:
+    """The ``time_boot_ms`` a setpoint to ``vp`` carries: its last report's."""
+    return vp.position.time_boot_ms if vp.position is not None else 0

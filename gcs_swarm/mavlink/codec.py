@@ -27,6 +27,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
+import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 __all__ = [
@@ -219,6 +221,70 @@ class Codec:
         self.stats.bytes_sent += len(buf)
         return buf
 
+    def encode_accel_setpoints(
+        self,
+        targets: Sequence[tuple[int, int]],
+        time_boot_ms: Sequence[int],
+        accel_ned: npt.NDArray[np.float64],
+        *,
+        type_mask: int,
+        coordinate_frame: int,
+    ) -> tuple[bytes, int]:
+        """Many SET_POSITION_TARGET_LOCAL_NED at once: row k addressed to
+        ``targets[k]`` (system, component), acceleration ``accel_ned[k]``
+        [m/s^2], position, velocity and yaw fields zero. Returns the frames
+        back to back and the length of one (all the same): exactly what k
+        ``encode_setpoint`` calls would give, sequence numbers included.
+
+        One control step's setpoints for a whole formation: the header and
+        payload fields are filled column-wise in one structured array and
+        only the CRC is computed frame by frame. A few rows, a signing codec,
+        a zero ``coordinate_frame`` (MAVLink 2 would trim the payload) or an
+        acceleration float32 cannot hold take the one-frame path."""
+        k = len(targets)
+        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX)) if k else True
+        if (
+            k < _BATCH_FROM
+            or self._mav.signing.sign_outgoing
+            or coordinate_frame == 0
+            or _MCRF4XX is None
+            or not fits
+        ):
+            zero, frame = (0.0, 0.0, 0.0), coordinate_frame
+            rows = zip(targets, time_boot_ms, accel_ned.tolist(), strict=True)
+            frames = [
+                self.encode_setpoint(
+                    (t & 0xFFFFFFFF, *zero, *zero, *a, 0.0, 0.0, type_mask, ts, tc, frame)
+                )
+                for (ts, tc), t, a in rows
+            ]
+            return b"".join(frames), (len(frames[0]) if frames else 0)
+        mav = self._mav
+        arr = np.zeros(k, dtype=_SP_FRAME)
+        arr["magic"] = 0xFD
+        arr["len"] = _SP_SIZE
+        arr["seq"] = (mav.seq + np.arange(k)) & 0xFF
+        arr["sysid"] = mav.srcSystem
+        arr["compid"] = mav.srcComponent
+        arr["msgid"] = _SP.id
+        arr["time_boot_ms"] = np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF
+        arr["afx"] = accel_ned[:, 0]
+        arr["afy"] = accel_ned[:, 1]
+        arr["afz"] = accel_ned[:, 2]
+        arr["type_mask"] = type_mask
+        arr["target"] = targets
+        arr["coordinate_frame"] = coordinate_frame
+        size = _SP_FRAME.itemsize
+        view = memoryview(arr.tobytes())
+        crc = _MCRF4XX
+        arr["crc"] = [
+            crc(_SP_EXTRA, crc(view[j + 1 : j + size - 2])) for j in range(0, k * size, size)
+        ]
+        mav.seq = (mav.seq + k) % 256
+        self.stats.sent += k
+        self.stats.bytes_sent += k * size
+        return arr.tobytes(), size
+
     def decode(
         self, data: bytes, *, datagram: bool = True, raw_positions: bool = False
     ) -> list[Any]:
@@ -369,6 +435,23 @@ _SP_EXTRA = bytes((_SP.crc_extra,))
 _SP_PACK = _SP.unpacker.pack
 _V2_HEADER = struct.Struct("<BBBBBBBHB")
 
+
+_SP_SIZE: int = _SP.unpacker.size
+_F32_MAX = float(np.finfo(np.float32).max)
+_BATCH_FROM = 8
+"""From this many frames ``encode_accel_setpoints`` fills arrays (below it,
+numpy's per-call cost is more than packing frame by frame)."""
+_SP_FRAME = np.dtype([
+    ("magic", "u1"), ("len", "u1"), ("incompat", "u1"), ("compat", "u1"), ("seq", "u1"),
+    ("sysid", "u1"), ("compid", "u1"), ("msgid", "<u2"), ("msgid_hi", "u1"),
+    # SET_POSITION_TARGET_LOCAL_NED's payload in wire order (53 bytes, never
+    # trimmed when coordinate_frame, its last byte, is not zero).
+    ("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4", (3,)),
+    ("afx", "<f4"), ("afy", "<f4"), ("afz", "<f4"), ("yaw", "<f4"), ("yaw_rate", "<f4"),
+    ("type_mask", "<u2"), ("target", "u1", (2,)), ("coordinate_frame", "u1"),
+    ("crc", "<u2"),
+])  # fmt: skip
+"""One unsigned MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frame (65 bytes)."""
 
 SETPOINT_FIELDS: tuple[str, ...] = _SP_NAMES
 """SET_POSITION_TARGET_LOCAL_NED's field names in wire order (``encode_setpoint``)."""

@@ -29,12 +29,16 @@ import logging
 import struct
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from gcs_swarm.errors import LinkError
+from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL
 from gcs_swarm.mavlink.codec import Codec, FieldValue, MessageSpec, RawPosition
 from gcs_swarm.runtime.lifetime import close_task_group
 
@@ -66,9 +70,10 @@ Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
 Peer = Any  # a UDP address tuple, or a TCP connection object
 OnMessage = Callable[[Any, "Link"], None]
 """Called with each decoded pymavlink message and the link it came on."""
-OnPosition = Callable[[RawPosition, "Link"], None]
-"""Called with each unsigned LOCAL_POSITION_NED (decoded without pymavlink's
-objects) and its link, when the owner asks for them apart."""
+OnPosition = Callable[[list[RawPosition], "Link"], None]
+"""Called with runs of unsigned LOCAL_POSITION_NED (decoded without
+pymavlink's objects; consecutive ones of a datagram together, in order with
+the other messages) and their link, when the owner asks for them apart."""
 OnFrame = Callable[[bytes, Literal["in", "out"]], None]
 """Called with every raw frame the link decoded ("in") or sent ("out"), e.g.
 a ``.tlog`` writer; bad packets are counted, not passed on."""
@@ -186,7 +191,7 @@ class Link:
     ) -> None:
         """``on_message`` gets every decoded message, except that with
         ``on_position`` the unsigned LOCAL_POSITION_NED frames go there as
-        ``RawPosition`` tuples (the station's hot path)."""
+        lists of ``RawPosition`` tuples (the station's hot path)."""
         self.endpoint = parse_connection(connection)
         self._signing_key = signing_key
         self._sig_streams: dict[tuple[int, int, int], int] = {}
@@ -299,6 +304,57 @@ class Link:
         if since_s is not None:
             self._since[sysid] = since_s
         self._wake.set()
+
+    def send_accel_setpoints(
+        self,
+        sysids: Sequence[int],
+        compids: Sequence[int],
+        time_boot_ms: Sequence[int],
+        accel_ned: npt.NDArray[np.float64],
+        since_s: Sequence[float | None],
+    ) -> None:
+        """One control step's acceleration setpoints (``builders.accel_setpoint``'s
+        message), row k to vehicle ``sysids[k]``, written now (after whatever
+        was queued before them). A setpoint still queued for one of these
+        vehicles is replaced, and counted as dropped, as ``send`` would.
+        ``since_s[k]``: arrival of the telemetry row k answers (latency)."""
+        for sysid in sysids:
+            if self._setpoints.pop(sysid, None) is not None:
+                self.stats.setpoints_dropped += 1
+                self._since.pop(sysid, None)
+        self.flush()
+        rows: dict[Peer, list[int]] = {}
+        for k, sysid in enumerate(sysids):
+            peer = self._route(sysid)
+            if peer is not None:
+                rows.setdefault(peer, []).append(k)
+        for peer, idx in rows.items():
+            whole = len(idx) == len(sysids)
+            try:
+                data, size = self._codecs[peer].encode_accel_setpoints(
+                    [(sysids[k], compids[k]) for k in idx],
+                    time_boot_ms if whole else [time_boot_ms[k] for k in idx],
+                    accel_ned if whole else accel_ned[idx],
+                    type_mask=TYPE_MASK_ACCEL,
+                    coordinate_frame=MAV_FRAME_LOCAL_NED,
+                )
+            except (struct.error, OverflowError, ValueError, TypeError) as err:
+                self.stats.unencodable += len(idx)
+                _log.error("%s: %d setpoints not sent: %s", self.endpoint, len(idx), err)
+                continue
+            n = len(idx)
+            self.stats.sent += n
+            if self._on_frame is not None:
+                for j in range(n):
+                    self._on_frame(data[j * size : (j + 1) * size], "out")
+            per = max(1, MAX_DATAGRAM_BYTES // size)
+            for a in range(0, n, per):
+                self._transmit(peer, data[a * size : min(n, a + per) * size])
+                now = time.monotonic()
+                for k in idx[a : a + per]:
+                    t0 = since_s[k]
+                    if t0 is not None:
+                        self.latency.add(now - t0)
 
     def flush(self) -> None:
         """Write what is queued now rather than at the writer task's next turn
@@ -421,6 +477,7 @@ class Link:
         self.stats.bad_packets += cs.bad_packets - bad
         self.stats.unknown_messages += cs.unknown_messages - unknown
         self.stats.signature_rejected += cs.signature_rejected - rejected
+        run: list[RawPosition] = []
         for msg in msgs:
             raw = type(msg) is RawPosition
             if not self._bound(msg.sysid if raw else msg.get_srcSystem(), peer):
@@ -430,11 +487,16 @@ class Link:
             if raw:
                 if self._on_frame is not None:
                     self._on_frame(msg.frame, "in")
-                on_position(msg, self)  # type: ignore[misc]
+                run.append(msg)
                 continue
+            if run:
+                on_position(run, self)  # type: ignore[misc]
+                run = []
             if self._on_frame is not None:
                 self._on_frame(bytes(msg.get_msgbuf()), "in")
             self._on_message(msg, self)
+        if run:
+            on_position(run, self)  # type: ignore[misc]
 
     def _codec(self) -> Codec:
         key = self._signing_key

@@ -31,11 +31,14 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.batch import accel_setpoint_values, mission_states
+from gcs_swarm.mavlink.batch import accel_ned, boot_ms, mission_states
 from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
@@ -51,6 +54,7 @@ __all__ = ["Station", "StationConfig", "VehiclePlan"]
 
 _log = logging.getLogger("gcs_swarm.station")
 
+FloatArray = npt.NDArray[np.float64]
 _FLYING = Phase.FLYING
 _READYING = frozenset(
     {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
@@ -180,7 +184,7 @@ class Station:
                 link = self._links.get(plan.link)
                 if link is None:
                     link = Link(plan.link, self._on_message, on_frame=self._on_frame,
-                                on_position=self._on_position,
+                                on_position=self._on_positions,
                                 signing_key=self.config.signing_key)  # fmt: skip
                     self._links[plan.link] = await self._stack.enter_async_context(link)
                     link = self._links[plan.link]
@@ -297,26 +301,36 @@ class Station:
         if inbound is not None:
             self._handle(vp, inbound, link)
 
-    def _on_position(self, raw: RawPosition, link: Link) -> None:
-        """An unsigned LOCAL_POSITION_NED, decoded without pymavlink's objects:
-        the same handling as ``_on_message`` gives it."""
-        sysid = raw.sysid
-        if self.recorder is not None:
-            self.recorder.inbound(sysid, raw.compid, raw.seq, b.MSG_ID_LOCAL_POSITION_NED)
-        vp = self._vehicle(sysid, link)
-        if vp is None:
-            return
-        pos = LocalPositionNed(sysid, raw.compid, *raw.values)
-        if vp.phase is not _FLYING or sysid not in self._timers:
-            self._handle(vp, pos, link)
-            return
-        # FLYING with its timer armed: what _handle does, without the calls
-        # that change nothing here (see the end of _handle).
+    def _on_positions(self, raws: list[RawPosition], link: Link) -> None:
+        """Unsigned LOCAL_POSITION_NED reports, decoded without pymavlink's
+        objects (a datagram's run of them): the handling ``_on_message`` gives
+        each, written as one loop because it runs for every vehicle 50 times
+        a second."""
+        recorder, vehicles, link_of = self.recorder, self.vehicles, self._link_of
+        timers, fresh, arrival = self._timers, self._fresh, self._arrival
         now = self.now()
-        if vp.flying_position(pos, now):
-            self._fresh[sysid] = pos.time_boot_ms
-            self.reports_in += 1
-            self._arrival[sysid] = link.rx_time_s
+        rx_s = link.rx_time_s
+        accepted = 0
+        for raw in raws:
+            sysid = raw.sysid
+            if recorder is not None:
+                recorder.inbound(sysid, raw.compid, raw.seq, b.MSG_ID_LOCAL_POSITION_NED)
+            vp = vehicles.get(sysid)
+            if vp is None or link_of.get(sysid) is not link:
+                self._vehicle(sysid, link)  # counted and ignored
+                continue
+            pos = LocalPositionNed(sysid, raw.compid, *raw.values)
+            if vp.phase is not _FLYING or sysid not in timers:
+                self._handle(vp, pos, link)
+                now = self.now()
+            # FLYING with its timer armed: what _handle does, without the calls
+            # that change nothing here (see the end of _handle).
+            elif vp.flying_position(pos, now):
+                fresh[sysid] = pos.time_boot_ms
+                arrival[sysid] = rx_s
+                accepted += 1
+        if accepted:
+            self.reports_in += accepted
             self._maybe_step(now)
 
     def _vehicle(self, sysid: int, link: Link) -> VehicleProtocol | None:
@@ -472,15 +486,7 @@ class Station:
                                    out.episode, accel_mps2=accel, sent=fresh.keys(),
                                    correction_mps2=cor)  # fmt: skip
             rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-            answered = [ids[i] for i in rows]
-            values = accel_setpoint_values([self.vehicles[s] for s in answered], accel[rows])
-            for i, sysid, fields in zip(rows, answered, values, strict=True):
-                self._link_of[sysid].send_setpoint(sysid, fields,
-                                                   since_s=self._arrival.get(sysid))  # fmt: skip
-                if self.delay is not None:
-                    self.delay.sent(sysid, now, accel[i])
-            for link in self._links.values():
-                link.flush()  # now: the figures below must not delay the setpoints
+            self._answer([ids[i] for i in rows], accel[rows], now)
             self.control.account(ids, pos, out, accel, report)
             job = self.control.pending_lookahead()
             if job is not None:
@@ -492,6 +498,31 @@ class Station:
         if t >= self.config.duration_s:
             self._note(f"mission time {t:.2f} s reached the duration")
             self._finished.set()
+
+    def _answer(self, sysids: list[int], accel: FloatArray, now: float) -> None:
+        """Write one acceleration setpoint (mission frame ``accel (K, 3)``) to
+        each of ``sysids`` now, each link all of its vehicles' at once, before
+        the step's bookkeeping."""
+        vps = [self.vehicles[s] for s in sysids]
+        ned = accel_ned(vps, accel)
+        rows: dict[Link, list[int]] = {}
+        for k, sysid in enumerate(sysids):
+            rows.setdefault(self._link_of[sysid], []).append(k)
+        for link in self._links.values():
+            idx = rows.get(link)
+            if idx is None:
+                link.flush()
+                continue
+            link.send_accel_setpoints(
+                [sysids[k] for k in idx],
+                [vps[k].compid for k in idx],
+                [boot_ms(vps[k]) for k in idx],
+                ned if len(idx) == len(sysids) else ned[idx],
+                [self._arrival.get(sysids[k]) for k in idx],
+            )
+        if self.delay is not None:
+            for k, sysid in enumerate(sysids):
+                self.delay.sent(sysid, now, accel[k])
 
     async def _lookahead(self, job: LookaheadJob) -> None:
         """The plane look-ahead in a worker thread: setpoints keep flowing."""

@@ -10,8 +10,7 @@ import random
 
 import numpy as np
 
-from gcs_swarm.mavlink.batch import accel_setpoint_values, mission_states
-from gcs_swarm.mavlink.codec import SETPOINT_FIELDS
+from gcs_swarm.mavlink.batch import accel_ned, boot_ms, mission_states
 from gcs_swarm.mavlink.inbound import LocalPositionNed
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
@@ -36,7 +35,7 @@ def test_mission_states_stack_state_mission() -> None:
     assert mission_states([])[0].shape == (0, 3)
 
 
-def test_accel_setpoint_values_equal_accel_setpoint_with_its_clipping() -> None:
+def test_accel_ned_equals_accel_setpoint_with_its_clipping() -> None:
     rng = random.Random(2)
     rows = [[rng.uniform(-20, 20) for _ in range(3)] for _ in range(200)]
     rows += [[3000.0, -4000.0, 0.0], [math.nan, 1.0, 2.0], [math.inf, 0.0, 0.0],
@@ -44,14 +43,15 @@ def test_accel_setpoint_values_equal_accel_setpoint_with_its_clipping() -> None:
     accel = np.array(rows)
     fast = [_flying(s % 250 + 1, random.Random(s)) for s in range(len(rows))]
     slow = [_flying(s % 250 + 1, random.Random(s)) for s in range(len(rows))]
-    got = accel_setpoint_values(fast, accel)
+    got = accel_ned(fast, accel).tolist()
     assert len(got) == len(rows)
     for k, (f, s) in enumerate(zip(fast, slow, strict=True)):
         with np.errstate(over="ignore"):  # 1e200^2: the reference path's overflow warning
             spec = s.accel_setpoint(accel[k])
-        want = tuple(spec.fields[name] for name in SETPOINT_FIELDS)
+        want = [spec.fields[name] for name in ("afx", "afy", "afz")]
         # repr: tells -0.0 from 0.0 (different bytes on the wire).
         assert repr(got[k]) == repr(want), rows[k]
+        assert boot_ms(f) == spec.fields["time_boot_ms"]
         assert f.clipped_setpoints == s.clipped_setpoints
         assert f.last_accel_ned.tolist() == s.last_accel_ned.tolist()
     assert sum(f.clipped_setpoints for f in fast) == 4  # 3000/-4000, NaN, inf, 1e200

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
@@ -102,15 +103,17 @@ def test_setpoint_slot_is_newest_wins_and_counts_drops() -> None:
 
 def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes() -> None:
     """60 vehicles behind one peer: their reports come to ``on_position`` as
-    ``RawPosition``; the 60 answers go out in the fewest datagrams that each
+    one run of ``RawPosition``; the 60 answers go out in the fewest datagrams that each
     fit an Ethernet MTU, every frame whole, and each adds one latency sample."""
 
     async def main() -> None:
         raws: list[RawPosition] = []
+        runs: list[int] = []
         all_in = asyncio.Event()
 
-        def on_position(raw: RawPosition, lk: Link) -> None:
-            raws.append(raw)
+        def on_position(run: list[RawPosition], lk: Link) -> None:
+            runs.append(len(run))
+            raws.extend(run)
             if len(raws) == 60:
                 all_in.set()
 
@@ -126,6 +129,7 @@ def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes()
                 ids = list(range(1, 61))
                 assert [(r.sysid, r.values[0]) for r in raws] == [(s, 1000 + s) for s in ids]
                 assert raws[0].frame == _frame(1, 1001)
+                assert runs == [60]  # one datagram: one run
                 for s in range(1, 61):
                     values = b.accel_setpoint_values(s, 1, 1000 + s, (float(s), 0.0, 0.0))
                     link.send_setpoint(s, values, since_s=link.rx_time_s)
@@ -141,6 +145,40 @@ def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes()
                 per = MAX_DATAGRAM_BYTES // frame  # 22
                 assert sizes == [per * frame] * (60 // per) + [60 % per * frame]
                 assert link.latency.count == 60 and link.stats.sent == 60
+            tr.close()
+
+    asyncio.run(main())
+
+
+def test_a_steps_setpoint_batch_replaces_queued_ones_and_follows_queued_messages() -> None:
+    """``send_accel_setpoints`` for 30 vehicles behind one peer: written at
+    once, after the FIFO message queued before it; a setpoint still queued
+    for one of them is replaced (counted as dropped); the frames are the
+    ones ``accel_setpoint`` gives, in datagrams of at most 1472 bytes."""
+
+    async def main() -> None:
+        async with asyncio.timeout(5):
+            loop = asyncio.get_running_loop()
+            tr, pr = await loop.create_datagram_endpoint(_Peer, local_addr=("127.0.0.1", 0))
+            port = tr.get_extra_info("sockname")[1]
+            async with Link(f"udpout:127.0.0.1:{port}", lambda m, lk: None) as link:
+                ids = list(range(1, 31))
+                link.send(b.heartbeat())
+                link.send(b.accel_setpoint(7, 1, 0, (9.0, 9.0, 9.0)), 7)
+                acc = np.array([[float(s), -0.5, 0.25] for s in ids])
+                link.send_accel_setpoints(ids, [1] * 30, [100 + s for s in ids], acc, [None] * 30)
+                got, sizes = [], []
+                while len(got) < 31:
+                    data, _ = await pr.got.get()
+                    sizes.append(len(data))
+                    got += pr.parser.parse_buffer(data)
+                assert got[0].get_type() == "HEARTBEAT"
+                want = [b.accel_setpoint(s, 1, 100 + s, (float(s), -0.5, 0.25)).fields for s in ids]
+                pairs = zip(got[1:], want, strict=True)
+                assert [{k: getattr(m, k) for k in w} for m, w in pairs] == want
+                assert link.stats.setpoints_dropped == 1 and link.stats.sent == 31
+                assert max(sizes) <= MAX_DATAGRAM_BYTES and len(sizes) == 1 + 2  # 22 + 8
+                assert link.latency.count == 0  # no telemetry answered: no sample
             tr.close()
 
     asyncio.run(main())
