@@ -14,7 +14,10 @@ are pinned to different cores when the machine has two.
    real-time factor (sim s per wall s), emulator CPU (fraction of one core),
    telemetry delivered (fraction of N x 50 Hz), late steps.
 2. Lockstep: N = 6 at 50 Hz, the sink answering each report at once; reported
-   as steps per wall second and sim seconds per wall second.
+   as steps per wall second, sim seconds per wall second and the emulator's
+   CPU per step. Each vehicle has its own endpoint; with ``--shared`` all six
+   share one (``shared_port``, as ``bench_lockstep.py`` runs the real station)
+   and the sink answers a datagram of reports with one datagram of setpoints.
 """
 
 from __future__ import annotations
@@ -38,8 +41,14 @@ RATE_HZ = 50.0
 
 
 def sink(ports: list[int], seconds: float, answer: bool) -> None:
-    """Ground-station stand-in: one socket, asks every vehicle for 50 Hz reports, drains."""
+    """Ground-station stand-in: one socket, asks every vehicle for 50 Hz reports, drains.
+
+    ``ports`` holds one port per vehicle, or one port and then the vehicle count
+    as a negative number (``-n``: n vehicles sharing that port, answered with
+    one datagram per datagram of reports)."""
     pin(1)
+    if len(ports) == 2 and ports[1] < 0:
+        ports = [ports[0]] * -ports[1]
     enc = mav.MAVLink(None, 255, 190)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
@@ -48,7 +57,8 @@ def sink(ports: list[int], seconds: float, answer: bool) -> None:
     for i, port in enumerate(ports):
         sysid = i % 250 + 1  # system ids repeat across endpoints beyond 250 vehicles
         addr = ("127.0.0.1", port)
-        sock.sendto(enc.heartbeat_encode(6, 8, 0, 0, 0).pack(enc), addr)
+        if i == 0 or port != ports[i - 1]:
+            sock.sendto(enc.heartbeat_encode(6, 8, 0, 0, 0).pack(enc), addr)
         cmd = enc.command_long_encode(sysid, 1, 511, 0, 32, int(1e6 / RATE_HZ), 0, 0, 0, 0, 0)
         sock.sendto(cmd.pack(enc), addr)
         sp = enc.set_position_target_local_ned_encode(
@@ -64,13 +74,15 @@ def sink(ports: list[int], seconds: float, answer: bool) -> None:
         except TimeoutError:
             continue
         i = 0
+        out = []
         while i + 12 <= len(data) and data[i] == 0xFD:  # walk the MAVLink 2 frames
             length, sysid, msgid = data[i + 1], data[i + 5], data[i + 7]
             if msgid == 32:
                 count += 1
-                if answer:
-                    sock.sendto(setpoints[sysid], addr)
+                out.append(setpoints[sysid])
             i += 12 + length
+        if answer and out:
+            sock.sendto(b"".join(out), addr)
     print(count, flush=True)
 
 
@@ -109,13 +121,17 @@ async def realtime(n: int, seconds: float, answer: bool) -> dict[str, float]:
     }
 
 
-async def lockstep(n: int, seconds: float) -> dict[str, float]:
+async def lockstep(n: int, seconds: float, shared: bool) -> dict[str, float]:
     specs = tuple(
         VehicleSpec(sysid=i + 1, start_ned_m=(0.0, 2.0 * i, -10.0), airborne=True) for i in range(n)
     )
-    cfg = EmulatorConfig(vehicles=specs, rate_hz=RATE_HZ, clock="lockstep")
+    cfg = EmulatorConfig(
+        vehicles=specs, rate_hz=RATE_HZ, clock="lockstep", shared_port=0 if shared else None
+    )
     async with Emulator(cfg) as emu:
         ports = [emu.endpoints[i + 1][1] for i in range(n)]
+        if shared:
+            ports = [ports[0], -n]
         proc = await asyncio.create_subprocess_exec(
             sys.executable, __file__, "--sink", str(seconds + 1.0), "1",
             stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -143,6 +159,9 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--lockstep-only", action="store_true", help="skip the real-time part")
     ap.add_argument(
+        "--shared", action="store_true", help="lockstep: one shared endpoint, batched answers"
+    )
+    ap.add_argument(
         "--profile", metavar="FILE", help="cProfile the lockstep part (emulator side) into FILE"
     )
     args = ap.parse_args()
@@ -165,13 +184,14 @@ def main() -> None:
         import cProfile
 
         with cProfile.Profile() as prof:
-            r = asyncio.run(lockstep(6, args.seconds))
+            r = asyncio.run(lockstep(6, args.seconds, args.shared))
         prof.dump_stats(args.profile)
     else:
-        r = asyncio.run(lockstep(6, args.seconds))
+        r = asyncio.run(lockstep(6, args.seconds, args.shared))
     print(
-        f"lockstep N=6: {r['steps_per_s']:.0f} steps/s = {r['speedup']:.1f}x real time "
-        f"({int(r['timeouts'])} timeouts, emulator cpu {r['cpu']:.2f})"
+        f"lockstep N=6{' shared' if args.shared else ''}: {r['steps_per_s']:.0f} steps/s = "
+        f"{r['speedup']:.1f}x real time ({int(r['timeouts'])} timeouts, emulator cpu "
+        f"{r['cpu']:.2f} = {1e6 * r['cpu'] / r['steps_per_s']:.0f} us/step)"
     )
 
 
