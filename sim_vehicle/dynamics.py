@@ -1,4 +1,4 @@
-"""Point-mass vehicle dynamics, vectorised over vehicles. PURE: numpy only, no I/O.
+"""Point-mass vehicle dynamics, vectorised over vehicles. PURE: numpy and math only, no I/O.
 
 Owns the kinematic state of every vehicle and the one step function
 ``step(state, accel_cmd, dt, params) -> state`` plus the vectorised tracking
@@ -28,10 +28,17 @@ Equations (named where used):
   then ``|c| <= acc_max`` (norm clamp).
 - (D4) ground: a vehicle may not go below ``ground_d_m``; on the ground its
   horizontal velocity and downward velocity are zeroed (landed).
+
+``advance_small`` is D3 then D1-D4 for a few vehicles in plain Python floats:
+the same operations in the same order as ``tracking_accel`` then ``step``, so
+the same bits (a test compares them on random cases), without numpy's cost
+per call, which dominates below a few tens of vehicles.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,11 +49,14 @@ __all__ = [
     "DynParams",
     "KinState",
     "Targets",
+    "advance_small",
+    "lag_factors",
     "step",
     "tracking_accel",
 ]
 
 F64 = NDArray[np.float64]
+Rows = Sequence[Sequence[float]]
 GRAVITY_M_S2 = 9.80665
 
 
@@ -179,3 +189,121 @@ def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinSt
         a1[below, :] = np.where(a1[below, 2:3] > 0.0, 0.0, a1[below, :])
     landed = below & (v1[:, 2] >= 0.0)
     return KinState(p1, v1, a1, landed)
+
+
+def lag_factors(tau_s: F64, dt: float) -> list[tuple[float, float]]:
+    """(e, t) of Eq. D2 per vehicle, as ``step`` computes them (``e = exp(-dt / tau)``,
+    ``t = tau``; both 0 for ``tau <= 0``): the inputs ``advance_small`` takes.
+    numpy's ``exp`` is kept (``math.exp`` may round differently)."""
+    lagged = tau_s > 0.0
+    e = np.where(lagged, np.exp(-dt / np.where(lagged, tau_s, 1.0)), 0.0)
+    t = np.where(lagged, tau_s, 0.0)
+    return list(zip(e.tolist(), t.tolist(), strict=True))
+
+
+def advance_small(
+    pos: Rows,
+    vel: Rows,
+    acc: Rows,
+    tg: tuple[
+        Rows,
+        Rows,
+        Rows,
+        Rows,
+        Sequence[float],
+        Sequence[float],
+        Sequence[float],
+        Sequence[float],
+        Sequence[float],
+    ],
+    acc_max: Sequence[float],
+    ground: Sequence[float],
+    lag: Sequence[tuple[float, float]],
+    dt: float,
+    kp_1_s: float,
+    kv_1_s: float,
+) -> tuple[list[list[float]], list[list[float]], list[list[float]], list[bool]]:
+    """``tracking_accel`` then ``step`` for rows given as Python lists, bit for bit.
+
+    ``tg`` holds the ``Targets`` fields in their order, ``acc_max`` and
+    ``ground`` the ``DynParams`` ones, ``lag`` is ``lag_factors(tau, dt)``.
+    Returns (pos, vel, acc, landed) as lists. numpy's elementwise rules are
+    copied where Python's differ: ``np.maximum(a, b)`` is ``a if a > b else b``
+    (``b`` on a tie, which matters for signed zeros), ``np.minimum`` likewise,
+    ``np.clip(x, lo, hi)`` with array bounds is ``np.minimum(np.maximum(x, lo), hi)``
+    with those rules; ``np.hypot`` is called as such (libm's, not ``math.hypot``'s,
+    rounding). For finite inputs; ``math.sqrt`` raises ``ValueError`` where
+    numpy would warn and give NaN (e.g. a negative acceleration limit), and
+    the caller then takes the numpy path.
+    """
+    a_ff, p_t, v_t, wp, wv, vmax_xy, vmax_up, vmax_dn, acc_lim = tg
+    sqrt = math.sqrt
+    n = len(pos)
+    err = [
+        [w[0] * (t[0] - p[0]), w[1] * (t[1] - p[1]), w[2] * (t[2] - p[2])]
+        for w, t, p in zip(wp, p_t, pos, strict=True)
+    ]
+    e_h = np.hypot([r[0] for r in err], [r[1] for r in err]).tolist()
+    kk = kp_1_s * kp_1_s
+    v_des = []
+    for i in range(n):  # Eq. D3a, horizontal then vertical
+        er, vt = err[i], v_t[i]
+        a_plan = 0.5 * acc_lim[i]
+        lin = a_plan / kk
+        s = []
+        for e in (e_h[i], abs(er[2])):
+            m = e - 0.5 * lin
+            far = sqrt(2.0 * a_plan * (m if m > 0.0 else 0.0))
+            s.append((far if e > lin else kp_1_s * e) / (e if e > 1e-12 else 1e-12))
+        v_des.append([vt[0] + er[0] * s[0], vt[1] + er[1] * s[0], vt[2] + er[2] * s[1]])
+    hs = np.hypot([r[0] for r in v_des], [r[1] for r in v_des]).tolist()
+    p1s, v1s, a1s, landed = [], [], [], []
+    for i in range(n):
+        vd, v0, p0, a0, af = v_des[i], vel[i], pos[i], acc[i], a_ff[i]
+        h = hs[i]
+        q = vmax_xy[i] / (h if h > 1e-12 else 1e-12)
+        scale = 1.0 if 1.0 < q else q
+        lo, hi, z = -vmax_up[i], vmax_dn[i], vd[2]
+        z = z if z > lo else lo
+        z = z if z < hi else hi
+        k = kv_1_s * wv[i]
+        c0 = af[0] + k * (vd[0] * scale - v0[0])
+        c1 = af[1] + k * (vd[1] * scale - v0[1])
+        c2 = af[2] + k * (z - v0[2])
+        norm = sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        q = acc_lim[i] / (norm if norm > 1e-12 else 1e-12)
+        lim = 1.0 if 1.0 < q else q
+        c0, c1, c2 = c0 * lim, c1 * lim, c2 * lim  # tracking_accel's output
+        norm = sqrt(c0 * c0 + c1 * c1 + c2 * c2)  # step: Eq. D1 clamp, D2
+        q = acc_max[i] / (norm if norm > 1e-12 else 1e-12)
+        lim = 1.0 if 1.0 < q else q
+        c0, c1, c2 = c0 * lim, c1 * lim, c2 * lim
+        e, t = lag[i]
+        d0, d1, d2 = a0[0] - c0, a0[1] - c1, a0[2] - c2
+        a1 = [c0 + d0 * e, c1 + d1 * e, c2 + d2 * e]
+        u, w = 1.0 - e, dt - t * (1.0 - e)
+        hh = dt * dt
+        v1 = [
+            v0[0] + c0 * dt + d0 * t * u,
+            v0[1] + c1 * dt + d1 * t * u,
+            v0[2] + c2 * dt + d2 * t * u,
+        ]
+        p1 = [
+            p0[0] + v0[0] * dt + 0.5 * c0 * hh + d0 * t * w,
+            p0[1] + v0[1] * dt + 0.5 * c1 * hh + d1 * t * w,
+            p0[2] + v0[2] * dt + 0.5 * c2 * hh + d2 * t * w,
+        ]
+        g = ground[i]
+        below = p1[2] >= g
+        if below:  # Eq. D4
+            p1[2] = g
+            if v1[2] > 0.0:
+                v1 = [0.0, 0.0, 0.0]
+            v1[2] = v1[2] if v1[2] < 0.0 else 0.0
+            if a1[2] > 0.0:
+                a1 = [0.0, 0.0, 0.0]
+        p1s.append(p1)
+        v1s.append(v1)
+        a1s.append(a1)
+        landed.append(below and v1[2] >= 0.0)
+    return p1s, v1s, a1s, landed

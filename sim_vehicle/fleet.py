@@ -9,6 +9,8 @@ up to date through ``rows``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -29,6 +31,8 @@ _V1 = (
 )  # fmt: skip
 _I1 = ("seq", "sysid", "compid")
 _B1 = ("landed", "awaiting", "holding")
+_SMALL_STEP = 24
+"""Below this many vehicles ``step`` runs ``dynamics.advance_small`` (plain floats, same bits)."""
 
 
 class Fleet:
@@ -65,6 +69,7 @@ class Fleet:
     def __init__(self) -> None:
         self.n = 0
         self._views: tuple[Targets, DynParams] | None = None  # step()'s inputs over the arrays
+        self._lag: tuple[list[float], float, list[tuple[float, float]]] | None = None
         for name in _V3:
             setattr(self, name, np.zeros((0, 3)))
         for name in _V1:
@@ -137,6 +142,42 @@ class Fleet:
 
     def step(self, dt: float) -> None:
         """Advance every vehicle by ``dt`` s: Eq. D3 then ``dynamics.step`` (D1, D2, D4)."""
+        if self.n == 0:
+            return
+        if self.n < _SMALL_STEP and self._step_small(dt):
+            return
+        self.step_numpy(dt)
+
+    def _step_small(self, dt: float) -> bool:
+        """``step`` through ``dynamics.advance_small``; False (nothing changed) where it
+        cannot run (a math domain error, a non-finite result): numpy decides then."""
+        tau = self.tau.tolist()
+        lag = self._lag
+        if lag is None or lag[0] != tau or lag[1] != dt:
+            lag = self._lag = (tau, dt, dynamics.lag_factors(self.tau, dt))
+        tg = (
+            self.a_ff.tolist(), self.p_t.tolist(), self.v_t.tolist(), self.wp.tolist(),
+            self.wv.tolist(), self.vmax_xy.tolist(), self.vmax_up.tolist(),
+            self.vmax_dn.tolist(), self.acc_lim.tolist(),
+        )  # fmt: skip
+        try:
+            pos, vel, acc, landed = dynamics.advance_small(
+                self.pos.tolist(), self.vel.tolist(), self.acc.tolist(), tg,
+                self.acc_max.tolist(), self.ground.tolist(), lag[2], dt, KP_1_S, KV_1_S,
+            )  # fmt: skip
+        except ValueError:
+            return False
+        chk = 0.0
+        for p, v, a in zip(pos, vel, acc, strict=True):
+            chk += p[0] + p[1] + p[2] + v[0] + v[1] + v[2] + a[0] + a[1] + a[2]
+        if not math.isfinite(chk):  # NaN or inf somewhere: numpy's rules for those
+            return False
+        self.pos, self.vel, self.acc = np.array(pos), np.array(vel), np.array(acc)
+        self.landed = np.array(landed, dtype=bool)
+        return True
+
+    def step_numpy(self, dt: float) -> None:
+        """``step`` with numpy whatever the number of vehicles (the reference of the small path)."""
         if self.n == 0:
             return
         st = KinState(self.pos, self.vel, self.acc, self.landed)
