@@ -213,6 +213,22 @@ class Fleet:
         self.seq[rows] = (self.seq[rows] + 1) & 0xFF
         return buf, lens
 
+    def lpn_frames_rows(self, rows: list[int], time_boot_ms: list[int]) -> list[bytes] | None:
+        """``lpn_frames`` for a few rows given as a list, the state's own values (no noise):
+        the same bytes from plain lists, without numpy's per-call cost. None (and no
+        sequence number used) when a value does not fit a float32."""
+        pos, vel, seq = self.pos.tolist(), self.vel.tolist(), self.seq.tolist()
+        sysid, compid = self.sysid.tolist(), self.compid.tolist()
+        frames = lpn_frames_small(
+            time_boot_ms, [pos[r] for r in rows], [vel[r] for r in rows],
+            [seq[r] for r in rows], [sysid[r] for r in rows], [compid[r] for r in rows],
+        )  # fmt: skip
+        if frames is not None:
+            for r in rows:
+                seq[r] = (seq[r] + 1) & 0xFF
+            self.seq[:] = seq
+        return frames
+
     def lpn_frames(
         self,
         rows: NDArray[np.intp],

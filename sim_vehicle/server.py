@@ -35,6 +35,8 @@ __all__ = ["Emulator", "EmulatorStats", "VehicleState"]
 
 _EPS = 1e-9
 _MAX_PEERS = 8
+_SMALL = 64
+"""Below this many vehicles the per-step bookkeeping runs on Python lists, not numpy."""
 _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 
@@ -111,6 +113,7 @@ class Emulator:
         self._wake = asyncio.Event()
         self._tg: asyncio.TaskGroup | None = None
         self._clock_task: asyncio.Task[None] | None = None
+        self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
 
     # ------------------------------------------------------------ lifetime
     async def __aenter__(self) -> Emulator:
@@ -222,6 +225,7 @@ class Emulator:
             streams=dict(cfg.streams),
         )
         row = self.fleet.add(spec.sysid, spec.compid, start, landed=not spec.airborne)
+        self._kins = None
         self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
         self.fleet.boot[row] = now
         noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
@@ -259,6 +263,7 @@ class Emulator:
         v = self._vehicle(sysid)
         del self._vehicles[sysid]
         self.fleet.remove(v.row)
+        self._kins = None
         del self._rows[v.row]
         for i, other in enumerate(self._rows):
             other.row = i
@@ -276,6 +281,20 @@ class Emulator:
 
     def _kin(self, v: _Vehicle) -> Kin:
         f, r = self.fleet, v.row
+        if f.n < _SMALL:  # every row at once, kept until the state changes (next step)
+            kins = self._kins
+            if kins is None:
+                kins = self._kins = [
+                    Kin((p[0], p[1], p[2]), (q[0], q[1], q[2]), (a[0], a[1], a[2]), ld)
+                    for p, q, a, ld in zip(
+                        f.pos.tolist(),
+                        f.vel.tolist(),
+                        f.acc.tolist(),
+                        f.landed.tolist(),
+                        strict=True,
+                    )
+                ]
+            return kins[r]
         px, py, pz = f.pos[r].tolist()
         vx, vy, vz = f.vel[r].tolist()
         ax, ay, az = f.acc[r].tolist()
@@ -483,6 +502,14 @@ class Emulator:
 
     def _lpn_frames(self, rows: NDArray[np.intp], now: float) -> list[tuple[bytes, int]]:
         f = self.fleet
+        if len(rows) < _SMALL and self.config.signing_key is None:
+            rl: list[int] = rows.tolist()
+            npos, nvel = f.noise_pos.tolist(), f.noise_vel.tolist()
+            if not any(npos[r] > 0 or nvel[r] > 0 for r in rl):
+                boot = f.boot.tolist()  # round() is np.rint's half-to-even
+                frames = f.lpn_frames_rows(rl, [round((now - boot[r]) * 1000.0) for r in rl])
+                if frames is not None:
+                    return [(fr, self._rows[r].spec.key) for fr, r in zip(frames, rl, strict=True)]
         t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)
         pos, vel = f.pos[rows], f.vel[rows]
         noisy = (f.noise_pos[rows] > 0) | (f.noise_vel[rows] > 0)
@@ -509,6 +536,7 @@ class Emulator:
     def _step(self) -> None:
         """One physics step, then the telemetry due at the new sim time."""
         self.fleet.step(self.dt)
+        self._kins = None
         self.step_count += 1
         self.stats.steps = self.step_count
         self.sim_time_s = now = self.step_count * self.dt
@@ -533,10 +561,22 @@ class Emulator:
             self._sync(v, now)
             if out and v.ep.peers:
                 v.ep.outbox.extend((self._pack(v, m), 0) for m in out)
-        due = np.flatnonzero(f.lpn_next <= now + _EPS)
+        if f.n < _SMALL:  # the same schedule arithmetic on lists
+            lim, lnext = now + _EPS, f.lpn_next.tolist()
+            rows = [r for r, t in enumerate(lnext) if t <= lim]
+            if rows:
+                iv = f.lpn_interval.tolist()
+                for r in rows:
+                    nxt = lnext[r] + iv[r]
+                    lnext[r] = now + iv[r] if nxt <= lim else nxt
+                f.lpn_next[:] = lnext
+            due = np.array(rows, dtype=np.intp)
+        else:
+            due = np.flatnonzero(f.lpn_next <= now + _EPS)
+            if due.size:
+                nxt = f.lpn_next[due] + f.lpn_interval[due]
+                f.lpn_next[due] = np.where(nxt <= now + _EPS, now + f.lpn_interval[due], nxt)
         if due.size:
-            nxt = f.lpn_next[due] + f.lpn_interval[due]
-            f.lpn_next[due] = np.where(nxt <= now + _EPS, now + f.lpn_interval[due], nxt)
             for frame, key in self._lpn_frames(due, now):
                 ep = self._vehicles[key].ep
                 if ep.peers:

@@ -216,3 +216,29 @@ def test_small_step_falls_back_to_numpy_on_a_domain_error() -> None:
     f = _random_fleet(np.random.default_rng(3), 4)
     f.acc_lim[:] = -1.0  # sqrt of a negative: numpy warns and gives NaN, math raises
     assert not f._step_small(DT)
+
+
+def test_lpn_frames_from_lists_are_byte_identical() -> None:
+    """Fleet.lpn_frames_rows (the server's path below 64 vehicles: lists, round()) against
+    Fleet.lpn_frames fed as before (numpy arrays, np.rint) on 3000 random cases: the same
+    frames and the same sequence numbers afterwards."""
+    rng = np.random.default_rng(32)
+    for case in range(3000):
+        n = case % 12 + 1
+        fast = _random_fleet(rng, n)
+        fast.seq = rng.integers(0, 256, n)
+        fast.boot = np.where(rng.integers(0, 2, n) == 0, 0.0, rng.uniform(0, 100, n))
+        ref = Fleet()
+        ref.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v)
+                             for k, v in fast.__dict__.items()})  # fmt: skip
+        rows = np.flatnonzero(rng.integers(0, 3, n) > 0)
+        now = float(rng.uniform(0, 200)) if case % 3 else round(float(rng.uniform(0, 200)), 3)
+        boot = fast.boot.tolist()
+        got = fast.lpn_frames_rows(rows.tolist(), [round((now - boot[r]) * 1000.0) for r in rows])
+        t_ms = np.rint((now - ref.boot[rows]) * 1000.0).astype(np.int64)
+        want = ref.lpn_frames(rows, t_ms, ref.pos[rows], ref.vel[rows])
+        assert got == want, case
+        assert fast.seq.tolist() == ref.seq.tolist(), case
+    big = Fleet()
+    big.add(1, 1, (1e39, 0.0, 0.0), landed=False)
+    assert big.lpn_frames_rows([0], [0]) is None and big.seq.tolist() == [0]
