@@ -6,7 +6,8 @@ physics step is vectorised: one ``Fleet.step`` for every vehicle, autopilots
 polled only when their deadline is due, LOCAL_POSITION_NED encoded for every
 due vehicle at once (``codec``), frames batched per peer. The lockstep rule is
 written in the ``sim_vehicle`` package docstring and implemented in
-``_lockstep_wait``.
+``_lockstep_wait`` and ``_step_now`` (the datagram that brings the last answer
+takes the step at once, without waking the clock task).
 """
 
 from __future__ import annotations
@@ -114,6 +115,13 @@ class Emulator:
         self._tg: asyncio.TaskGroup | None = None
         self._clock_task: asyncio.Task[None] | None = None
         self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
+        # Lockstep: while the clock waits for answers, the datagram that brings the last
+        # one takes the step itself (``_step_now``); ``_last`` is the wall time of the
+        # last step, ``_handed_back`` tells the clock a step was taken meanwhile.
+        self._stepping = False
+        self._handed_back = False
+        self._last = 0.0
+        self._error: BaseException | None = None
 
     # ------------------------------------------------------------ lifetime
     async def __aenter__(self) -> Emulator:
@@ -139,6 +147,7 @@ class Emulator:
         tb: TracebackType | None,
     ) -> None:
         assert self._tg is not None
+        self._stepping = False
         try:
             if self._clock_task is not None:
                 self._clock_task.cancel()
@@ -358,10 +367,35 @@ class Emulator:
 
     # ------------------------------------------------------------ inbound
     def _on_datagram(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
+        if not self._stepping:
+            self._receive(ep, data, addr)
+            return
+        self._receive(ep, data, addr)
+        if not self._blocked():  # lockstep rule 3: the last answer is in, step now
+            self._step_now()
+
+    def _step_now(self) -> None:
+        """Take the lockstep step the clock task waits for, here (no task switch); hand
+        the clock back to the task when the step leaves nobody blocking."""
+        try:
+            self._step()
+        except BaseException as exc:  # the clock task raises it, as its own step would
+            self._error = exc
+            self._stepping = False
+            self._wake.set()
+            return
+        self._last = asyncio.get_running_loop().time()
+        if not self._blocked():
+            self._stepping = False
+            self._handed_back = True
+            self._wake.set()
+
+    def _receive(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
         if ep.silent:
             return
         self.stats.link.rx_datagrams += 1
-        self._wake.set()
+        if not self._stepping:  # the clock is blocked: only a step may change that
+            self._wake.set()
         msgs = ep.parse(data)
         # Only a peer that sent one good (with signing: well-signed) frame is
         # served: garbage or forgeries from elsewhere never evict the station.
@@ -615,47 +649,65 @@ class Emulator:
         while not all(v.contacted for v in self._vehicles.values() if v.initial):  # rule 1
             self._wake.clear()
             await self._wake.wait()
-        last = loop.time()
+        self._last = loop.time()
         while True:
             if self._blocked():  # _lockstep_wait yields: no extra pass of the event loop
-                await self._lockstep_wait(last, blocked=True)
+                if not await self._lockstep_wait(blocked=True):
+                    continue  # steps were taken meanwhile; the last left nobody blocking
             else:
                 await asyncio.sleep(0)  # let inbound datagrams in between two steps
                 if self.fleet.holding.any():
-                    await self._lockstep_wait(last)
+                    if not await self._lockstep_wait():
+                        continue
                 else:  # rule 4: nobody holds, pace at speed-up x wall clock
-                    delay = last + period - loop.time()
+                    delay = self._last + period - loop.time()
                     await asyncio.sleep(max(delay, 0.0))
             self._step()
-            last = loop.time()
+            self._last = loop.time()
 
     def _blocked(self) -> bool:
         """Rules 2-3: some holding vehicle blocks the next step."""
         f = self.fleet
         return bool((f.holding & (f.awaiting | np.isinf(f.lpn_interval))).any())
 
-    async def _lockstep_wait(self, last: float, blocked: bool = False) -> None:
+    async def _lockstep_wait(self, blocked: bool = False) -> bool:
         """Rules 2-3: wait until no holding vehicle blocks, or the wall-clock timeout
-        (``blocked``: the caller has just found that one does)."""
+        (``blocked``: the caller has just found that one does). True: the caller takes
+        the step. False: the datagrams that brought the answers took the steps
+        (``_step_now``) and the last left nobody blocking; the caller starts over."""
         loop = asyncio.get_running_loop()
         if not blocked and not self._blocked():
-            return
-        # One timer per step (not one per wake-up): it only wakes the loop below.
+            return True
+        timeout = self.config.lockstep_timeout_s
+        # One timer for many steps: it only wakes the loop below, which arms it again
+        # from the latest step when steps were taken meanwhile.
         fired: list[bool] = []
 
         def expire() -> None:
             fired.append(True)
             self._wake.set()
 
-        timer = loop.call_at(last + self.config.lockstep_timeout_s, expire)
+        armed = self._last
+        timer = loop.call_at(armed + timeout, expire)
+        self._handed_back = False
+        self._stepping = True
         try:
             while True:
                 self._wake.clear()
                 await self._wake.wait()
+                if self._error is not None:
+                    raise self._error
+                if self._handed_back:
+                    return False
                 if not self._blocked():
-                    return
-                if fired or last + self.config.lockstep_timeout_s - loop.time() <= 0:
+                    return True
+                if fired and armed != self._last:  # steps were taken: time from the last
+                    fired.clear()
+                    armed = self._last
+                    timer = loop.call_at(armed + timeout, expire)
+                elif fired or self._last + timeout - loop.time() <= 0:
                     self.stats.lockstep_timeouts += 1
-                    return
+                    return True
         finally:
+            self._stepping = False
             timer.cancel()

@@ -158,3 +158,38 @@ def test_lockstep_runs_are_bit_for_bit_repeatable() -> None:
         assert first != other  # the seed matters, so the comparison can fail
 
     asyncio.run(run())
+
+
+def test_lockstep_timeout_counts_from_the_last_step_not_from_the_first_wait() -> None:
+    """The datagram bringing the last answer takes the step itself and the timeout timer
+    is armed once for many steps: answering slowly (5 ms per step) for longer than the
+    timeout must never count a timeout; going silent must, once, no sooner than
+    ``lockstep_timeout_s`` after the last step (a lower bound: safe on a slow machine)."""
+    timeout_s = 0.2
+
+    async def run() -> None:
+        cfg = _cfg(lockstep_timeout_s=timeout_s)
+        async with asyncio.timeout(30), Emulator(cfg) as emu:
+            c = await connect(emu.endpoints[1])
+            try:
+                c.heartbeat()
+                await c.recv("HEARTBEAT")
+                await c.command(1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20000)
+                loop = asyncio.get_running_loop()
+                t0 = loop.time()
+                for _ in range(100):  # >= 0.5 s of answering: the timer fired and re-armed
+                    await c.recv("LOCAL_POSITION_NED")
+                    await asyncio.sleep(0.005)
+                    c.accel(1, (0.1, 0.0, 0.0))
+                assert loop.time() - t0 > 2 * timeout_s
+                await emu.wait_steps(1)
+                assert emu.stats.lockstep_timeouts == 0
+                silent, k = loop.time(), emu.step_count
+                await emu.wait_until(lambda: emu.step_count > k)
+                # 10 ms: the last step came just before ``silent`` (wait_steps resumes after it)
+                assert loop.time() - silent >= timeout_s - 0.01
+                assert emu.stats.lockstep_timeouts == 1
+            finally:
+                c.close()
+
+    asyncio.run(run())
