@@ -105,7 +105,7 @@ def as_states(
 ) -> tuple[tuple[int, ...], F64, F64, F64]:
     """Validate and convert one step's inputs; raise ``ValueError`` on a shape
     mismatch, a repeated id or a non-finite value (naming the vehicle id)."""
-    key = tuple(int(i) for i in ids)
+    key = tuple(map(int, ids))
     n = len(key)
     p = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
     v = np.asarray(vel_mps, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))

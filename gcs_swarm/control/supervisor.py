@@ -165,7 +165,7 @@ class Supervisor:
         """The discrete step at time ``t`` [s]: returns the held :class:`Mode` and
         the transition (``"start"``, ``"end"`` or None)."""
         av = self._cfg.avoidance
-        key = tuple(int(i) for i in ids)
+        key = tuple(map(int, ids))
         n, k = len(key), self._obs.count
         self._sync_vehicles(key)
         event: str | None = None
