@@ -191,6 +191,32 @@ def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinSt
     return KinState(p1, v1, a1, landed)
 
 
+def _hypot_rows(rows: list[list[float]]) -> list[float]:
+    """``np.hypot(x, y)`` of each row's first two values. Where one of them is zero the
+    result is exactly the other's magnitude (C Annex F: ``hypot(x, +-0) = fabs(x)``), so
+    numpy (libm, whose rounding ``math.hypot`` does not share) is called only for the
+    rest: not at all for the acceleration setpoints the station streams."""
+    out: list[float] = []
+    rest = []
+    for i, r in enumerate(rows):
+        x, y = r[0], r[1]
+        if y == 0.0:
+            out.append(abs(x))
+        elif x == 0.0:
+            out.append(abs(y))
+        else:
+            out.append(0.0)
+            rest.append(i)
+    if rest:
+        for i, h in zip(
+            rest,
+            np.hypot([rows[i][0] for i in rest], [rows[i][1] for i in rest]).tolist(),
+            strict=True,
+        ):
+            out[i] = h
+    return out
+
+
 def lag_factors(tau_s: F64, dt: float) -> list[tuple[float, float]]:
     """(e, t) of Eq. D2 per vehicle, as ``step`` computes them (``e = exp(-dt / tau)``,
     ``t = tau``; both 0 for ``tau <= 0``): the inputs ``advance_small`` takes.
@@ -231,10 +257,10 @@ def advance_small(
     copied where Python's differ: ``np.maximum(a, b)`` is ``a if a > b else b``
     (``b`` on a tie, which matters for signed zeros), ``np.minimum`` likewise,
     ``np.clip(x, lo, hi)`` with array bounds is ``np.minimum(np.maximum(x, lo), hi)``
-    with those rules; ``np.hypot`` is called as such (libm's, not ``math.hypot``'s,
-    rounding). For finite inputs; ``math.sqrt`` raises ``ValueError`` where
-    numpy would warn and give NaN (e.g. a negative acceleration limit), and
-    the caller then takes the numpy path.
+    with those rules; ``np.hypot`` is kept (libm's rounding, not ``math.hypot``'s)
+    where a zero does not make it exact (``_hypot_rows``). For finite inputs;
+    ``math.sqrt`` raises ``ValueError`` where numpy would warn and give NaN (e.g.
+    a negative acceleration limit), and the caller then takes the numpy path.
     """
     a_ff, p_t, v_t, wp, wv, vmax_xy, vmax_up, vmax_dn, acc_lim = tg
     sqrt = math.sqrt
@@ -243,20 +269,23 @@ def advance_small(
         [w[0] * (t[0] - p[0]), w[1] * (t[1] - p[1]), w[2] * (t[2] - p[2])]
         for w, t, p in zip(wp, p_t, pos, strict=True)
     ]
-    e_h = np.hypot([r[0] for r in err], [r[1] for r in err]).tolist()
+    e_h = _hypot_rows(err)
     kk = kp_1_s * kp_1_s
     v_des = []
     for i in range(n):  # Eq. D3a, horizontal then vertical
         er, vt = err[i], v_t[i]
         a_plan = 0.5 * acc_lim[i]
         lin = a_plan / kk
-        s = []
-        for e in (e_h[i], abs(er[2])):
-            m = e - 0.5 * lin
-            far = sqrt(2.0 * a_plan * (m if m > 0.0 else 0.0))
-            s.append((far if e > lin else kp_1_s * e) / (e if e > 1e-12 else 1e-12))
-        v_des.append([vt[0] + er[0] * s[0], vt[1] + er[1] * s[0], vt[2] + er[2] * s[1]])
-    hs = np.hypot([r[0] for r in v_des], [r[1] for r in v_des]).tolist()
+        e = e_h[i]
+        m = e - 0.5 * lin
+        far = sqrt(2.0 * a_plan * (m if m > 0.0 else 0.0))
+        sh = (far if e > lin else kp_1_s * e) / (e if e > 1e-12 else 1e-12)
+        e = abs(er[2])
+        m = e - 0.5 * lin
+        far = sqrt(2.0 * a_plan * (m if m > 0.0 else 0.0))
+        sv = (far if e > lin else kp_1_s * e) / (e if e > 1e-12 else 1e-12)
+        v_des.append([vt[0] + er[0] * sh, vt[1] + er[1] * sh, vt[2] + er[2] * sv])
+    hs = _hypot_rows(v_des)
     p1s, v1s, a1s, landed = [], [], [], []
     for i in range(n):
         vd, v0, p0, a0, af = v_des[i], vel[i], pos[i], acc[i], a_ff[i]
