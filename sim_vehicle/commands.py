@@ -229,14 +229,15 @@ def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
         return
     pos_ign, vel_ign, acc_ign = mask & 0x7, mask & 0x38, mask & 0x1C0
     yaw_ign = mask & mav.POSITION_TARGET_TYPEMASK_YAW_IGNORE
-    used = (
-        ((msg.x, msg.y, msg.z) if not pos_ign else ())
-        + ((msg.vx, msg.vy, msg.vz) if not vel_ign else ())
-        + ((msg.afx, msg.afy, msg.afz) if not acc_ign else ())
-        + ((msg.yaw,) if not yaw_ign else ())
-    )
+    lim = SETPOINT_LIMIT
     # abs(NaN) <= x and abs(inf) <= x are False: one test covers "finite and not absurd"
-    if not all(abs(v) <= SETPOINT_LIMIT for v in used):
+    # (each used group in turn: this runs for every setpoint)
+    if not (
+        (pos_ign or (abs(msg.x) <= lim and abs(msg.y) <= lim and abs(msg.z) <= lim))
+        and (vel_ign or (abs(msg.vx) <= lim and abs(msg.vy) <= lim and abs(msg.vz) <= lim))
+        and (acc_ign or (abs(msg.afx) <= lim and abs(msg.afy) <= lim and abs(msg.afz) <= lim))
+        and (yaw_ign or abs(msg.yaw) <= lim)
+    ):
         ap.rejected += 1
         return  # dropped: the vehicle keeps its last target (GUID_TIMEOUT still runs)
     if not yaw_ign:
