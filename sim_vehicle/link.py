@@ -213,6 +213,7 @@ def bind_udp(host: str, port: int) -> socket.socket:
 _SP = mav.MAVLink_set_position_target_local_ned_message
 _SP_SIZE = _SP.unpacker.size
 _SP_EXTRA = bytes((_SP.crc_extra,))
+_SP_UNPACK_FROM = _SP.unpacker.unpack_from
 
 
 def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
@@ -234,13 +235,15 @@ def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
 def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | None:
     """The setpoint in the whole unsigned MAVLink 2 frame at ``data[i:]`` of payload ``plen``,
     or None when it is another message, longer than the struct, or its CRC is wrong."""
-    if data[i + 7 : i + 10] != b"\x54\x00\x00" or plen > _SP_SIZE:
+    if data[i + 7] != 84 or data[i + 8] or data[i + 9] or plen > _SP_SIZE:
         return None
     end = i + 10 + plen
     if crc16(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
         return None
-    payload = data[i + 10 : end] + bytes(_SP_SIZE - plen)
-    f = _SP.unpacker.unpack(payload)
+    if plen == _SP_SIZE:  # the usual case (coordinate_frame, the last byte, is not 0)
+        f = _SP_UNPACK_FROM(data, i + 10)
+    else:
+        f = _SP.unpacker.unpack(data[i + 10 : end] + bytes(_SP_SIZE - plen))
     msg = _SP(f[0], f[13], f[14], f[15], f[12], *f[1:12])
     msg._header = mav.MAVLink_header(84, 0, 0, plen, data[i + 4], data[i + 5], data[i + 6])
     return msg
