@@ -28,6 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 ROUNDS = 7
@@ -95,7 +96,7 @@ def main() -> float:
         return msg.pack(enc)
 
     from gcs_swarm.mavlink.codec import Codec
-    from gcs_swarm.mavlink.inbound import from_pymavlink
+    from gcs_swarm.mavlink.inbound import LocalPositionNed, from_pymavlink
     from gcs_swarm.mavlink.states import ProtocolConfig
     from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
@@ -105,30 +106,48 @@ def main() -> float:
     def gcs_decode() -> object:
         return [from_pymavlink(m) for m in codec.decode(frame)]
 
+    def gcs_decode_raw() -> object:  # the station's path: RawPosition -> LocalPositionNed
+        return [LocalPositionNed(r.sysid, r.compid, *r.values)
+                for r in codec.decode(frame, raw_positions=True)]  # fmt: skip
+
     accel = (0.5, -0.25, 0.125)
 
     def gcs_encode() -> object:
         return codec.encode(vp.accel_setpoint(accel))
 
+    step = 250  # the station frames a whole step's setpoints at once
+    targets = [(s % 250 + 1, 1) for s in range(step)]
+    boots = [123456] * step
+    acc = np.tile(np.array(accel), (step, 1))
+
+    def gcs_encode_step() -> object:
+        return codec.encode_accel_setpoints(targets, boots, acc, type_mask=3135, coordinate_frame=1)
+
     rows = [
-        ("pymavlink decode LOCAL_POSITION_NED (parse_buffer)", py_decode),
-        ("pymavlink encode SET_POSITION_TARGET_LOCAL_NED (_encode + pack)", py_encode),
-        ("station decode (Codec.decode + from_pymavlink)", gcs_decode),
-        ("station encode (accel_setpoint + Codec.encode)", gcs_encode),
-    ]
+        ("pymavlink decode LOCAL_POSITION_NED (parse_buffer)", py_decode, 1),
+        ("pymavlink encode SET_POSITION_TARGET_LOCAL_NED (_encode + pack)", py_encode, 1),
+        ("station decode (Codec.decode + from_pymavlink)", gcs_decode, 1),
+        ("station encode (accel_setpoint + Codec.encode)", gcs_encode, 1),
+        ("station hot decode (raw tuple + LocalPositionNed)", gcs_decode_raw, 1),
+        (f"station hot encode (encode_accel_setpoints, per frame of {step})", gcs_encode_step,
+         step),
+    ]  # fmt: skip
     print(f"codec floor, median of {ROUNDS} x {CALLS} calls (us per call, [min..max])")
     res = {}
-    for name, fn in rows:
-        med, lo, hi = _median_us(fn)
+    for name, fn, per in rows:
+        med, lo, hi = (x / per for x in _median_us(fn, CALLS // per))
         res[name] = med
         print(f"  {name:66s} {med:7.2f}  [{lo:.2f}..{hi:.2f}]", flush=True)
     floor = rows[0][0], rows[1][0]
     floor_us = res[floor[0]] + res[floor[1]]
     station_us = res[rows[2][0]] + res[rows[3][0]]
+    hot_us = res[rows[4][0]] + res[rows[5][0]]
     print(f"pymavlink floor per vehicle per cycle: {floor_us:.1f} us "
           f"-> {1e6 / floor_us / 50:.0f} vehicles at 50 Hz on one core")  # fmt: skip
     print(f"station codec path per vehicle per cycle: {station_us:.1f} us "
           f"({station_us / floor_us:.2f} x floor)")  # fmt: skip
+    print(f"station hot path (flying, a whole step framed at once): {hot_us:.1f} us "
+          f"({hot_us / floor_us:.2f} x floor)")  # fmt: skip
     print(f"FLOOR_US={floor_us:.2f}")
     return floor_us
 

@@ -237,6 +237,10 @@ def main() -> None:
               f"{r['us_per_vehicle_cycle'] / floor_us:7.2f} {r['emu_late']:8.0f} "
               f"{r['emu_cpu']:7.2f} {r['emu_rt']:6.3f}",
               flush=True)  # fmt: skip
+        if len(runs) > 1:  # the spread behind the medians
+            for key in ("p50_ms", "p99_ms", "max_ms", "missed", "us_per_vehicle_cycle"):
+                vals = sorted(x[key] for x in runs)
+                print(f"       {key}: " + " ".join(f"{v:.2f}" for v in vals), flush=True)
 
 
 if __name__ == "__main__":
