@@ -30,7 +30,7 @@ import struct
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Literal
 
@@ -40,6 +40,7 @@ import numpy.typing as npt
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL
 from gcs_swarm.mavlink.codec import Codec, FieldValue, MessageSpec, RawPosition
+from gcs_swarm.runtime.endpoints import Endpoint, LatencyRing, LinkStats, parse_connection
 from gcs_swarm.runtime.lifetime import close_task_group
 
 __all__ = [
@@ -66,7 +67,6 @@ REBIND_S = 5.0
 """Silence [s] of a system id's peer after which another peer may take it over."""
 _RECONNECT_S = 1.0
 
-Scheme = Literal["udpin", "udpout", "tcp", "tcpin"]
 Peer = Any  # a UDP address tuple, or a TCP connection object
 OnMessage = Callable[[Any, "Link"], None]
 """Called with each decoded pymavlink message and the link it came on."""
@@ -77,88 +77,6 @@ the other messages) and their link, when the owner asks for them apart."""
 OnFrame = Callable[[bytes, Literal["in", "out"]], None]
 """Called with every raw frame the link decoded ("in") or sent ("out"), e.g.
 a ``.tlog`` writer; bad packets are counted, not passed on."""
-
-
-@dataclass(frozen=True)
-class Endpoint:
-    """A parsed connection string."""
-
-    scheme: Scheme
-    host: str
-    port: int
-
-    def __str__(self) -> str:
-        return f"{self.scheme}:{self.host}:{self.port}"
-
-
-def parse_connection(text: str) -> Endpoint:
-    """``udpin:HOST:PORT`` and friends -> ``Endpoint``; ``LinkError`` if malformed."""
-    parts = text.strip().split(":")
-    if len(parts) != 3 or parts[0] not in ("udpin", "udpout", "tcp", "tcpin"):
-        raise LinkError(
-            f"connection string {text!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
-            "tcp:HOST:PORT or tcpin:HOST:PORT"
-        )
-    scheme, host, port_text = parts
-    try:
-        port = int(port_text)
-    except ValueError:
-        port = -1
-    if not 0 <= port <= 65535 or (port == 0 and scheme in ("udpout", "tcp")) or not host:
-        raise LinkError(f"connection string {text!r}: bad host or port")
-    return Endpoint(scheme, host, port)  # type: ignore[arg-type]
-
-
-@dataclass
-class LinkStats:
-    """Counters of one link (monotonic)."""
-
-    received: int = 0
-    sent: int = 0
-    bad_packets: int = 0
-    unknown_messages: int = 0
-    setpoints_dropped: int = 0
-    messages_dropped: int = 0
-    reconnects: int = 0
-    spoofed: int = 0
-    signature_rejected: int = 0
-    unencodable: int = 0
-    peers: set[str] = field(default_factory=set)
-
-
-class LatencyRing:
-    """The last ``size`` setpoint latencies [s]: from the arrival of the
-    telemetry a setpoint answers (``Link.rx_time_s`` when its datagram came
-    in, ``time.monotonic`` clock) to that setpoint's write to the socket.
-    Fixed memory, one list store per setpoint; ``count`` and ``max_s`` cover
-    every sample since the start, the percentiles the last ``size``."""
-
-    def __init__(self, size: int = 16384) -> None:
-        self._buf = [0.0] * size
-        self._i = 0
-        self.count = 0
-        self.max_s = 0.0
-
-    def add(self, latency_s: float) -> None:
-        self._buf[self._i] = latency_s
-        self._i = (self._i + 1) % len(self._buf)
-        self.count += 1
-        if latency_s > self.max_s:
-            self.max_s = latency_s
-
-    def samples(self) -> list[float]:
-        """The retained samples [s], oldest first."""
-        if self.count < len(self._buf):
-            return self._buf[: self.count]
-        return self._buf[self._i :] + self._buf[: self._i]
-
-    def percentile(self, q: float) -> float:
-        """The ``q``-th percentile (0..100, nearest rank) of the retained samples [s]."""
-        data = sorted(self.samples())
-        if not data:
-            return float("nan")
-        rank = min(len(data) - 1, max(0, round(q / 100.0 * len(data) + 0.5) - 1))
-        return data[rank]
 
 
 class _Udp(asyncio.DatagramProtocol):

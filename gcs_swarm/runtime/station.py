@@ -27,7 +27,6 @@ import logging
 import math
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -35,16 +34,15 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
-from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.batch import accel_ned, boot_ms, mission_states
 from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
-from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
-from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolConfig, ProtocolEvent
+from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolEvent
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
+from gcs_swarm.runtime.config import StationConfig, VehiclePlan
 from gcs_swarm.runtime.control import ControlLoop
 from gcs_swarm.runtime.delay import DelayCompensator
 from gcs_swarm.runtime.lifetime import close_task_group
@@ -60,55 +58,6 @@ _READYING = frozenset(
     {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
      Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
 )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class VehiclePlan:
-    """One vehicle as the station sees it: ``link`` a connection string,
-    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9)."""
-
-    sysid: int
-    link: str
-    start_m: Vec3
-    q: float
-    reserve: bool = False
-
-
-@dataclass(frozen=True)
-class StationConfig:
-    """What the station needs from a mission. Times in seconds: ``duration_s``
-    and event times are mission (vehicle) time from the formation start;
-    ``ready_timeout_s`` and ``end_timeout_s`` are station (wall) time."""
-
-    vehicles: tuple[VehiclePlan, ...]
-    law: LawConfig
-    rate_hz: float = 50.0
-    duration_s: float = 60.0
-    end_mode: int = b.COPTER_MODES["BRAKE"]
-    stale_timeout_s: float = 1.0
-    ready_timeout_s: float = 90.0
-    end_timeout_s: float = 15.0
-    guid_timeout_s: float = 0.5
-    takeoff_alt_m: float = 5.0
-    mission_origin: GeoPoint | None = None
-    events: tuple[tuple[float, str, int], ...] = ()
-    lockstep: bool = False
-    delay_compensation: bool = False
-    predict_accel_max_mps2: float = 5.0
-    """Acceleration a vehicle is taken to follow when its state is predicted
-    over the commands in flight (the emulator's SIM_ACC_MAX default)."""
-    signing_key: bytes | None = field(default=None, repr=False)
-    """MAVLink 2 signing key (32 bytes) of every link; never shown."""
-
-    def protocol_config(self) -> ProtocolConfig:
-        return ProtocolConfig(
-            control_rate_hz=self.rate_hz,
-            guid_timeout_s=self.guid_timeout_s,
-            takeoff_min_alt_m=self.takeoff_alt_m,
-            stale_timeout_s=self.stale_timeout_s,
-            end_mode=self.end_mode,
-            mission_origin=self.mission_origin,
-        )
 
 
 class Station:

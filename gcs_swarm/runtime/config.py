@@ -1,0 +1,62 @@
+"""What the station needs from a mission: the vehicles and the settings
+(``gcs_swarm.runtime.run.station_config`` builds them from a loaded mission)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gcs_swarm.control.params import LawConfig, Vec3
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.frames import GeoPoint
+from gcs_swarm.mavlink.states import ProtocolConfig
+
+__all__ = ["StationConfig", "VehiclePlan"]
+
+
+@dataclass(frozen=True)
+class VehiclePlan:
+    """One vehicle as the station sees it: ``link`` a connection string,
+    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9)."""
+
+    sysid: int
+    link: str
+    start_m: Vec3
+    q: float
+    reserve: bool = False
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    """What the station needs from a mission. Times in seconds: ``duration_s``
+    and event times are mission (vehicle) time from the formation start;
+    ``ready_timeout_s`` and ``end_timeout_s`` are station (wall) time."""
+
+    vehicles: tuple[VehiclePlan, ...]
+    law: LawConfig
+    rate_hz: float = 50.0
+    duration_s: float = 60.0
+    end_mode: int = b.COPTER_MODES["BRAKE"]
+    stale_timeout_s: float = 1.0
+    ready_timeout_s: float = 90.0
+    end_timeout_s: float = 15.0
+    guid_timeout_s: float = 0.5
+    takeoff_alt_m: float = 5.0
+    mission_origin: GeoPoint | None = None
+    events: tuple[tuple[float, str, int], ...] = ()
+    lockstep: bool = False
+    delay_compensation: bool = False
+    predict_accel_max_mps2: float = 5.0
+    """Acceleration a vehicle is taken to follow when its state is predicted
+    over the commands in flight (the emulator's SIM_ACC_MAX default)."""
+    signing_key: bytes | None = field(default=None, repr=False)
+    """MAVLink 2 signing key (32 bytes) of every link; never shown."""
+
+    def protocol_config(self) -> ProtocolConfig:
+        return ProtocolConfig(
+            control_rate_hz=self.rate_hz,
+            guid_timeout_s=self.guid_timeout_s,
+            takeoff_min_alt_m=self.takeoff_alt_m,
+            stale_timeout_s=self.stale_timeout_s,
+            end_mode=self.end_mode,
+            mission_origin=self.mission_origin,
+        )
