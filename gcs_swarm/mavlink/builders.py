@@ -9,8 +9,6 @@ conversion lives in ``gcs_swarm.mavlink.frames``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from gcs_swarm.mavlink.codec import MessageSpec
 
 __all__ = [
@@ -29,7 +27,6 @@ __all__ = [
     "TYPE_MASK_ACCEL",
     "TYPE_MASK_POSITION",
     "accel_setpoint",
-    "accel_setpoint_values",
     "arm",
     "command_long",
     "heartbeat",
@@ -247,28 +244,6 @@ def accel_setpoint(
         (0.0, 0.0, 0.0),
         accel_ned_mps2,
     )
-
-
-def accel_setpoint_values(
-    target_system: int,
-    target_component: int,
-    time_boot_ms: int,
-    accel_ned_mps2: Sequence[float],
-) -> tuple[int | float, ...]:
-    """``accel_setpoint``'s field values in wire order (``codec.SETPOINT_FIELDS``),
-    for ``Codec.encode_setpoint``: the station's per-vehicle, per-step message
-    without a field dict (``tests/mavlink`` checks both give the same bytes)."""
-    return (
-        int(time_boot_ms) & 0xFFFFFFFF,
-        0.0, 0.0, 0.0,  # x, y, z (ignored: type_mask)
-        0.0, 0.0, 0.0,  # vx, vy, vz (ignored)
-        float(accel_ned_mps2[0]), float(accel_ned_mps2[1]), float(accel_ned_mps2[2]),
-        0.0, 0.0,  # yaw, yaw_rate (ignored)
-        TYPE_MASK_ACCEL,
-        target_system,
-        target_component,
-        MAV_FRAME_LOCAL_NED,
-    )  # fmt: skip
 
 
 def position_setpoint(

@@ -201,24 +201,18 @@ class Codec:
             }
             msg = encoder(**fields)
             buf = msg.pack(self._mav)
-        # pymavlink's MAVLink.send() would write to a file and then advance
-        # the sequence; we own the I/O, so advance it here.
-        self._mav.seq = (self._mav.seq + 1) % 256
-        self.stats.sent += 1
-        self.stats.bytes_sent += len(buf)
+        self._advance(1, len(buf))
         return buf
 
     def encode_setpoint(self, values: tuple[FieldValue, ...]) -> bytes:
         """Like ``encode`` for a SET_POSITION_TARGET_LOCAL_NED given as its
-        field values in wire order (``SETPOINT_FIELDS``): the station's hot
-        path, one per vehicle per control step, with no ``MessageSpec``."""
+        field values in wire order (``SETPOINT_FIELDS``), with no
+        ``MessageSpec``: ``encode_accel_setpoints``'s path for a few frames."""
         if self._mav.signing.sign_outgoing:
             spec = MessageSpec(_SP.msgname, dict(zip(_SP_NAMES, values, strict=True)), "setpoint")
             return self.encode(spec)
         buf = _pack_setpoint(self._mav, values)
-        self._mav.seq = (self._mav.seq + 1) % 256
-        self.stats.sent += 1
-        self.stats.bytes_sent += len(buf)
+        self._advance(1, len(buf))
         return buf
 
     def encode_accel_setpoints(
@@ -280,10 +274,15 @@ class Codec:
         arr["crc"] = [
             crc(_SP_EXTRA, crc(view[j + 1 : j + size - 2])) for j in range(0, k * size, size)
         ]
-        mav.seq = (mav.seq + k) % 256
-        self.stats.sent += k
-        self.stats.bytes_sent += k * size
+        self._advance(k, k * size)
         return arr.tobytes(), size
+
+    def _advance(self, frames: int, nbytes: int) -> None:
+        """Count ``frames`` sent. pymavlink's MAVLink.send() would write to a
+        file and then advance the sequence; we own the I/O, so advance it here."""
+        self._mav.seq = (self._mav.seq + frames) % 256
+        self.stats.sent += frames
+        self.stats.bytes_sent += nbytes
 
     def decode(
         self, data: bytes, *, datagram: bool = True, raw_positions: bool = False

@@ -39,7 +39,7 @@ import numpy.typing as npt
 
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL
-from gcs_swarm.mavlink.codec import Codec, FieldValue, MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawPosition
 from gcs_swarm.runtime.endpoints import Endpoint, LatencyRing, LinkStats, parse_connection
 from gcs_swarm.runtime.lifetime import close_task_group
 
@@ -124,7 +124,7 @@ class Link:
         self._on_position = on_position
         self._codecs: dict[Peer, Codec] = {}
         self._routes: dict[int, Peer] = {}
-        self._setpoints: dict[int, MessageSpec | tuple[FieldValue, ...]] = {}
+        self._setpoints: dict[int, MessageSpec] = {}
         self._since: dict[int, float] = {}
         self._messages: deque[tuple[MessageSpec, int | None]] = deque()
         self._wake = asyncio.Event()
@@ -210,19 +210,6 @@ class Link:
             self._messages.append((spec, sysid))
         self._wake.set()
 
-    def send_setpoint(
-        self, sysid: int, values: tuple[FieldValue, ...], *, since_s: float | None = None
-    ) -> None:
-        """``send`` for a SET_POSITION_TARGET_LOCAL_NED given as its field
-        values in wire order (``builders.accel_setpoint_values``): the same
-        slot (newest wins) without a ``MessageSpec`` per vehicle per step."""
-        if sysid in self._setpoints:
-            self.stats.setpoints_dropped += 1
-        self._setpoints[sysid] = values
-        if since_s is not None:
-            self._since[sysid] = since_s
-        self._wake.set()
-
     def send_accel_setpoints(
         self,
         sysids: Sequence[int],
@@ -260,19 +247,12 @@ class Link:
                 self.stats.unencodable += len(idx)
                 _log.error("%s: %d setpoints not sent: %s", self.endpoint, len(idx), err)
                 continue
-            n = len(idx)
-            self.stats.sent += n
+            self.stats.sent += len(idx)
+            frames = [data[j : j + size] for j in range(0, len(data), size)]
             if self._on_frame is not None:
-                for j in range(n):
-                    self._on_frame(data[j * size : (j + 1) * size], "out")
-            per = max(1, MAX_DATAGRAM_BYTES // size)
-            for a in range(0, n, per):
-                self._transmit(peer, data[a * size : min(n, a + per) * size])
-                now = time.monotonic()
-                for k in idx[a : a + per]:
-                    t0 = since_s[k]
-                    if t0 is not None:
-                        self.latency.add(now - t0)
+                for frame in frames:
+                    self._on_frame(frame, "out")
+            self._send_frames(peer, frames, [since_s[k] for k in idx])
 
     def flush(self) -> None:
         """Write what is queued now rather than at the writer task's next turn
@@ -306,59 +286,55 @@ class Link:
             if data is not None:
                 self._transmit(peer, data)
 
-    def _write_setpoints(
-        self, setpoints: dict[int, MessageSpec | tuple[FieldValue, ...]], since: dict[int, float]
-    ) -> None:
-        """One control step's setpoints: the frames for each peer joined into
-        datagrams of at most ``MAX_DATAGRAM_BYTES``; each setpoint answering a
-        telemetry adds its latency when its datagram is written."""
-        frames: dict[Peer, list[tuple[bytes, int]]] = {}
-        for sysid, entry in setpoints.items():
+    def _write_setpoints(self, setpoints: dict[int, MessageSpec], since: dict[int, float]) -> None:
+        """The setpoints queued in the slots, each peer's frames sent together."""
+        frames: dict[Peer, tuple[list[bytes], list[float | None]]] = {}
+        for sysid, spec in setpoints.items():
             peer = self._route(sysid)
             if peer is None:
                 continue
-            data = self._encode(peer, entry)
+            data = self._encode(peer, spec)
             if data is not None:
-                frames.setdefault(peer, []).append((data, sysid))
-        for peer, items in frames.items():
-            chunk: list[bytes] = []
-            sysids: list[int] = []
-            size = 0
-            for data, sysid in items:
-                if chunk and size + len(data) > MAX_DATAGRAM_BYTES:
-                    self._transmit(peer, b"".join(chunk))
-                    self._add_latency(sysids, since)
-                    chunk, sysids, size = [], [], 0
-                chunk.append(data)
-                sysids.append(sysid)
-                size += len(data)
-            if chunk:
-                self._transmit(peer, b"".join(chunk))
-                self._add_latency(sysids, since)
+                datas, waits = frames.setdefault(peer, ([], []))
+                datas.append(data)
+                waits.append(since.get(sysid))
+        for peer, (datas, waits) in frames.items():
+            self._send_frames(peer, datas, waits)
 
-    def _add_latency(self, sysids: list[int], since: dict[int, float]) -> None:
+    def _send_frames(self, peer: Peer, frames: list[bytes], since: list[float | None]) -> None:
+        """``frames`` to ``peer`` joined into datagrams of at most
+        ``MAX_DATAGRAM_BYTES``; frame k answering a telemetry that arrived at
+        ``since[k]`` adds its latency when its datagram is written."""
+        chunk: list[bytes] = []
+        waits: list[float | None] = []
+        size = 0
+        for data, t0 in zip(frames, since, strict=True):
+            if chunk and size + len(data) > MAX_DATAGRAM_BYTES:
+                self._send_chunk(peer, chunk, waits)
+                chunk, waits, size = [], [], 0
+            chunk.append(data)
+            waits.append(t0)
+            size += len(data)
+        if chunk:
+            self._send_chunk(peer, chunk, waits)
+
+    def _send_chunk(self, peer: Peer, chunk: list[bytes], since: list[float | None]) -> None:
+        self._transmit(peer, b"".join(chunk))
         now = time.monotonic()
-        latency = self.latency
-        for sysid in sysids:
-            t0 = since.get(sysid)
+        for t0 in since:
             if t0 is not None:
-                latency.add(now - t0)
+                self.latency.add(now - t0)
 
-    def _encode(self, peer: Peer, entry: MessageSpec | tuple[FieldValue, ...]) -> bytes | None:
-        """``entry`` framed by ``peer``'s codec (counted, and passed to
+    def _encode(self, peer: Peer, spec: MessageSpec) -> bytes | None:
+        """``spec`` framed by ``peer``'s codec (counted, and passed to
         ``on_frame``), or None if it cannot be framed."""
-        codec = self._codecs[peer]
         try:
-            if isinstance(entry, MessageSpec):
-                data = codec.encode(entry)
-            else:
-                data = codec.encode_setpoint(entry)
+            data = self._codecs[peer].encode(spec)
         except (struct.error, OverflowError, ValueError, TypeError) as err:
             # A message that cannot be framed (a value out of its field's
             # range) is counted and dropped; the link and the station go on.
             self.stats.unencodable += 1
-            name = entry.name if isinstance(entry, MessageSpec) else "SET_POSITION_TARGET_LOCAL_NED"
-            _log.error("%s: %s not sent: %s", self.endpoint, name, err)
+            _log.error("%s: %s not sent: %s", self.endpoint, spec.name, err)
             return None
         self.stats.sent += 1
         if self._on_frame is not None:

@@ -131,8 +131,8 @@ def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes()
                 assert raws[0].frame == _frame(1, 1001)
                 assert runs == [60]  # one datagram: one run
                 for s in range(1, 61):
-                    values = b.accel_setpoint_values(s, 1, 1000 + s, (float(s), 0.0, 0.0))
-                    link.send_setpoint(s, values, since_s=link.rx_time_s)
+                    spec = b.accel_setpoint(s, 1, 1000 + s, (float(s), 0.0, 0.0))
+                    link.send(spec, s, since_s=link.rx_time_s)
                 link.flush()
                 got = []
                 sizes = []
@@ -141,7 +141,7 @@ def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes()
                     sizes.append(len(data))
                     got += pr.parser.parse_buffer(data)
                 assert [(m.target_system, m.afx) for m in got] == [(s, float(s)) for s in ids]
-                frame = len(Codec().encode_setpoint(values))  # every setpoint frame: 65 bytes
+                frame = len(Codec().encode(spec))  # every setpoint frame: 65 bytes
                 per = MAX_DATAGRAM_BYTES // frame  # 22
                 assert sizes == [per * frame] * (60 // per) + [60 % per * frame]
                 assert link.latency.count == 60 and link.stats.sent == 60
