@@ -15,9 +15,9 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.mavlink.vehicle import ACCEL_CEILING_MPS2, VehicleProtocol
+from gcs_swarm.mavlink.vehicle import VehicleProtocol, clip_accel_ned
 
-__all__ = ["accel_ned", "boot_ms", "mission_states"]
+__all__ = ["accel_ned", "mission_states"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -49,34 +49,11 @@ def mission_states(vps: Sequence[VehicleProtocol]) -> tuple[FloatArray, FloatArr
 
 def accel_ned(vps: Sequence[VehicleProtocol], accel_mps2: FloatArray) -> FloatArray:
     """The NED accelerations [m/s^2] ``(N, 3)`` that ``vps[k].accel_setpoint(
-    accel_mps2[k])`` would send, with its side effects: ``last_accel_ned``,
-    and ``clipped_setpoints`` counted for a row whose norm is above
-    ``ACCEL_CEILING_MPS2`` (scaled down to it, direction kept) or not finite
-    (zeroed). ``accel_mps2`` (mission frame) is not changed.
-
-    The norm here comes from one ``einsum`` over the rows, the one-vehicle
-    path's from a dot product; they can differ in the last bit, so a norm
-    within ~1e-13 of the ceiling may be clipped by one and not the other, a
-    difference far below float32's resolution on the wire."""
-    a = np.array(accel_mps2, dtype=np.float64)  # a copy: clipped in place
-    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
-    clip = ~(norm <= ACCEL_CEILING_MPS2)  # True for NaN too
-    if clip.any():
-        finite = np.isfinite(norm)
-        scale = clip & finite
-        a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
-        a[~finite] = 0.0  # NaN, infinite, or a norm that overflows
-        for k in np.flatnonzero(clip).tolist():
-            vps[k].clipped_setpoints += 1
-    ned = np.empty_like(a)
-    ned[:, 0] = a[:, 1]  # a_ned = (a_y, a_x, -a_z)
-    ned[:, 1] = a[:, 0]
-    ned[:, 2] = -a[:, 2]
+    accel_mps2[k])`` would send (``clip_accel_ned``, the same function), with
+    its side effects: ``last_accel_ned`` and ``clipped_setpoints``."""
+    ned, clipped = clip_accel_ned(accel_mps2)
+    for k in np.flatnonzero(clipped).tolist():
+        vps[k].clipped_setpoints += 1
     for k, vp in enumerate(vps):
         vp.last_accel_ned = ned[k]
     return ned
-
-
-def boot_ms(vp: VehicleProtocol) -> int:
-    """The ``time_boot_ms`` a setpoint to ``vp`` carries: its last report's."""
-    return vp.position.time_boot_ms if vp.position is not None else 0

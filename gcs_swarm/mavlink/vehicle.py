@@ -67,7 +67,7 @@ from gcs_swarm.mavlink.states import (
     mode_name,
 )
 
-__all__ = ["ACCEL_CEILING_MPS2", "VehicleProtocol"]
+__all__ = ["ACCEL_CEILING_MPS2", "VehicleProtocol", "clip_accel_ned"]
 
 ACCEL_CEILING_MPS2 = 1000.0
 """Largest acceleration setpoint sent [m/s^2] (about 100 g): beyond any
@@ -222,14 +222,11 @@ class VehicleProtocol:
         spring of Eq. 7 asks 10^4 m/s^2 at 30 m, more than float32 holds
         further out, and no vehicle follows either), and a non-finite
         command becomes zero; both are counted in ``clipped_setpoints``."""
-        a = np.asarray(accel_mps2, dtype=np.float64)
-        norm = float(np.sqrt(a @ a)) if np.isfinite(a).all() else math.nan
-        if not norm <= ACCEL_CEILING_MPS2:
-            self.clipped_setpoints += 1
-            a = a * (ACCEL_CEILING_MPS2 / norm) if math.isfinite(norm) else np.zeros(3)
-        a_ned = (float(a[1]), float(a[0]), float(-a[2]))  # a_ned = (a_y, a_x, -a_z)
-        self.last_accel_ned = np.array(a_ned)
-        return b.accel_setpoint(self.sysid, self.compid, self._boot_ms(), a_ned)
+        ned, clipped = clip_accel_ned(np.asarray(accel_mps2, dtype=np.float64).reshape(1, 3))
+        self.clipped_setpoints += int(clipped[0])
+        self.last_accel_ned = ned[0]
+        x, y, z = ned[0].tolist()
+        return b.accel_setpoint(self.sysid, self.compid, self.boot_ms(), (x, y, z))
 
     def finish(self, now: float, *, mode: int | None = None) -> None:
         """End this vehicle: zero acceleration, then ``mode`` (default the
@@ -297,13 +294,8 @@ class VehicleProtocol:
             self.rejected_values += 1
             return False
         self._heard_at = now
-        last = self.position
-        if last is not None and 0 <= last.time_boot_ms - pos.time_boot_ms < _REBOOT_MS:
-            self.stale_telemetry += 1  # duplicated or reordered, as in _on_position
-            return False
-        self.position = pos
-        self.position_at = now
-        return True
+        self._on_position(pos, now)
+        return self.position is pos
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""
@@ -582,7 +574,7 @@ class VehicleProtocol:
         if self.offset_m is not None:
             ned = mission_to_ned(self._goto_m, self.offset_m)
             self.last_accel_ned = np.zeros(3)
-            spec = b.position_setpoint(self.sysid, self.compid, self._boot_ms(), _vec(ned))
+            spec = b.position_setpoint(self.sysid, self.compid, self.boot_ms(), _vec(ned))
             self._out.append(spec)
 
     def _request_origin(self, now: float) -> None:
@@ -629,8 +621,30 @@ class VehicleProtocol:
     def _event(self, kind: str, text: str) -> None:
         self._events.append(ProtocolEvent(self.sysid, kind, text, self.phase))
 
-    def _boot_ms(self) -> int:
+    def boot_ms(self) -> int:
+        """The ``time_boot_ms`` a setpoint to this vehicle carries: its last report's."""
         return self.position.time_boot_ms if self.position is not None else 0
+
+
+def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Mission-frame accelerations ``(N, 3)`` [m/s^2] as the NED accelerations
+    setpoints carry (a_ned = (a_y, a_x, -a_z)), each sendable: a row whose
+    norm is above ``ACCEL_CEILING_MPS2`` is scaled down to it (direction kept),
+    a non-finite row, or one whose norm overflows, becomes zero. Also returns
+    which rows were changed. The input is not modified."""
+    a = np.array(accel_mps2, dtype=np.float64)  # a copy: clipped in place
+    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
+    clip = ~(norm <= ACCEL_CEILING_MPS2)  # True for NaN too
+    if clip.any():
+        finite = np.isfinite(norm)
+        scale = clip & finite
+        a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
+        a[~finite] = 0.0
+    ned = np.empty_like(a)
+    ned[:, 0] = a[:, 1]
+    ned[:, 1] = a[:, 0]
+    ned[:, 2] = -a[:, 2]
+    return ned, clip
 
 
 def _vec(v: FloatArray) -> tuple[float, float, float]:

@@ -36,7 +36,7 @@ import numpy.typing as npt
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.batch import accel_ned, boot_ms, mission_states
+from gcs_swarm.mavlink.batch import accel_ned, mission_states
 from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolEvent
@@ -255,7 +255,7 @@ class Station:
         objects (a datagram's run of them): the handling ``_on_message`` gives
         each, written as one loop because it runs for every vehicle 50 times
         a second."""
-        recorder, vehicles, link_of = self.recorder, self.vehicles, self._link_of
+        recorder = self.recorder
         timers, fresh, arrival = self._timers, self._fresh, self._arrival
         now = self.now()
         rx_s = link.rx_time_s
@@ -264,9 +264,8 @@ class Station:
             sysid = raw.sysid
             if recorder is not None:
                 recorder.inbound(sysid, raw.compid, raw.seq, b.MSG_ID_LOCAL_POSITION_NED)
-            vp = vehicles.get(sysid)
-            if vp is None or link_of.get(sysid) is not link:
-                self._vehicle(sysid, link)  # counted and ignored
+            vp = self._vehicle(sysid, link)
+            if vp is None:
                 continue
             pos = LocalPositionNed(sysid, raw.compid, *raw.values)
             if vp.phase is not _FLYING or sysid not in timers:
@@ -465,7 +464,7 @@ class Station:
             link.send_accel_setpoints(
                 [sysids[k] for k in idx],
                 [vps[k].compid for k in idx],
-                [boot_ms(vps[k]) for k in idx],
+                [vps[k].boot_ms() for k in idx],
                 ned if len(idx) == len(sysids) else ned[idx],
                 [self._arrival.get(sysids[k]) for k in idx],
             )

@@ -10,7 +10,7 @@ import random
 
 import numpy as np
 
-from gcs_swarm.mavlink.batch import accel_ned, boot_ms, mission_states
+from gcs_swarm.mavlink.batch import accel_ned, mission_states
 from gcs_swarm.mavlink.inbound import LocalPositionNed
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
@@ -51,7 +51,7 @@ def test_accel_ned_equals_accel_setpoint_with_its_clipping() -> None:
         want = [spec.fields[name] for name in ("afx", "afy", "afz")]
         # repr: tells -0.0 from 0.0 (different bytes on the wire).
         assert repr(got[k]) == repr(want), rows[k]
-        assert boot_ms(f) == spec.fields["time_boot_ms"]
+        assert f.boot_ms() == spec.fields["time_boot_ms"]
         assert f.clipped_setpoints == s.clipped_setpoints
         assert f.last_accel_ned.tolist() == s.last_accel_ned.tolist()
     assert sum(f.clipped_setpoints for f in fast) == 4  # 3000/-4000, NaN, inf, 1e200
