@@ -209,10 +209,11 @@ class Supervisor:
     def _sync_vehicles(self, key: tuple[int, ...]) -> None:
         k = self._obs.count
         vertical = self._cfg.avoidance.plane == "vertical"
-        if len(self._vehicles) != len(key) or not self._vehicles.keys() <= set(key):
-            members = set(key)  # a set: this runs every step for every vehicle
-            for vid in [v for v in self._vehicles if v not in members]:
-                del self._vehicles[vid]
+        members = set(key)  # a set: this runs every step for every vehicle
+        if self._vehicles.keys() == members:
+            return
+        for vid in self._vehicles.keys() - members:
+            del self._vehicles[vid]
         for vid in key:
             if vid not in self._vehicles:
                 self._vehicles[vid] = _Vehicle(
