@@ -294,8 +294,15 @@ class VehicleProtocol:
             self.rejected_values += 1
             return False
         self._heard_at = now
-        self._on_position(pos, now)
-        return self.position is pos
+        # _on_position's FLYING branch, inline: calling it (and its phase tests
+        # for the other phases) measured ~0.3 ms more per step at 250 vehicles.
+        last = self.position
+        if last is not None and 0 <= last.time_boot_ms - pos.time_boot_ms < _REBOOT_MS:
+            self.stale_telemetry += 1
+            return False
+        self.position = pos
+        self.position_at = now
+        return True
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""

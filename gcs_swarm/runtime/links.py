@@ -248,11 +248,10 @@ class Link:
                 _log.error("%s: %d setpoints not sent: %s", self.endpoint, len(idx), err)
                 continue
             self.stats.sent += len(idx)
-            frames = [data[j : j + size] for j in range(0, len(data), size)]
             if self._on_frame is not None:
-                for frame in frames:
-                    self._on_frame(frame, "out")
-            self._send_frames(peer, frames, [since_s[k] for k in idx])
+                for j in range(0, len(data), size):
+                    self._on_frame(data[j : j + size], "out")
+            self._send_frames(peer, data, [size] * len(idx), [since_s[k] for k in idx])
 
     def flush(self) -> None:
         """Write what is queued now rather than at the writer task's next turn
@@ -299,27 +298,26 @@ class Link:
                 datas.append(data)
                 waits.append(since.get(sysid))
         for peer, (datas, waits) in frames.items():
-            self._send_frames(peer, datas, waits)
+            self._send_frames(peer, b"".join(datas), [len(d) for d in datas], waits)
 
-    def _send_frames(self, peer: Peer, frames: list[bytes], since: list[float | None]) -> None:
-        """``frames`` to ``peer`` joined into datagrams of at most
-        ``MAX_DATAGRAM_BYTES``; frame k answering a telemetry that arrived at
-        ``since[k]`` adds its latency when its datagram is written."""
-        chunk: list[bytes] = []
-        waits: list[float | None] = []
-        size = 0
-        for data, t0 in zip(frames, since, strict=True):
-            if chunk and size + len(data) > MAX_DATAGRAM_BYTES:
-                self._send_chunk(peer, chunk, waits)
-                chunk, waits, size = [], [], 0
-            chunk.append(data)
-            waits.append(t0)
-            size += len(data)
-        if chunk:
-            self._send_chunk(peer, chunk, waits)
+    def _send_frames(
+        self, peer: Peer, data: bytes, sizes: list[int], since: list[float | None]
+    ) -> None:
+        """Frames to ``peer`` (back to back in ``data``, ``sizes[k]`` bytes each)
+        joined into datagrams of at most ``MAX_DATAGRAM_BYTES``; frame k
+        answering a telemetry that arrived at ``since[k]`` adds its latency
+        when its datagram is written."""
+        start = end = first = 0
+        for k, size in enumerate(sizes):
+            if end > start and end + size - start > MAX_DATAGRAM_BYTES:
+                self._send_chunk(peer, data[start:end], since[first:k])
+                start, first = end, k
+            end += size
+        if end > start:
+            self._send_chunk(peer, data[start:end], since[first:])
 
-    def _send_chunk(self, peer: Peer, chunk: list[bytes], since: list[float | None]) -> None:
-        self._transmit(peer, b"".join(chunk))
+    def _send_chunk(self, peer: Peer, datagram: bytes, since: list[float | None]) -> None:
+        self._transmit(peer, datagram)
         now = time.monotonic()
         for t0 in since:
             if t0 is not None:
