@@ -21,6 +21,7 @@ __all__ = [
     "Avoidance",
     "Box",
     "ConstantForce",
+    "Envelope",
     "ExpressionForce",
     "Gains",
     "HeadingSource",
@@ -174,6 +175,56 @@ class Limits:
     z_floor: float = -math.inf
     geofence_min: Vec3 | None = None
     geofence_max: Vec3 | None = None
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """What a vehicle's own position controller can deliver (mission frame, SI).
+
+    ArduCopter feeds a GUIDED acceleration target through its position
+    controller, which rate-limits it by a jerk (PSC_JERK_XY, PSC_JERK_Z) and
+    bounds what it will fly (WPNAV_ACCEL, WPNAV_ACCEL_Z, WPNAV_SPEED,
+    WPNAV_SPEED_UP, WPNAV_SPEED_DN; docs/vehicle-envelope.md). ``inf`` means
+    unbounded: the default envelope is the paper's ideal point mass.
+
+    accel_xy [m/s^2] bound on the horizontal norm |(a_x, a_y)|; accel_z
+    [m/s^2] bound on |a_z|; jerk_xy, jerk_z [m/s^3] bounds on the rate of
+    change of the horizontal (norm) and vertical acceleration; speed_xy
+    [m/s] horizontal speed; speed_up, speed_down [m/s] climb and descent
+    speed; lag_s [s] first-order lag of the achieved acceleration on the
+    (jerk-limited) command.
+    """
+
+    accel_xy: float = math.inf
+    accel_z: float = math.inf
+    jerk_xy: float = math.inf
+    jerk_z: float = math.inf
+    speed_xy: float = math.inf
+    speed_up: float = math.inf
+    speed_down: float = math.inf
+    lag_s: float = 0.0
+
+    def tighter(self, other: Envelope) -> Envelope:
+        """The envelope inside both (per-field minimum; the larger lag)."""
+        return Envelope(
+            accel_xy=min(self.accel_xy, other.accel_xy),
+            accel_z=min(self.accel_z, other.accel_z),
+            jerk_xy=min(self.jerk_xy, other.jerk_xy),
+            jerk_z=min(self.jerk_z, other.jerk_z),
+            speed_xy=min(self.speed_xy, other.speed_xy),
+            speed_up=min(self.speed_up, other.speed_up),
+            speed_down=min(self.speed_down, other.speed_down),
+            lag_s=max(self.lag_s, other.lag_s),
+        )
+
+    @property
+    def bounded(self) -> bool:
+        """True when any bound is finite (the ideal point mass has none)."""
+        return any(
+            math.isfinite(v)
+            for v in (self.accel_xy, self.accel_z, self.jerk_xy, self.jerk_z,
+                      self.speed_xy, self.speed_up, self.speed_down)
+        ) or self.lag_s > 0.0  # fmt: skip
 
 
 @dataclass(frozen=True)
