@@ -1,0 +1,246 @@
+"""The station against real ArduCopter 4.5.6 SITL (issue 14, item 6).
+
+Skipped, with the reason, unless ``GCS_SWARM_ARDUCOPTER`` names an ArduCopter
+SITL binary (``docs/sitl.md``); CI has none. Every test starts its own fresh
+instances (default parameters, fresh EEPROM) on 127.0.0.1 and stops them by
+PID. Each one flies in real time (speed-up 1: SITL's EKF needs 20-40 s to be
+ready, then the mission itself), so the whole file takes about 30 minutes.
+
+What each asserts is what the issue's "Figures to reach" ask, on SITL, and the
+same mission flown by the emulator is set beside it (``sitl_flights.compare``):
+time to form within 10 %, final radii within 1 %, minimum separation within
+0.2 m. The figures are written as JSON (``GCS_SWARM_SITL_REPORT``) and copied
+into docs/sitl.md by hand.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from gcs_swarm.mission import Mission
+from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.runtime import run_mission
+from tests.sitl.mavmonitor import Monitor
+from tests.sitl.sitl_flights import (
+    MISSIONS,
+    ROOT,
+    compare,
+    emulator_twin,
+    gcs_swarm_run,
+    load,
+    rms_position_difference,
+    summary_of,
+    trajectories,
+    write_figures,
+)
+from tests.sitl.sitl_harness import binary_or_skip, sitl_swarm
+
+pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+
+LAND, RTL = 9, 6
+
+
+def _fly_in_process(mission: Mission, log_dir: Path, **kw: Any) -> tuple[dict[str, Any], Path]:
+    """Fly ``mission`` with ``run_mission`` (links as the mission says); its
+    summary.json and run folder."""
+    holder: list[Any] = []
+    asyncio.run(run_mission(mission, log_dir=log_dir, picture=False, on_folder=holder.append, **kw))
+    return summary_of(holder[0].path), holder[0].path
+
+
+def _twin_figures(mission: Mission, sitl_folder: Path, tmp: Path) -> dict[str, Any]:
+    """Fly the emulator twin of ``mission`` and compare it with the SITL run."""
+    twin = emulator_twin(mission)
+    holder: list[Any] = []
+    asyncio.run(run_mission(twin, log_dir=tmp, picture=False, on_folder=holder.append))
+    emu_folder = holder[0].path
+    out = compare(summary_of(sitl_folder), summary_of(emu_folder))
+    out["rms_position_difference_m"] = rms_position_difference(
+        trajectories(sitl_folder, mission), trajectories(emu_folder, twin)
+    )
+    return out
+
+
+def _assert_twin_agrees(fig: dict[str, Any]) -> None:
+    s, e = fig["sitl"], fig["emulator"]
+    if s["time_to_form_s"] is not None and e["time_to_form_s"] is not None:
+        assert abs(e["time_to_form_s"] - s["time_to_form_s"]) <= 0.10 * s["time_to_form_s"], fig
+    for k in ("radius_min_m", "radius_max_m"):
+        assert abs(e[k] - s[k]) <= 0.01 * s[k], fig
+    assert abs(e["min_separation_m"] - s["min_separation_m"]) <= 0.2, fig
+
+
+def test_readme_procedure_works_first_try_three_times(tmp_path: Path) -> None:
+    """Fresh SITL, then the README's command as written: 3 of 3 runs complete."""
+    binary_or_skip()
+    mission_path = MISSIONS / "sitl_arducopter.yaml"
+    runs: list[dict[str, Any]] = []
+    for k in range(3):
+        with sitl_swarm(4, tmp_path / f"sitl{k}"):
+            rc, out, folder = gcs_swarm_run(mission_path, tmp_path / f"runs{k}", timeout_s=900)
+        assert rc == 0, f"run {k + 1}: exit {rc}\n{out[-4000:]}"
+        assert folder is not None
+        s = summary_of(folder)
+        assert s["outcome"] == "completed", out[-4000:]
+        o = s["overall"]
+        runs.append({
+            "run": k + 1, "outcome": s["outcome"], "time_to_form_s": o["time_to_form_s"],
+            "radius_m": o["final_radius_m"], "min_separation_m": o["min_separation_m"],
+            "rate_hz_min": o["setpoints"]["rate_hz_min"],
+            "largest_gap_s": o["setpoints"]["largest_gap_s"], "folder": str(folder),
+        })  # fmt: skip
+    fig = _twin_figures(load("sitl_arducopter.yaml"), Path(runs[-1]["folder"]), tmp_path / "emu")
+    write_figures(tmp_path, "sitl_readme", {"runs": runs, "emulator_vs_sitl": fig})
+    _assert_twin_agrees(fig)
+
+
+def test_octahedron_in_the_envelope(tmp_path: Path) -> None:
+    """Six vehicles, gains the product recommends for ArduCopter's default
+    envelope: radii within 1 % of the law's equilibrium, edges and diagonals
+    within 2 %, separation never below the configured value."""
+    binary_or_skip()
+    mission = load("sitl_octahedron.yaml")
+    ref = simulate_mission(dataclasses.replace(
+        mission, settings=dataclasses.replace(mission.settings, duration=600.0)
+    ))  # fmt: skip
+    r_eq = float(np.mean(ref.summary.final_radii_m))
+    with sitl_swarm(6, tmp_path / "sitl"):
+        s, folder = _fly_in_process(mission, tmp_path / "runs")
+    o = s["overall"]
+    radii = [v["final_radius_m"] for v in s["vehicles"].values()]
+    d = sorted(o["final_pairwise_distances_m"])
+    edge, diag = r_eq * math.sqrt(2.0), 2.0 * r_eq
+    figures = {
+        "equilibrium_radius_m": r_eq, "radii_m": radii, "edges_m": d[:12], "diagonals_m": d[12:],
+        "min_separation_m": o["min_separation_m"], "time_to_form_s": o["time_to_form_s"],
+        "separation_configured_m": mission.law.safety.separation,
+    }  # fmt: skip
+    fig = _twin_figures(mission, folder, tmp_path / "emu")
+    figures["emulator_vs_sitl"] = fig
+    write_figures(tmp_path, "sitl_octahedron", figures)
+    assert s["outcome"] == "completed"
+    np.testing.assert_allclose(radii, r_eq, rtol=0.01)
+    np.testing.assert_allclose(d[:12], edge, rtol=0.02)
+    np.testing.assert_allclose(d[12:], diag, rtol=0.02)
+    assert o["min_separation_m"] >= mission.law.safety.separation
+    _assert_twin_agrees(fig)
+
+
+def test_scenario3_safety_filter_holds_on_the_vehicle(tmp_path: Path) -> None:
+    """Scenario 3 at a safe height, filter on: clearance >= the margin and
+    separation >= the configured value at every control step."""
+    binary_or_skip()
+    mission = load("sitl_scenario3.yaml")
+    with sitl_swarm(4, tmp_path / "sitl"):
+        s, folder = _fly_in_process(mission, tmp_path / "runs")
+    o = s["overall"]
+    fig = _twin_figures(mission, folder, tmp_path / "emu")
+    write_figures(tmp_path, "sitl_scenario3", {
+        "min_clearance_m": o["min_clearance_m"], "clearance_margin_m": mission.law.safety.clearance,
+        "min_separation_m": o["min_separation_m"],
+        "separation_configured_m": mission.law.safety.separation, "emulator_vs_sitl": fig,
+    })  # fmt: skip
+    assert s["outcome"] == "completed"
+    assert o["min_clearance_m"] >= mission.law.safety.clearance
+    assert o["min_separation_m"] >= mission.law.safety.separation
+
+
+def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
+    """SIGKILL one SITL instance in flight: it leaves, the other three re-form
+    (equal radii within 1 %)."""
+    binary_or_skip()
+    mission = load("sitl_arducopter.yaml")
+    with sitl_swarm(4, tmp_path / "sitl") as swarm:
+
+        async def fly() -> dict[str, Any]:
+            holder: list[Any] = []
+            flying = asyncio.Event()
+
+            def status(line: str) -> None:
+                # "t=  61.20s | ... formation ...": 60 s of formation flight
+                if line.startswith("t=") and float(line[2:].split("s", 1)[0]) >= 60.0:
+                    flying.set()
+
+            task = asyncio.create_task(
+                run_mission(
+                    mission,
+                    log_dir=tmp_path / "runs",
+                    picture=False,
+                    on_folder=holder.append,
+                    on_status=status,
+                )
+            )
+            await flying.wait()
+            swarm.kill(3)
+            await task
+            return summary_of(holder[0].path)
+
+        s = asyncio.run(fly())
+    v = s["vehicles"]
+    left = v["4"]["left_at_s"]
+    radii = [v[k]["final_radius_m"] for k in ("1", "2", "3")]
+    final = s["overall"]["vehicles_final"]
+    write_figures(
+        tmp_path, "sitl_vehicle_killed", {"left_at_s": left, "radii_m": radii, "final": final}
+    )
+    assert s["overall"]["vehicles_final"] == [1, 2, 3]
+    np.testing.assert_allclose(radii, np.mean(radii), rtol=0.01)
+
+
+def test_killed_station_leaves_every_vehicle_landing(tmp_path: Path) -> None:
+    """SIGKILL the station in flight: every vehicle is in LAND or RTL within
+    FS_GCS_TIMEOUT + 1 s (the failsafe the station set on each vehicle)."""
+    binary_or_skip()
+    mission_path = MISSIONS / "sitl_arducopter.yaml"
+    timeout_s = load("sitl_arducopter.yaml").settings.failsafe.timeout
+    with sitl_swarm(4, tmp_path / "sitl"):
+        exe = Path(sys.executable).with_name("gcs-swarm")
+        proc = subprocess.Popen(
+            [str(exe), "run", str(mission_path), "--log-dir", str(tmp_path / "runs"),
+             "--no-status"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
+            stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        monitors = [Monitor(i) for i in range(4)]
+        try:
+            assert proc.stdout is not None
+            deadline = time.monotonic() + 300
+            for line in proc.stdout:
+                if "formation started" in line:
+                    break
+                assert time.monotonic() < deadline, "no formation after 300 s"
+            else:
+                pytest.fail(f"station ended before the formation: exit {proc.wait()}")
+            time.sleep(20.0)
+            killed_at = time.monotonic()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
+            time.sleep(timeout_s + 4.0)
+            after = [m.first_mode_after(killed_at, {LAND, RTL}) for m in monitors]
+        finally:
+            for m in monitors:
+                m.close()
+            if proc.poll() is None:
+                proc.kill()
+    delays = [None if a is None else a - killed_at for a in after]
+    write_figures(
+        tmp_path,
+        "sitl_station_killed",
+        {"fs_gcs_timeout_s": timeout_s, "mode_change_after_kill_s": delays},
+    )
+    assert all(d is not None and d <= timeout_s + 1.0 for d in delays), delays
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(pytest.main([__file__, "-s", "-v"]))
