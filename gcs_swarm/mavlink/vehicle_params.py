@@ -355,6 +355,8 @@ class VehicleParams:
         """CONFIGURING: queue the reads, then the failsafe's PARAM_SETs."""
         cfg = self.settings
         self._fence_pushed = False
+        for name, value in self._station_sets.items():
+            self._change(name, value, "set by the station at start-up")
         if not cfg.active:
             return
         names = list(self._station_sets)
@@ -365,8 +367,6 @@ class VehicleParams:
         if cfg.read_envelope:
             names += ENVELOPE_PARAMS
             self._envelope_due = set(ENVELOPE_PARAMS)
-        for name, value in self._station_sets.items():
-            self._change(name, value, "set by the station at start-up")
 
         def attempts() -> int:
             return min(_QUICK_READ_ATTEMPTS, queue.attempts) if self._silent else queue.attempts
