@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 from functools import partial
 from typing import Any, Literal
 
@@ -298,16 +298,7 @@ class ParamChange:
         return self.old is None or not same_param_value(self.old, self.new)
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "old": self.old,
-            "new": self.new,
-            "readback": self.readback,
-            "changed": self.changed,
-            "restored": self.restored,
-            "why": self.why,
-            "note": self.note,
-        }
+        return {**asdict(self), "changed": self.changed}
 
 
 def _fmt(x: float | None) -> str:
