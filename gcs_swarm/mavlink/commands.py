@@ -2,20 +2,25 @@
 timeout (STYLE.md habit 6: "Commands: awaited, under a timeout, retried").
 
 A command is answered by a COMMAND_ACK with its MAV_CMD number, or, for a
-PARAM_SET, by the PARAM_VALUE of the same name. MAV_RESULT_IN_PROGRESS
-restarts the wait. Resends carry an increasing ``confirmation`` as
-COMMAND_LONG asks. No I/O: specs go to the ``out`` list the owner drains;
-time is an argument.
+PARAM_SET or PARAM_REQUEST_READ, by the PARAM_VALUE of the same name (a
+PARAM_SET given ``expect`` only by a PARAM_VALUE carrying that value: a late
+answer to an earlier read of the same name is not its echo).
+MAV_RESULT_IN_PROGRESS restarts the wait. Resends carry an increasing
+``confirmation`` as COMMAND_LONG asks. A command nobody answers fails the
+queue (``failed``), unless it is ``optional``: then its ``on_done`` gets
+``NO_ANSWER`` and the queue goes on. No I/O: specs go to the ``out`` list
+the owner drains; time is an argument.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from gcs_swarm.mavlink.codec import MessageSpec
 
-__all__ = ["MAV_RESULT_NAMES", "CommandQueue"]
+__all__ = ["MAV_RESULT_NAMES", "NO_ANSWER", "CommandQueue", "same_param_value"]
 
 MAV_RESULT_NAMES = {
     0: "accepted",
@@ -27,9 +32,17 @@ MAV_RESULT_NAMES = {
     6: "cancelled",
 }
 _IN_PROGRESS = 5
+NO_ANSWER = -1
+"""The result an ``optional`` command's ``on_done`` gets when nobody answered."""
 
 Done = Callable[[int, float], None]
 """Called with (MAV_RESULT, now [s]); a PARAM_VALUE answer counts as 0."""
+
+
+def same_param_value(a: float, b: float) -> bool:
+    """True when a PARAM_VALUE ``a`` echoes the value ``b`` that was sent: the
+    same float32 (PARAM_VALUE carries REAL32), within 1e-6 relative."""
+    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 
 
 @dataclass
@@ -39,6 +52,11 @@ class _Command:
     command: int  # MAV_CMD, or -1 when a PARAM_VALUE answers
     param: str | None
     on_done: Done
+    expect: float | None = None
+    optional: bool = False
+    max_attempts: Callable[[], int] | None = None
+    echo: float | None = None
+    """The last PARAM_VALUE of ``param`` that was not ``expect`` (a mismatch)."""
     sent_at: float = 0.0
     attempts: int = 0
 
@@ -71,9 +89,17 @@ class CommandQueue:
         command: int = -1,
         param: str | None = None,
         urgent: bool = False,
+        expect: float | None = None,
+        optional: bool = False,
+        attempts: Callable[[], int] | None = None,
     ) -> None:
-        """Queue a command (``urgent`` goes first); sends it now if idle."""
-        cmd = _Command(name, make, command, param, on_done)
+        """Queue a command (``urgent`` goes first); sends it now if idle.
+
+        ``expect``: the value a PARAM_SET's echo must carry; ``optional``: no
+        answer is ``on_done(NO_ANSWER)``, not a failure; ``attempts``: how
+        many sends this command gets, asked at each timeout (default the
+        queue's ``attempts``)."""
+        cmd = _Command(name, make, command, param, on_done, expect, optional, attempts)
         if urgent:
             self._queue.insert(0, cmd)
         else:
@@ -94,10 +120,14 @@ class CommandQueue:
             return
         self._answered(pending, result, now)
 
-    def on_param(self, name: str, now: float) -> None:
+    def on_param(self, name: str, now: float, value: float = math.nan) -> None:
         pending = self._pending
-        if pending is not None and pending.param == name:
-            self._answered(pending, 0, now)
+        if pending is None or pending.param != name:
+            return
+        if pending.expect is not None and not same_param_value(value, pending.expect):
+            pending.echo = value  # not (yet) the echo: keep waiting, resend on timeout
+            return
+        self._answered(pending, 0, now)
 
     def next_deadline(self) -> float | None:
         return None if self._pending is None else self._pending.sent_at + self.timeout_s
@@ -107,12 +137,21 @@ class CommandQueue:
         pending = self._pending
         if pending is None or now < pending.sent_at + self.timeout_s:
             return
-        if pending.attempts >= self.attempts:
+        limit = self.attempts if pending.max_attempts is None else pending.max_attempts()
+        if pending.attempts < limit:
+            self._transmit(pending, now)
+        elif pending.optional:
+            self._answered(pending, NO_ANSWER, now)
+        else:
             self._pending = None
             self._queue.clear()
-            self.failed = f"no answer to {pending.name} after {pending.attempts} attempts"
-            return
-        self._transmit(pending, now)
+            if pending.echo is not None and pending.expect is not None:
+                self.failed = (
+                    f"{pending.param}: sent {pending.expect:g}, the vehicle reports "
+                    f"{pending.echo:g} ({pending.attempts} attempts)"
+                )
+            else:
+                self.failed = f"no answer to {pending.name} after {pending.attempts} attempts"
 
     def _answered(self, pending: _Command, result: int, now: float) -> None:
         self._pending = None

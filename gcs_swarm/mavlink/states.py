@@ -108,7 +108,7 @@ class ProtocolConfig:
 @dataclass(frozen=True)
 class ProtocolEvent:
     """Something the log should say: ``kind`` is phase, info, param, statustext,
-    refused, lost or failed; ``text`` names the vehicle."""
+    warning, refused, lost or failed; ``text`` names the vehicle."""
 
     sysid: int
     kind: str

@@ -32,6 +32,7 @@ from functools import partial
 import numpy as np
 import numpy.typing as npt
 
+from gcs_swarm.control.params import Envelope
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue
@@ -66,6 +67,7 @@ from gcs_swarm.mavlink.states import (
     ProtocolEvent,
     mode_name,
 )
+from gcs_swarm.mavlink.vehicle_params import ParamSettings, VehicleParams
 
 __all__ = ["ACCEL_CEILING_MPS2", "VehicleProtocol", "clip_accel_ned"]
 
@@ -95,6 +97,7 @@ class VehicleProtocol:
         *,
         goto_m: tuple[float, float, float],
         enabled: bool = True,
+        params: ParamSettings | None = None,
     ) -> None:
         self.sysid = sysid
         self.enabled = enabled
@@ -135,6 +138,12 @@ class VehicleProtocol:
         self._arm_tries = 0
         self._takeoff_up_m = 0.0
         self._end_mode = config.end_mode
+        self.vehicle_params = VehicleParams(
+            sysid, params or ParamSettings(), self.params, self._event,
+            station_sets={"GUID_TIMEOUT": config.guid_timeout_s,
+                          "WP_YAW_BEHAVIOR": float(config.wp_yaw_behavior)},
+        )  # fmt: skip
+        """Envelope read, failsafe and fence set, old values restored (vehicle_params.py)."""
 
     # ----------------------------------------------------------------- queries
     @property
@@ -144,6 +153,16 @@ class VehicleProtocol:
     @property
     def armed(self) -> bool:
         return self.heartbeat is not None and self.heartbeat.armed
+
+    @property
+    def envelope(self) -> Envelope:
+        """What this vehicle's position controller delivers (read at start-up)."""
+        return self.vehicle_params.envelope
+
+    @property
+    def restoring(self) -> bool:
+        """True while an ended vehicle's old parameter values are being put back."""
+        return self.phase in FINAL_PHASES and self._commands.busy
 
     @property
     def goto_m(self) -> FloatArray:
@@ -278,7 +297,7 @@ class VehicleProtocol:
             self._check_armable(now)
         elif isinstance(msg, ParamValue):
             self.params[msg.name] = msg.value
-            self._commands.on_param(msg.name, now)
+            self._commands.on_param(msg.name, now, msg.value)
         elif isinstance(msg, PositionTarget):
             self.target_echo = msg
 
@@ -431,6 +450,7 @@ class VehicleProtocol:
                 now, f"SET_MESSAGE_INTERVAL {label}", make, done,
                 command=b.MAV_CMD_SET_MESSAGE_INTERVAL,
             )  # fmt: skip
+        self.vehicle_params.start(now, self._commands, c)  # reads first: the old values
         for name, value, why in (
             ("GUID_TIMEOUT", cfg.guid_timeout_s, "s: when setpoints stop it brakes after this"),
             ("WP_YAW_BEHAVIOR", float(cfg.wp_yaw_behavior), "(heading kept while flying)"),
@@ -484,6 +504,8 @@ class VehicleProtocol:
     def _check_armable(self, now: float) -> None:
         if self.phase is not Phase.WAITING_ARMABLE or self.position is None:
             return
+        if self.offset_m is not None:  # the fence, queued before the arming
+            self.vehicle_params.home_known(now, self._commands, self.compid, _vec(self.offset_m))
         if self.took_over:
             # Already flying: it only needs its origin and a position to join.
             if self.offset_m is not None:
@@ -624,6 +646,10 @@ class VehicleProtocol:
         if phase is not self.phase:
             self.phase = phase
             self._event("phase", f"vehicle {self.sysid}: {phase.value}")
+            if phase in FINAL_PHASES:
+                end = self._end_mode if phase is Phase.ENDED else None
+                self.vehicle_params.restore(now, self._commands, self.compid,
+                                            armed=self.armed, end_mode=end)  # fmt: skip
 
     def _event(self, kind: str, text: str) -> None:
         self._events.append(ProtocolEvent(self.sysid, kind, text, self.phase))

@@ -53,6 +53,9 @@ def run_checks(
             _check_events(ctx, vehicles, events)
     if law is not None:
         _check_law(ctx, law, vehicles)
+        if settings is not None and settings.failsafe.fence and law.limits.geofence_min is None:
+            key = "mission.failsafe.fence"
+            ctx.add(ctx.line_of(key), key, "expected limits.geofence for the vehicles' own fence")
 
 
 def _check_vehicles(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:

@@ -38,6 +38,7 @@ from gcs_swarm.mission.law_format import GAINS, LEADER, LIMITS, OBSTACLES, READI
 from gcs_swarm.mission.model import (
     Emulator,
     Event,
+    Failsafe,
     GeoPoint,
     Impairments,
     LogSettings,
@@ -53,6 +54,7 @@ __all__ = ["LAW_SOURCES", "LINK_SCHEMES", "MISSION", "check_link"]
 _EMU = Emulator()
 _IMP = Impairments()
 _ST = Startup()
+_FS = Failsafe()
 _SET = Settings(name="")
 
 LINK_SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
@@ -151,6 +153,41 @@ SIGNING = Obj(
 )
 
 
+FAILSAFE = Obj(
+    name="failsafe",
+    cls=Failsafe,
+    keys=(
+        Key(
+            "gcs",
+            Bool(nullable=True),
+            _FS.gcs,
+            "set FS_GCS_ENABLE (from mission.end), FS_GCS_TIMEOUT, SYSID_MYGCS; "
+            "null: ardupilot vehicles only",
+        ),
+        Key(
+            "timeout",
+            Num(lo=2.0, hi=120.0),
+            _FS.timeout,
+            "FS_GCS_TIMEOUT: the vehicle's failsafe after this long without the station [s]",
+        ),
+        Key(
+            "fence",
+            Bool(nullable=True),
+            _FS.fence,
+            "set the vehicle's fence around limits.geofence; null: ardupilot vehicles, "
+            "where a geofence is given",
+        ),
+        Key(
+            "fence_margin",
+            Num(lo=0.0, hi=1000.0),
+            _FS.fence_margin,
+            "the vehicle's fence lies this far beyond limits.geofence [m]",
+        ),
+        Key("restore", Bool(), _FS.restore, "put the old values back when each vehicle ends"),
+    ),
+)
+
+
 SETTINGS = Obj(
     name="mission",
     cls=Settings,
@@ -218,6 +255,13 @@ SETTINGS = Obj(
                         _ST.guid_timeout,
                         "GUID_TIMEOUT set on ArduPilot vehicles [s]",
                     ),
+                    Key(
+                        "read_envelope",
+                        Bool(nullable=True),
+                        _ST.read_envelope,
+                        "read each vehicle's WPNAV_*, PSC_JERK_*, ANGLE_MAX at start-up; "
+                        "null: ardupilot vehicles only",
+                    ),
                 ),
             ),
             Startup,
@@ -229,6 +273,7 @@ SETTINGS = Obj(
             None,
             "MAVLink 2 message signing, both ways: where the key is (never the key itself)",
         ),
+        Key("failsafe", FAILSAFE, Failsafe, "what the station sets on each vehicle itself"),
     ),
 )
 

@@ -27,6 +27,7 @@ __all__ = [
     "EndAction",
     "Event",
     "EventAction",
+    "Failsafe",
     "GeoPoint",
     "Impairments",
     "LogSettings",
@@ -93,12 +94,38 @@ class Startup:
 
     takeoff_alt [m] above each vehicle's home; ready_timeout [s] for every
     active vehicle to be armed, airborne and at its start; guid_timeout [s]
-    the GUID_TIMEOUT parameter the station sets before the formation starts.
+    the GUID_TIMEOUT parameter the station sets before the formation starts;
+    read_envelope: read each vehicle's position-controller limits
+    (WPNAV_*, PSC_JERK_*, ANGLE_MAX) at start-up; None: for ``ardupilot``
+    vehicles, not for ``sim`` ones.
     """
 
     takeoff_alt: float = 5.0
     ready_timeout: float = 90.0
     guid_timeout: float = 0.5
+    read_envelope: bool | None = None
+
+
+@dataclass(frozen=True)
+class Failsafe:
+    """The ``mission.failsafe`` block: what the station sets on each vehicle
+    itself, so that a vehicle that loses the station comes down on its own
+    (docs/vehicle-safety.md).
+
+    gcs: set the GCS-loss failsafe (FS_GCS_ENABLE from ``mission.end``: rtl
+    -> RTL, land and hold -> Land; FS_GCS_TIMEOUT; SYSID_MYGCS 255);
+    timeout [s] FS_GCS_TIMEOUT; fence: set the vehicle's fence (max altitude
+    and circle) around ``limits.geofence``, ``fence_margin`` [m] beyond it;
+    restore: put every changed parameter back when the vehicle has ended.
+    ``gcs`` and ``fence`` None: on for ``ardupilot`` vehicles, off for
+    ``sim`` ones (the fence only where a geofence is given).
+    """
+
+    gcs: bool | None = None
+    timeout: float = 5.0
+    fence: bool | None = None
+    fence_margin: float = 5.0
+    restore: bool = True
 
 
 @dataclass(frozen=True)
@@ -126,7 +153,8 @@ class Settings:
     link_budget [setpoints/s] that one link may carry (vehicles on it x rate);
     delay_compensation: predict each vehicle's state to the time its setpoint
     will land, from TIMESYNC round trips (for real-time radio links);
-    signing: where the MAVLink 2 signing key is (None: no signing).
+    signing: where the MAVLink 2 signing key is (None: no signing);
+    failsafe: what the station sets on the vehicles themselves.
     """
 
     name: str
@@ -139,6 +167,7 @@ class Settings:
     delay_compensation: bool = False
     startup: Startup = field(default_factory=Startup)
     signing: Signing | None = None
+    failsafe: Failsafe = field(default_factory=Failsafe)
 
 
 @dataclass(frozen=True)

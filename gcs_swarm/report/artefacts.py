@@ -9,7 +9,10 @@ holding:
   annotations (``gcs_swarm.report.notes``), standard ``.tlog`` format;
 - ``mission.yaml``: a byte-for-byte copy of the mission file flown;
 - ``summary.json``: the figures of ``gcs_swarm.report.figures``;
-- ``report.png``: the picture of ``gcs_swarm.report.plot``.
+- ``report.png``: the picture of ``gcs_swarm.report.plot``;
+- ``vehicle_params.json`` (``gcs-swarm run``): per vehicle, its envelope and
+  every parameter the station changed on it (old value, new, read-back,
+  restored or not; ``gcs_swarm.mavlink.vehicle_params``).
 
 ``report_command`` rebuilds the last two from a run folder or a ``.tlog``
 alone (given the mission file); ``write_simulation_report`` writes them for
@@ -41,6 +44,7 @@ __all__ = [
     "PICTURE_NAME",
     "SUMMARY_NAME",
     "TLOG_NAME",
+    "VEHICLE_PARAMS_NAME",
     "RunFolder",
     "create_run_folder",
     "from_sim_result",
@@ -57,6 +61,7 @@ TLOG_NAME = "flight.tlog"
 MISSION_NAME = "mission.yaml"
 SUMMARY_NAME = "summary.json"
 PICTURE_NAME = "report.png"
+VEHICLE_PARAMS_NAME = "vehicle_params.json"
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,10 @@ class RunFolder:
     @property
     def picture(self) -> Path:
         return self.path / PICTURE_NAME
+
+    @property
+    def vehicle_params(self) -> Path:
+        return self.path / VEHICLE_PARAMS_NAME
 
 
 def run_folder_name(mission_name: str, when: datetime) -> str:

@@ -9,6 +9,7 @@ from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.states import ProtocolConfig
+from gcs_swarm.mavlink.vehicle_params import ParamSettings
 
 __all__ = ["StationConfig", "VehiclePlan"]
 
@@ -16,13 +17,15 @@ __all__ = ["StationConfig", "VehiclePlan"]
 @dataclass(frozen=True)
 class VehiclePlan:
     """One vehicle as the station sees it: ``link`` a connection string,
-    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9)."""
+    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9), ``params`` what
+    the station reads and sets among its parameters (envelope, failsafe, fence)."""
 
     sysid: int
     link: str
     start_m: Vec3
     q: float
     reserve: bool = False
+    params: ParamSettings = field(default_factory=ParamSettings)
 
 
 @dataclass(frozen=True)

@@ -22,12 +22,14 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES
+from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
 from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
+from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
-from gcs_swarm.mission import Mission, load_mission
+from gcs_swarm.mission import Mission, Vehicle, load_mission
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
 __all__ = [
     "END_MODES",
     "emulator_config",
+    "param_settings",
     "run_command",
     "run_mission",
     "signing_key",
@@ -105,6 +108,34 @@ def signing_key(mission: Mission) -> bytes | None:
     return _key_bytes(raw, f"signing key file {path}")
 
 
+def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
+    """What the station reads and sets among ``vehicle``'s parameters: the
+    mission's ``startup.read_envelope`` and ``failsafe`` keys, where null
+    means on for an ``ardupilot`` vehicle and off for a ``sim`` one (today's
+    emulator does not answer these parameters: docs/vehicle-safety.md)."""
+    s, limits = mission.settings, mission.law.limits
+    fs, real = s.failsafe, vehicle.autopilot == "ardupilot"
+
+    def on(choice: bool | None) -> bool:
+        return real if choice is None else choice
+
+    return ParamSettings(
+        read_envelope=on(s.startup.read_envelope),
+        gcs_failsafe=on(fs.gcs),
+        gcs_timeout_s=fs.timeout,
+        fence=on(fs.fence) and limits.geofence_min is not None,
+        fence_margin_m=fs.fence_margin,
+        restore=fs.restore,
+        end=s.end,
+        geofence_min=limits.geofence_min,
+        geofence_max=limits.geofence_max,
+        station_sysid=STATION_SYSID,
+        # The envelope of a vehicle that does not answer a read: unbounded until
+        # the mission names one (limits.envelope, issue 14 item 2).
+        fallback=Envelope(),
+    )
+
+
 def station_config(
     mission: Mission, links: Mapping[int, str], *, lockstep: bool = False
 ) -> StationConfig:
@@ -117,7 +148,10 @@ def station_config(
     s = mission.settings
     return StationConfig(
         vehicles=tuple(
-            VehiclePlan(v.sysid, links[v.sysid], v.start, v.q, v.reserve) for v in mission.vehicles
+            VehiclePlan(
+                v.sysid, links[v.sysid], v.start, v.q, v.reserve, param_settings(mission, v)
+            )
+            for v in mission.vehicles
         ),
         law=mission.law,
         rate_hz=s.rate,
@@ -302,11 +336,25 @@ async def run_mission(
             summary = RunSummary.from_station(
                 station, outcome=outcome, wall_time_s=time.monotonic() - wall0
             )
+            if folder is not None:
+                _write_vehicle_params(folder, station)
             if folder is not None and recorder is not None:
                 await _write_run_report(folder, recorder, summary, picture=picture)
             if on_summary is not None:
                 on_summary(summary)
     return summary
+
+
+def _write_vehicle_params(folder: RunFolder, station: Station) -> None:
+    """``vehicle_params.json``: each vehicle's envelope and every parameter the
+    station changed on it (old, new, read-back, restored)."""
+    from gcs_swarm.report.artefacts import write_json
+
+    records = [vp.vehicle_params.record() for _, vp in sorted(station.vehicles.items())]
+    try:
+        write_json({"vehicles": records}, folder.vehicle_params)
+    except OSError as err:  # never let the record hide how the flight ended
+        _log.error("%s: not written: %s", folder.vehicle_params, err.strerror or err)
 
 
 def _note_sink(tlog: TlogWriter) -> Callable[[bytes], None]:
@@ -405,7 +453,7 @@ async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
             print(file=sys.stderr)
         print(summary.format())
         for folder in folders:
-            for path in (folder.tlog, folder.summary, folder.picture):
+            for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
                 if path.is_file():
                     print(f"written: {path}")
 

@@ -83,7 +83,9 @@ class Station:
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
         self.vehicles = {
-            p.sysid: VehicleProtocol(p.sysid, pcfg, goto_m=p.start_m, enabled=not p.reserve)
+            p.sysid: VehicleProtocol(
+                p.sysid, pcfg, goto_m=p.start_m, enabled=not p.reserve, params=p.params
+            )
             for p in config.vehicles
         }
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
@@ -225,12 +227,16 @@ class Station:
             vp.finish(now, mode=mode)
             self._service(vp, now)
         settled = {Phase.ENDED, Phase.FAILED, Phase.LOST, Phase.CONNECTING}
+
+        def busy(vp: VehicleProtocol) -> bool:  # still ending, or restoring its parameters
+            return vp.phase not in settled or vp.restoring
+
         try:
             async with asyncio.timeout(self.config.end_timeout_s):
-                while any(vp.phase not in settled for vp in self.vehicles.values()):
+                while any(busy(vp) for vp in self.vehicles.values()):
                     await self._wait_change()
         except TimeoutError:
-            late = [vp for vp in self.vehicles.values() if vp.phase not in settled]
+            late = [vp for vp in self.vehicles.values() if busy(vp)]
             self._note(self._not_ready("end mode not confirmed", late), level=logging.ERROR)
 
     # ----------------------------------------------------------- messages
@@ -333,7 +339,7 @@ class Station:
 
     def _on_event(self, vp: VehicleProtocol, event: ProtocolEvent, now: float) -> None:
         level = {"refused": logging.WARNING, "failed": logging.ERROR, "lost": logging.WARNING,
-                 }.get(event.kind, logging.INFO)  # fmt: skip
+                 "warning": logging.WARNING}.get(event.kind, logging.INFO)  # fmt: skip
         self._note(event.text, level=level)
         if event.kind not in ("phase", "lost", "failed"):
             return

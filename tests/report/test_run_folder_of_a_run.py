@@ -70,6 +70,20 @@ def flown(tmp_path_factory: pytest.TempPathFactory) -> Flown:
     return _flown(str(tmp_path_factory.mktemp("runs")))
 
 
+def test_run_folder_records_the_vehicle_parameters(flown: Flown) -> None:
+    # Sim vehicles: nothing read or set on them but the station's own two.
+    record = json.loads(flown.folder.vehicle_params.read_text())
+    assert [v["sysid"] for v in record["vehicles"]] == [1, 2, 3, 4]
+    for v in record["vehicles"]:
+        assert v["envelope_source"] == "mission" and v["unanswered"] == []
+        params = {p["name"]: p for p in v["params"]}
+        assert set(params) == {"GUID_TIMEOUT", "WP_YAW_BEHAVIOR"}
+        assert params["GUID_TIMEOUT"]["old"] is None  # not read: not restored
+        assert (params["GUID_TIMEOUT"]["readback"], params["GUID_TIMEOUT"]["restored"]) == (
+            0.5, None
+        )  # fmt: skip
+
+
 def test_run_folder_holds_log_mission_summary_and_picture(flown: Flown) -> None:
     f = flown.folder
     assert f.path.name.endswith("scenario-3-moving-tetrahedron-meets-a-box")
