@@ -1,9 +1,10 @@
 """ArduCopter-like autopilot of one vehicle. NO I/O: decoded messages + ``now`` in, replies out.
 
-Owns mode, arming, EKF readiness, home, the GUIDED setpoint rules, the
-GUID_TIMEOUT behaviour, auto-disarm, takeoff/land/RTL sequencing, the GCS
-failsafe, parameters and stream schedules (everything but the vectorised
-LOCAL_POSITION_NED stream, whose interval it publishes as ``lpn_interval_s``).
+Owns mode, arming, boot and EKF readiness, home, the GUIDED setpoint rules,
+the GUID_TIMEOUT behaviour, the land detector, auto-disarm, takeoff/land/RTL
+sequencing, the GCS failsafe and the fence (rules in ``safety``), parameters
+and stream schedules (everything but the vectorised LOCAL_POSITION_NED
+stream, whose interval it publishes as ``lpn_interval_s``).
 
 It never touches the dynamics arrays: it publishes a ``ControlTarget`` and
 bumps ``version`` whenever that target (or a dynamics parameter) changes; the
@@ -13,6 +14,13 @@ an argument). READING of the protocol sheet: setpoints are honoured only in
 GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
 a hover and stays in GUIDED.
+
+READING of ArduCopter's land detector (``land_detector.cpp``, ``mode_land.cpp``,
+``motors.cpp``): a disarmed vehicle is always "land complete"; an armed one
+becomes so after ``LAND_DETECT_S`` (1 s) on the ground. In LAND (and RTL's
+final descent) that disarms it; in any other mode it idles on the ground,
+armed, until DISARM_DELAY disarms it. A disarmed or landed vehicle never
+tracks a target: a mode change then changes nothing physical.
 """
 
 from __future__ import annotations
@@ -23,14 +31,19 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle import commands, telemetry
+from sim_vehicle import commands, safety, telemetry
 from sim_vehicle.dynamics import GRAVITY_M_S2
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["MODE_NAMES", "Autopilot", "ControlTarget"]
+__all__ = ["LAND_DETECT_S", "MODE_NAMES", "Autopilot", "ControlTarget"]
 
-GUIDED, LOITER, RTL, LAND, BRAKE = 4, 5, 6, 9, 17
+STABILIZE, GUIDED, LOITER, RTL, LAND, BRAKE = 0, 4, 5, 6, 9, 17
+LAND_DETECT_S = 1.0
+"""LAND_DETECTOR_TRIGGER_SEC: time on the ground before "land complete"."""
+_SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
+"""ATC_ACCEL_R/P_MAX default (110000 cdeg/s^2) times g: the snap of Eq. D5a (per m, m/s^4)."""
+_INF = math.inf
 MODE_NAMES = {
     0: "STABILIZE",
     2: "ALT_HOLD",
@@ -62,6 +75,9 @@ class ControlTarget:
     acc_lim: float = 5.0
     acc_max: float = 5.0
     tau_s: float = 0.2
+    jerk_xy: float = _INF
+    jerk_z: float = _INF
+    lean_acc: float = _INF
 
 
 class Autopilot:
@@ -84,6 +100,10 @@ class Autopilot:
         self.mode = GUIDED if airborne_at is not None else 0
         self.armed = airborne_at is not None
         self.ekf_ready = airborne_at is not None or params["SIM_EKF_DELAY"] <= 0.0
+        self.booted = airborne_at is not None or params["SIM_BOOT_S"] <= 0.0
+        self.land_complete = airborne_at is None
+        self._touch: float | None = None  # when an armed vehicle last touched the ground
+        self._breaches = 0  # fence bits breached at the last check
         self.home: Vec3 = (airborne_at[0], airborne_at[1], 0.0) if airborne_at else ZERO
         self.yaw = 0.0
         self.version = 0
@@ -126,6 +146,18 @@ class Autopilot:
         """What the flight controller does now: ground, takeoff, hold, brake,
         accel, vel, pos, posvel, land, rtl_*, ..."""
         return self._ctl
+
+    @property
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE as ArduCopter reports it: land complete 1, landing 4 (LAND,
+        RTL's descent), taking off 3 (GUIDED take-off), else in air 2."""
+        if self.land_complete:
+            return 1  # MAV_LANDED_STATE_ON_GROUND
+        if self._ctl == "land":
+            return 4  # MAV_LANDED_STATE_LANDING
+        if self._ctl in ("spool", "takeoff"):
+            return 3  # MAV_LANDED_STATE_TAKEOFF
+        return 2  # MAV_LANDED_STATE_IN_AIR
 
     @property
     def mode_name(self) -> str:
@@ -189,6 +221,8 @@ class Autopilot:
             return telemetry.gps_global_origin(t, self.origin) if self.ekf_ready else None
         if msgid == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return telemetry.autopilot_version(self.sysid)
+        if msgid == mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return telemetry.extended_sys_state(self.landed_state)
         if msgid == mav.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
             if self.mode != GUIDED or not self.armed:
                 return None
@@ -220,8 +254,12 @@ class Autopilot:
             return False
         self.mode = mode
         self.streaming = False
-        if kin.landed:
+        if not self.armed:  # a disarmed vehicle never moves on its own
+            self._set_ctl("ground" if kin.landed else "fall", now, kin)
+        elif kin.landed:
             self._set_ctl("ground", now, kin)
+            if mode == LAND and self.land_complete:  # LAND on the ground: disarms at once
+                self._disarm_landed(now, kin)
         elif mode == LAND:
             self._set_ctl("land", now, kin)
         elif mode == RTL:
@@ -253,7 +291,15 @@ class Autopilot:
         self.armed = False
         self.streaming = False
         self._set_ctl("ground" if kin.landed else "fall", now, kin)
+        self.land_complete = kin.landed
         return True, None
+
+    def _disarm_landed(self, now: float, kin: Kin) -> None:
+        """Disarm on the ground (land complete, failsafe, fence); the mode stays."""
+        self.armed = False
+        self.streaming = False
+        self.land_complete = True
+        self._set_ctl("ground", now, kin)
 
     def takeoff(self, alt_m: float, now: float, kin: Kin) -> bool:
         """NAV_TAKEOFF: climb to ``alt_m`` above home (GUIDED, armed, on the ground)."""
@@ -291,9 +337,19 @@ class Autopilot:
             return self._base[1]
         acc_max = p["SIM_ACC_MAX"]
         vxy, vup, vdn = p["WPNAV_SPEED"] / 100, p["WPNAV_SPEED_UP"] / 100, p["WPNAV_SPEED_DN"] / 100
+        jxy = jz = lean = _INF
+        if p["SIM_ACC_SHAPE"] != 0:
+            # Eq. D5a (AC_PosControl::set_max_speed_accel_xy): the horizontal jerk is
+            # PSC_JERK_XY, at most 0.5 sqrt(WPNAV_ACCEL * snap); WPNAV_ACCEL <= 0 -> 250 cm/s^2.
+            wp_acc = p["WPNAV_ACCEL"] / 100 if p["WPNAV_ACCEL"] > 0 else 2.5
+            jxy = max(0.0, min(p["PSC_JERK_XY"], 0.5 * math.sqrt(wp_acc * _SNAP_RAD_S4)))
+            jz = max(0.0, p["PSC_JERK_Z"])
+            # Eq. D6: lean-angle cap g tan(ANGLE_MAX), ANGLE_MAX in cdeg (kept below 85 deg).
+            angle = math.radians(min(max(p["ANGLE_MAX"], 0.0), 8500.0) / 100)
+            lean = GRAVITY_M_S2 * math.tan(angle)
         base = ControlTarget(
             vmax_xy=vxy, vmax_up=vup, vmax_dn=vdn, tau_s=p["SIM_ACC_TAU"],
-            acc_lim=acc_max, acc_max=acc_max,
+            acc_lim=acc_max, acc_max=acc_max, jerk_xy=jxy, jerk_z=jz, lean_acc=lean,
         )  # fmt: skip
         self._base = (p.generation, base)
         return base
@@ -311,26 +367,33 @@ class Autopilot:
         if ctl == "accel":
             tg = ControlTarget(
                 sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl == "vel":
             tg = ControlTarget(
                 sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl in ("pos", "posvel"):
             self._hold = sp["p"]
             tg = ControlTarget(
                 sp.get("a", ZERO), sp["p"], sp.get("v", ZERO), one, 1.0, b.vmax_xy, b.vmax_up,
-                b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s,
+                b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl in ("ground", "spool"):
             tg = base
         elif ctl == "fall":
             g = GRAVITY_M_S2
-            tg = replace(base, a_ff=(0.0, 0.0, g), acc_lim=g, acc_max=g)
+            tg = replace(  # motors off: no position controller, no jerk limit
+                base, a_ff=(0.0, 0.0, g), acc_lim=g, acc_max=g, jerk_xy=_INF, jerk_z=_INF,
+                lean_acc=_INF,
+            )  # fmt: skip
         elif ctl == "brake":
-            tg = replace(base, wv=1.0, acc_lim=p["SIM_BRAKE_ACC"])
+            # ArduCopter brakes with input_vel_accel(0, 0) at WPNAV_ACCEL, jerk-limited (Eq. D5);
+            # without shaping (ideal) the deceleration fitted to the sheet's 18.7 m
+            shaped = p["SIM_ACC_SHAPE"] != 0 and p["WPNAV_ACCEL"] > 0
+            acc = p["WPNAV_ACCEL"] / 100 if shaped else p["SIM_BRAKE_ACC"]
+            tg = replace(base, wv=1.0, acc_lim=acc)
         elif ctl == "land":
             self._hold = hold
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
@@ -378,6 +441,14 @@ class Autopilot:
             out.append(telemetry.gps_global_origin(t, self.origin))
             out.append(telemetry.home_position(t, self.origin, self.home))
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "EKF3 IMU0 origin set"))
+        if not self.booted and t >= p["SIM_BOOT_S"] - 1e-9:
+            # SITL measured: GUIDED accepted at once, then ~1 s later boot ends and the
+            # vehicle is back in STABILIZE (HEARTBEAT custom_mode 0).
+            self.booted = True
+            out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "ArduPilot Ready"))
+            if not self.armed and self.mode != STABILIZE:
+                self.set_mode(STABILIZE, now, kin)
+        out.extend(self._land_detector(now, kin))
         if now >= self._next_hb - 1e-6:
             out.append(self.heartbeat())
             self._next_hb = max(self._next_hb + 1.0, now + 0.5)
@@ -391,16 +462,69 @@ class Autopilot:
         self._update_deadline(now)
         return out
 
-    def _transitions(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        out: list[mav.MAVLink_message] = []
-        p, ctl, el = self.params, self._ctl, now - self._t_phase
+    def _land_detector(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
+        """Land complete after LAND_DETECT_S on the ground (module docstring)."""
+        if not self.armed:
+            self.land_complete, self._touch = True, None
+            return []
+        if not kin.landed:
+            self.land_complete, self._touch = False, None
+            return []
+        if self.land_complete:
+            return []
+        if self._touch is None:
+            self._touch = now
+        if now - self._touch < LAND_DETECT_S - 1e-9:
+            return []
+        self.land_complete = True
+        if self._ctl == "land":  # LAND, or RTL's final descent: disarm on landing
+            self._disarm_landed(now, kin)
+            return [telemetry.statustext(mav.MAV_SEVERITY_INFO, "Land complete: disarmed")]
+        if self._ctl not in ("spool", "takeoff", "ground"):
+            self._set_ctl("ground", now, kin)  # idles armed; DISARM_DELAY runs from now
+        return []
+
+    def _act(self, act: safety.Action | None, now: float, kin: Kin) -> list[mav.MAVLink_message]:
+        if act is None:
+            return []
+        if act.disarm:
+            self._disarm_landed(now, kin)
+        elif act.mode is not None and act.mode != self.mode:
+            self.set_mode(act.mode, now, kin)
+        return [telemetry.statustext(act.severity, act.text)]
+
+    def _safety(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
+        """GCS failsafe and fence (``safety`` module), while armed."""
+        p, out = self.params, []
         if self.armed and self._last_gcs_hb is not None and p["FS_GCS_ENABLE"] != 0:
             lost = now - self._last_gcs_hb > p["FS_GCS_TIMEOUT"]
-            if lost and not self._fs_active and not kin.landed:
+            if lost and not self._fs_active:
                 self._fs_active = True
-                out.append(telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, "GCS Failsafe"))
-                self.set_mode(LAND if p["FS_GCS_ENABLE"] == 5 else RTL, now, kin)
-                return out
+                landing = self._ctl == "land"
+                act = safety.gcs_failsafe(
+                    int(p["FS_GCS_ENABLE"]), int(p["FS_OPTIONS"]), self.mode, landing,
+                    self.land_complete,
+                )  # fmt: skip
+                out += self._act(act, now, kin)
+        if self.armed and p["FENCE_ENABLE"] != 0:
+            alt = self.home[2] - kin.pos[2]
+            dist = math.hypot(kin.pos[0] - self.home[0], kin.pos[1] - self.home[1])
+            bits, outside = safety.fence_breaches(
+                1, int(p["FENCE_TYPE"]), p["FENCE_ALT_MAX"], p["FENCE_RADIUS"], alt, dist
+            )
+            new, self._breaches = bits & ~self._breaches, bits
+            if new:
+                act = safety.fence_action(int(p["FENCE_ACTION"]), outside, self.land_complete)
+                out += self._act(act, now, kin)
+        else:
+            self._breaches = 0
+        return out
+
+    def _transitions(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
+        out = self._safety(now, kin)
+        if out:
+            return out
+        p, ctl, el = self.params, self._ctl, now - self._t_phase
         if ctl in ("accel", "vel") and now - self._last_sp > self._timeout_s() - 1e-9:
             self._set_ctl("brake", now, kin)  # GUID_TIMEOUT: brake to a hover, mode unchanged
         elif ctl == "brake" and math.sqrt(sum(v * v for v in kin.vel)) < 0.05:
@@ -412,13 +536,9 @@ class Autopilot:
                 self._set_ctl("takeoff", now, kin)
         elif ctl == "takeoff" and abs(kin.pos[2] - self._tk_alt_d) < 0.1 and abs(kin.vel[2]) < 0.2:
             self._set_ctl("hold", now, kin)  # holds the takeoff target
-        elif ctl == "land":
+        elif ctl == "land":  # touchdown: the land detector disarms
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
-            if kin.landed and el > 0.5:
-                self.armed = False  # land complete -> disarm, mode stays
-                self.streaming = False
-                self._set_ctl("ground", now, kin)
-            elif low != self._land_low:
+            if low != self._land_low:
                 self._set_ctl("land", now, kin)
                 self._t_phase = now - el
         elif ctl == "rtl_climb" and abs(kin.pos[2] - self._hold[2]) < 0.2:
@@ -442,8 +562,12 @@ class Autopilot:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
         for sched in self._streams.values():
             d = min(d, sched[1])
+        if not self.booted:
+            d = min(d, self.boot + self.params["SIM_BOOT_S"])
+        if self._touch is not None and self.armed and not self.land_complete:
+            d = min(d, self._touch + LAND_DETECT_S)
         ctl = self._ctl
-        if ctl in _MOVING:
+        if ctl in _MOVING or (self.armed and self.params["FENCE_ENABLE"] != 0):
             d = now
         elif ctl in ("accel", "vel"):
             d = min(d, self._last_sp + self._timeout_s())
@@ -453,10 +577,13 @@ class Autopilot:
             d = min(d, self._last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
         self.deadline = d
 
-    def gcs_heartbeat(self, now: float) -> None:
-        """A GCS HEARTBEAT arrived (feeds the GCS failsafe)."""
+    def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
+        """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""
         self._last_gcs_hb = now
-        self._fs_active = False
+        if self._fs_active:
+            self._fs_active = False
+            return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]
+        return []
 
     def origin_request_ok(self) -> bool:
         """True when GPS_GLOBAL_ORIGIN can be sent (the EKF has set it)."""

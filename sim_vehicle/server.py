@@ -219,6 +219,8 @@ class Emulator:
         overrides: dict[str, float] = {
             "SIM_ACC_TAU": cfg.tau_s,
             "SIM_EKF_DELAY": cfg.ekf_ready_s,
+            "SIM_BOOT_S": cfg.boot_s,
+            "SIM_ACC_SHAPE": 1.0 if cfg.shaping else 0.0,
             "SIM_NOISE_POS": cfg.noise_pos_m,
             "SIM_NOISE_VEL": cfg.noise_vel_m_s,
             **cfg.params,
@@ -595,6 +597,9 @@ class Emulator:
             polled = [r for r, d in enumerate(f.deadline.tolist()) if d <= lim]
         else:
             polled = np.flatnonzero(f.deadline <= now + _EPS).tolist()
+        if f.changed:  # touched down or lifted off: the land detector looks (autopilot)
+            polled = sorted(set(polled).union(f.changed))
+            f.changed = []
         for row in polled:
             v = self._rows[row]
             out = v.ap.poll(now, self._kin(v))
