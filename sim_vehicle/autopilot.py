@@ -31,16 +31,15 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle import commands, safety, telemetry
+from sim_vehicle import commands, guards, reports, telemetry
 from sim_vehicle.dynamics import GRAVITY_M_S2
+from sim_vehicle.guards import LAND_DETECT_S
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["LAND_DETECT_S", "MODE_NAMES", "Autopilot", "ControlTarget"]
+__all__ = ["MODE_NAMES", "Autopilot", "ControlTarget"]
 
 STABILIZE, GUIDED, LOITER, RTL, LAND, BRAKE = 0, 4, 5, 6, 9, 17
-LAND_DETECT_S = 1.0
-"""LAND_DETECTOR_TRIGGER_SEC: time on the ground before "land complete"."""
 _SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
 """ATC_ACCEL_R/P_MAX default (110000 cdeg/s^2) times g: the snap of Eq. D5a (per m, m/s^4)."""
 _INF = math.inf
@@ -102,8 +101,8 @@ class Autopilot:
         self.ekf_ready = airborne_at is not None or params["SIM_EKF_DELAY"] <= 0.0
         self.booted = airborne_at is not None or params["SIM_BOOT_S"] <= 0.0
         self.land_complete = airborne_at is None
-        self._touch: float | None = None  # when an armed vehicle last touched the ground
-        self._breaches = 0  # fence bits breached at the last check
+        self.touch: float | None = None  # when an armed vehicle last touched the ground
+        self.breaches = 0  # fence bits breached at the last check
         self.home: Vec3 = (airborne_at[0], airborne_at[1], 0.0) if airborne_at else ZERO
         self.yaw = 0.0
         self.version = 0
@@ -113,22 +112,22 @@ class Autopilot:
         self.lpn_kick = False  # the server sends one LOCAL_POSITION_NED at once, then clears it
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
-        self._hold: Vec3 = airborne_at or ZERO
-        self._sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
-        self._echo_mask = 3576
+        self.hold_ned: Vec3 = airborne_at or ZERO
+        self.sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
+        self.echo_mask = 3576
         self._last_sp = -math.inf
         self._t_phase = now  # start of the current takeoff/RTL/ground phase
         self._land_low = False
         self._tk_alt_d = 0.0
-        self._last_gcs_hb: float | None = None
-        self._fs_active = False
+        self.last_gcs_hb: float | None = None
+        self.fs_active = False
         self._next_hb = now
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
         self.target = ControlTarget()
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
-        self._set_ctl(self._ctl, now, Kin(self._hold, ZERO, ZERO, airborne_at is None))
+        self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
     @property
@@ -196,48 +195,10 @@ class Autopilot:
 
     def build(self, msgid: int, now: float, kin: Kin) -> mav.MAVLink_message | None:
         """One instance of a streamable / requestable message, or None if not available."""
-        t = now - self.boot
-        if msgid == mav.MAVLINK_MSG_ID_HEARTBEAT:
-            return self.heartbeat()
-        if msgid == mav.MAVLINK_MSG_ID_SYS_STATUS:
-            return telemetry.sys_status(self.ekf_ready)
-        if msgid == mav.MAVLINK_MSG_ID_GPS_RAW_INT:
-            return telemetry.gps_raw_int(t, self.origin, kin, 3 if self.ekf_ready else 1)
-        if msgid == mav.MAVLINK_MSG_ID_ATTITUDE:
-            return telemetry.attitude(t, kin, self._heading(kin))
-        if msgid == LPN:
-            return mav.MAVLink_local_position_ned_message(
-                round(t * 1000) & 0xFFFFFFFF, *kin.pos, *kin.vel
-            )
-        if msgid == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            return telemetry.global_position_int(
-                t, self.origin, self.home[2], kin, self._heading(kin)
-            )
-        if msgid == mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
-            return telemetry.ekf_status_report(self.ekf_ready)
-        if msgid == mav.MAVLINK_MSG_ID_HOME_POSITION:
-            return telemetry.home_position(t, self.origin, self.home) if self.ekf_ready else None
-        if msgid == mav.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
-            return telemetry.gps_global_origin(t, self.origin) if self.ekf_ready else None
-        if msgid == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            return telemetry.autopilot_version(self.sysid)
-        if msgid == mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-            return telemetry.extended_sys_state(self.landed_state)
-        if msgid == mav.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-            if self.mode != GUIDED or not self.armed:
-                return None
-            sp = self._sp
-            return telemetry.position_target_local_ned(
-                t,
-                self._echo_mask,
-                sp.get("p", self._hold),
-                sp.get("v", ZERO),
-                sp.get("a", ZERO),
-                self.yaw,
-            )
-        return None
+        return reports.build(self, msgid, now, kin)
 
-    def _heading(self, kin: Kin) -> float:
+    def heading(self, kin: Kin) -> float:
+        """Yaw (rad): the direction of travel when WP_YAW_BEHAVIOR asks for it and it moves."""
         if self.params["WP_YAW_BEHAVIOR"] != 0 and math.hypot(kin.vel[0], kin.vel[1]) > 0.5:
             self.yaw = math.atan2(kin.vel[1], kin.vel[0])
         return self.yaw
@@ -255,17 +216,17 @@ class Autopilot:
         self.mode = mode
         self.streaming = False
         if not self.armed:  # a disarmed vehicle never moves on its own
-            self._set_ctl("ground" if kin.landed else "fall", now, kin)
+            self.set_control("ground" if kin.landed else "fall", now, kin)
         elif kin.landed:
-            self._set_ctl("ground", now, kin)
+            self.set_control("ground", now, kin)
             if mode == LAND and self.land_complete:  # LAND on the ground: disarms at once
-                self._disarm_landed(now, kin)
+                self.disarm_landed(now, kin)
         elif mode == LAND:
-            self._set_ctl("land", now, kin)
+            self.set_control("land", now, kin)
         elif mode == RTL:
-            self._set_ctl("rtl_climb", now, kin)
+            self.set_control("rtl_climb", now, kin)
         else:
-            self._set_ctl("brake", now, kin)
+            self.set_control("brake", now, kin)
         return True
 
     def arm(self, now: float, kin: Kin, force: bool) -> tuple[bool, str | None]:
@@ -279,7 +240,7 @@ class Autopilot:
         self.armed = True
         self.streaming = False
         self.home = (kin.pos[0], kin.pos[1], kin.pos[2])
-        self._set_ctl("ground" if kin.landed else "brake", now, kin)
+        self.set_control("ground" if kin.landed else "brake", now, kin)
         return True, None
 
     def disarm(self, now: float, kin: Kin, force: bool) -> tuple[bool, str | None]:
@@ -290,42 +251,42 @@ class Autopilot:
             return False, "Disarm: vehicle is flying, use force"
         self.armed = False
         self.streaming = False
-        self._set_ctl("ground" if kin.landed else "fall", now, kin)
+        self.set_control("ground" if kin.landed else "fall", now, kin)
         self.land_complete = kin.landed
         return True, None
 
-    def _disarm_landed(self, now: float, kin: Kin) -> None:
+    def disarm_landed(self, now: float, kin: Kin) -> None:
         """Disarm on the ground (land complete, failsafe, fence); the mode stays."""
         self.armed = False
         self.streaming = False
         self.land_complete = True
-        self._set_ctl("ground", now, kin)
+        self.set_control("ground", now, kin)
 
     def takeoff(self, alt_m: float, now: float, kin: Kin) -> bool:
         """NAV_TAKEOFF: climb to ``alt_m`` above home (GUIDED, armed, on the ground)."""
         if self.mode != GUIDED or not self.armed or not kin.landed or alt_m <= 0.0:
             return False
         self._tk_alt_d = self.home[2] - alt_m
-        self._set_ctl("spool", now, kin)
+        self.set_control("spool", now, kin)
         return True
 
     def stop(self, now: float, kin: Kin) -> None:
         """GUIDED 'init': brake to a stop and hold (invalid setpoint, unsupported frame)."""
-        self._sp = {}
-        self._echo_mask = 3576
-        self._set_ctl("brake", now, kin)
+        self.sp = {}
+        self.echo_mask = 3576
+        self.set_control("brake", now, kin)
 
     def apply_setpoint(
         self, kind: str, sp: dict[str, Any], mask: int, now: float, kin: Kin
     ) -> None:
         """Track a GUIDED target: kind in accel, vel, pos, posvel (already in local NED)."""
-        self._sp = sp
-        self._echo_mask = mask
+        self.sp = sp
+        self.echo_mask = mask
         self.streaming = True
         if kind in ("accel", "vel"):
             self._last_sp = now
             self.deadline = min(self.deadline, now + self._timeout_s())
-        self._set_ctl(kind, now, kin)
+        self.set_control(kind, now, kin)
 
     def _timeout_s(self) -> float:
         return max(self.params["GUID_TIMEOUT"], 0.1)
@@ -354,14 +315,14 @@ class Autopilot:
         self._base = (p.generation, base)
         return base
 
-    def _set_ctl(self, ctl: str, now: float, kin: Kin) -> None:
+    def set_control(self, ctl: str, now: float, kin: Kin) -> None:
         self._ctl = ctl
         self._t_phase = now
         p = self.params
         hold = kin.pos
         b = base = self._base_target()
         one: Vec3 = (1.0, 1.0, 1.0)
-        sp = self._sp
+        sp = self.sp
         # The streamed kinds build their target field by field: ``replace`` costs
         # several times more, 50 times a second per vehicle.
         if ctl == "accel":
@@ -375,7 +336,7 @@ class Autopilot:
                 b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl in ("pos", "posvel"):
-            self._hold = sp["p"]
+            self.hold_ned = sp["p"]
             tg = ControlTarget(
                 sp.get("a", ZERO), sp["p"], sp.get("v", ZERO), one, 1.0, b.vmax_xy, b.vmax_up,
                 b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
@@ -395,25 +356,25 @@ class Autopilot:
             acc = p["WPNAV_ACCEL"] / 100 if shaped else p["SIM_BRAKE_ACC"]
             tg = replace(base, wv=1.0, acc_lim=acc)
         elif ctl == "land":
-            self._hold = hold
+            self.hold_ned = hold
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
             speed = p["LAND_SPEED"] / 100 if low else base.vmax_dn
             tg = replace(base, p_t=hold, v_t=(0.0, 0.0, speed), wp=(1.0, 1.0, 0.0), wv=1.0)
             self._land_low = low
         else:
             if ctl == "takeoff":
-                self._hold = (hold[0], hold[1], self._tk_alt_d)
+                self.hold_ned = (hold[0], hold[1], self._tk_alt_d)
             elif ctl == "rtl_climb":
-                self._hold = (hold[0], hold[1], min(hold[2], self.home[2] - p["RTL_ALT"] / 100))
+                self.hold_ned = (hold[0], hold[1], min(hold[2], self.home[2] - p["RTL_ALT"] / 100))
             elif ctl in ("rtl_return", "rtl_loiter"):
-                self._hold = (self.home[0], self.home[1], self._hold[2])
+                self.hold_ned = (self.home[0], self.home[1], self.hold_ned[2])
             elif ctl != "hold":  # pragma: no cover - programming error
                 raise AssertionError(ctl)
-            tg = replace(base, p_t=self._hold, wp=one, wv=1.0)
+            tg = replace(base, p_t=self.hold_ned, wp=one, wv=1.0)
             if ctl == "takeoff":
                 tg = replace(tg, acc_lim=p["WPNAV_ACCEL_Z"] / 100)
         if ctl == "brake":
-            self._hold = hold
+            self.hold_ned = hold
         self.target = tg
         self.version += 1
         if ctl in _MOVING:
@@ -422,12 +383,12 @@ class Autopilot:
     def refresh(self, now: float, kin: Kin) -> None:
         """Re-derive the target after a parameter change (phase timers kept)."""
         t = self._t_phase
-        self._set_ctl(self._ctl, now, kin)
+        self.set_control(self._ctl, now, kin)
         self._t_phase = t
 
     def _hold_here(self, now: float, kin: Kin) -> None:
-        self._hold = kin.pos
-        self._set_ctl("hold", now, kin)
+        self.hold_ned = kin.pos
+        self.set_control("hold", now, kin)
 
     # ---------------------------------------------------------------- timers
     def poll(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
@@ -448,7 +409,7 @@ class Autopilot:
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "ArduPilot Ready"))
             if not self.armed and self.mode != STABILIZE:
                 self.set_mode(STABILIZE, now, kin)
-        out.extend(self._land_detector(now, kin))
+        out.extend(guards.land_detector(self, now, kin))
         if now >= self._next_hb - 1e-6:
             out.append(self.heartbeat())
             self._next_hb = max(self._next_hb + 1.0, now + 0.5)
@@ -462,93 +423,35 @@ class Autopilot:
         self._update_deadline(now)
         return out
 
-    def _land_detector(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        """Land complete after LAND_DETECT_S on the ground (module docstring)."""
-        if not self.armed:
-            self.land_complete, self._touch = True, None
-            return []
-        if not kin.landed:
-            self.land_complete, self._touch = False, None
-            return []
-        if self.land_complete:
-            return []
-        if self._touch is None:
-            self._touch = now
-        if now - self._touch < LAND_DETECT_S - 1e-9:
-            return []
-        self.land_complete = True
-        if self._ctl == "land":  # LAND, or RTL's final descent: disarm on landing
-            self._disarm_landed(now, kin)
-            return [telemetry.statustext(mav.MAV_SEVERITY_INFO, "Land complete: disarmed")]
-        if self._ctl not in ("spool", "takeoff", "ground"):
-            self._set_ctl("ground", now, kin)  # idles armed; DISARM_DELAY runs from now
-        return []
-
-    def _act(self, act: safety.Action | None, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        if act is None:
-            return []
-        if act.disarm:
-            self._disarm_landed(now, kin)
-        elif act.mode is not None and act.mode != self.mode:
-            self.set_mode(act.mode, now, kin)
-        return [telemetry.statustext(act.severity, act.text)]
-
-    def _safety(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        """GCS failsafe and fence (``safety`` module), while armed."""
-        p, out = self.params, []
-        if self.armed and self._last_gcs_hb is not None and p["FS_GCS_ENABLE"] != 0:
-            lost = now - self._last_gcs_hb > p["FS_GCS_TIMEOUT"]
-            if lost and not self._fs_active:
-                self._fs_active = True
-                landing = self._ctl == "land"
-                act = safety.gcs_failsafe(
-                    int(p["FS_GCS_ENABLE"]), int(p["FS_OPTIONS"]), self.mode, landing,
-                    self.land_complete,
-                )  # fmt: skip
-                out += self._act(act, now, kin)
-        if self.armed and p["FENCE_ENABLE"] != 0:
-            alt = self.home[2] - kin.pos[2]
-            dist = math.hypot(kin.pos[0] - self.home[0], kin.pos[1] - self.home[1])
-            bits, outside = safety.fence_breaches(
-                1, int(p["FENCE_TYPE"]), p["FENCE_ALT_MAX"], p["FENCE_RADIUS"], alt, dist
-            )
-            new, self._breaches = bits & ~self._breaches, bits
-            if new:
-                act = safety.fence_action(int(p["FENCE_ACTION"]), outside, self.land_complete)
-                out += self._act(act, now, kin)
-        else:
-            self._breaches = 0
-        return out
-
     def _transitions(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        out = self._safety(now, kin)
+        out = guards.safety_checks(self, now, kin)
         if out:
             return out
         p, ctl, el = self.params, self._ctl, now - self._t_phase
         if ctl in ("accel", "vel") and now - self._last_sp > self._timeout_s() - 1e-9:
-            self._set_ctl("brake", now, kin)  # GUID_TIMEOUT: brake to a hover, mode unchanged
+            self.set_control("brake", now, kin)  # GUID_TIMEOUT: brake to a hover, mode unchanged
         elif ctl == "brake" and math.sqrt(sum(v * v for v in kin.vel)) < 0.05:
             self._hold_here(now, kin)
         elif ctl == "fall" and kin.landed:
-            self._set_ctl("ground", now, kin)
+            self.set_control("ground", now, kin)
         elif ctl == "spool":
             if el >= p["SIM_TKOFF_DLY"]:
-                self._set_ctl("takeoff", now, kin)
+                self.set_control("takeoff", now, kin)
         elif ctl == "takeoff" and abs(kin.pos[2] - self._tk_alt_d) < 0.1 and abs(kin.vel[2]) < 0.2:
-            self._set_ctl("hold", now, kin)  # holds the takeoff target
+            self.set_control("hold", now, kin)  # holds the takeoff target
         elif ctl == "land":  # touchdown: the land detector disarms
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
             if low != self._land_low:
-                self._set_ctl("land", now, kin)
+                self.set_control("land", now, kin)
                 self._t_phase = now - el
-        elif ctl == "rtl_climb" and abs(kin.pos[2] - self._hold[2]) < 0.2:
-            self._set_ctl("rtl_return", now, kin)
+        elif ctl == "rtl_climb" and abs(kin.pos[2] - self.hold_ned[2]) < 0.2:
+            self.set_control("rtl_return", now, kin)
         elif ctl == "rtl_return":
             d = math.hypot(kin.pos[0] - self.home[0], kin.pos[1] - self.home[1])
             if d < 0.5 and math.hypot(kin.vel[0], kin.vel[1]) < 0.2:
-                self._set_ctl("rtl_loiter", now, kin)
+                self.set_control("rtl_loiter", now, kin)
         elif ctl == "rtl_loiter" and el >= p["RTL_LOIT_TIME"] / 1000:
-            self._set_ctl("land", now, kin)
+            self.set_control("land", now, kin)
         elif ctl == "ground" and self.armed and p["DISARM_DELAY"] > 0:
             if el >= p["DISARM_DELAY"]:
                 self.armed = False  # auto-disarm: no takeoff within DISARM_DELAY
@@ -564,8 +467,8 @@ class Autopilot:
             d = min(d, sched[1])
         if not self.booted:
             d = min(d, self.boot + self.params["SIM_BOOT_S"])
-        if self._touch is not None and self.armed and not self.land_complete:
-            d = min(d, self._touch + LAND_DETECT_S)
+        if self.touch is not None and self.armed and not self.land_complete:
+            d = min(d, self.touch + LAND_DETECT_S)
         ctl = self._ctl
         if ctl in _MOVING or (self.armed and self.params["FENCE_ENABLE"] != 0):
             d = now
@@ -573,15 +476,15 @@ class Autopilot:
             d = min(d, self._last_sp + self._timeout_s())
         elif ctl == "ground" and self.armed and self.params["DISARM_DELAY"] > 0:
             d = min(d, self._t_phase + self.params["DISARM_DELAY"])
-        if self.armed and self._last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
-            d = min(d, self._last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
+        if self.armed and self.last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
+            d = min(d, self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
         self.deadline = d
 
     def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
         """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""
-        self._last_gcs_hb = now
-        if self._fs_active:
-            self._fs_active = False
+        self.last_gcs_hb = now
+        if self.fs_active:
+            self.fs_active = False
             return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]
         return []
 
