@@ -111,8 +111,12 @@ class EmulatorConfig:
     the acceleration command: jerk PSC_JERK_XY / PSC_JERK_Z, lean ANGLE_MAX,
     then a first-order lag ``accel_tau_s`` default 0.2 s; docs/emulator.md)
     or ``"ideal"`` (no jerk limit, no lean cap, no lag: exact kinematics).
-    ``accel_shaping``: the jerk and lean limits on or off whatever the preset
-    (None: the preset's). ``boot_s``: sim s after boot when the vehicle says
+    ``accel_shaping``: the jerk and lean limits on (True) or off (False)
+    whatever the preset; None: the preset's (on for ``ardupilot``). The default
+    is False for now: the station does not yet plan within the vehicle's
+    envelope, and its tests fly the paper's gains, which ArduCopter (and this
+    model) cannot follow; ``sim-vehicle`` uses the preset.
+    ``boot_s``: sim s after boot when the vehicle says
     "ArduPilot Ready" and returns to STABILIZE, as SITL ~1 s after its first
     connection (0: no such event, the default for now). ``ekf_ready_s``: sim s
     after boot before EKF and GPS are ready (SITL: 20-40 s in real time).
@@ -141,7 +145,7 @@ class EmulatorConfig:
     lockstep_timeout_s: float = 0.5
     dynamics: Literal["ardupilot", "ideal"] = "ardupilot"
     accel_tau_s: float | None = None
-    accel_shaping: bool | None = None
+    accel_shaping: bool | None = False
     boot_s: float = 0.0
     ekf_ready_s: float = 2.0
     tcp_base_port: int | None = None

@@ -63,7 +63,7 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
     n = 150  # +1 m/s^2 north for 3 s, as measured on SITL
 
     async def run() -> None:
-        async with asyncio.timeout(30), Emulator(_cfg()) as emu:
+        async with asyncio.timeout(30), Emulator(_cfg(accel_shaping=None)) as emu:
             await _accel_steps(emu, (1.0, 0.0, 0.0), n)
             st = emu.vehicle_state(1)
             # the pure dynamics advanced by hand n steps (jerk Eq. D5 at PSC_JERK_XY 5 m/s^3,
@@ -91,7 +91,7 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
 def test_guid_timeout_keeps_last_accel_then_brakes_to_hover_in_guided() -> None:
     async def run() -> None:
         # a short wall timeout lets the clock run on once the client stops answering
-        cfg = _cfg(lockstep_timeout_s=0.002)
+        cfg = _cfg(lockstep_timeout_s=0.002, accel_shaping=None)  # the ardupilot preset's
         async with asyncio.timeout(60), Emulator(cfg) as emu:
             c = await connect(emu.endpoints[1])
             c.heartbeat()

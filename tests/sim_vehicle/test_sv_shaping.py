@@ -152,3 +152,12 @@ def test_guid_timeout_braking_is_jerk_limited() -> None:
     assert min(a[0] for a in hist) >= -2.5 - 1e-12  # WPNAV_ACCEL
     assert min(a[0] for a in hist) < -2.4  # and it does use it
     assert np.linalg.norm(f.vel[0]) < 0.05 and ap.control == "hold"
+
+
+def test_config_shaping_presets() -> None:
+    from sim_vehicle import EmulatorConfig
+
+    assert EmulatorConfig().shaping is False  # off by default for now (the station's tests)
+    assert EmulatorConfig(accel_shaping=None).shaping is True  # the ardupilot preset's
+    assert EmulatorConfig(dynamics="ideal", accel_shaping=None).shaping is False
+    assert EmulatorConfig(dynamics="ideal", accel_shaping=True).shaping is True
