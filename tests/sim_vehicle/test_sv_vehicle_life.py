@@ -226,3 +226,25 @@ def test_extended_sys_state_streams_and_shows_the_take_off() -> None:
     assert states[0] == 1 and 3 in states and states[-1] in (2, 3)
     seq = [x for i, x in enumerate(states) if i == 0 or states[i - 1] != x]
     assert seq[:2] == [1, 3]  # on the ground, then taking off
+
+
+def test_parameters_the_station_reads_and_sets_have_arducopter_defaults_and_types() -> None:
+    r32, i8, i16, i32 = (mav.MAV_PARAM_TYPE_REAL32, mav.MAV_PARAM_TYPE_INT8,
+                         mav.MAV_PARAM_TYPE_INT16, mav.MAV_PARAM_TYPE_INT32)  # fmt: skip
+    expected = {  # ArduCopter 4.5.6 (Parameters.cpp, AC_Fence, AC_WPNav, AC_PosControl)
+        "WPNAV_ACCEL": (250, r32), "WPNAV_ACCEL_Z": (100, r32), "WPNAV_SPEED": (1000, r32),
+        "WPNAV_SPEED_UP": (250, r32), "WPNAV_SPEED_DN": (150, r32), "PSC_JERK_XY": (5, r32),
+        "PSC_JERK_Z": (5, r32), "ANGLE_MAX": (3000, i16), "SYSID_MYGCS": (255, i16),
+        "FS_GCS_ENABLE": (0, i8), "FS_GCS_TIMEOUT": (5, r32), "FS_OPTIONS": (16, i32),
+        "FENCE_ENABLE": (0, i8), "FENCE_TYPE": (7, i8), "FENCE_ACTION": (1, i8),
+        "FENCE_ALT_MAX": (100, r32), "FENCE_ALT_MIN": (-10, r32), "FENCE_RADIUS": (300, r32),
+        "FENCE_MARGIN": (2, r32),
+    }  # fmt: skip
+    ap = Sim(airborne=True).ap
+    for name, (value, kind) in expected.items():
+        msg = _decoded(mav.MAVLink_param_request_read_message(1, 1, name.encode(), -1))
+        (pv,) = ap.handle(msg, 0.0, Kin((0, 0, -10), (0, 0, 0), (0, 0, 0), False))
+        assert (pv.param_id, pv.param_value, pv.param_type) == (name, value, kind)
+    set_ = mav.MAVLink_param_set_message(1, 1, b"FENCE_ACTION", 2.4, r32)  # an integer: rounded
+    (pv,) = ap.handle(_decoded(set_), 0.0, Kin((0, 0, -10), (0, 0, 0), (0, 0, 0), False))
+    assert pv.param_value == 2.0 and pv.param_type == i8
