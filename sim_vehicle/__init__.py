@@ -23,7 +23,7 @@ Test / embedding API
         dynamics="ideal",          # or "ardupilot" (0.2 s first-order accel lag, default;
         accel_shaping=None,        #   None: + ArduCopter's jerk / lean limits, docs/emulator.md)
         ekf_ready_s=0.0,           # arming refused ("PreArm: ...") until this sim time
-        boot_s=1.0,                # "ArduPilot Ready" and back to STABILIZE (0: never)
+        boot_s=1.0,                # 1 s after first contact: back to STABILIZE (0: never)
         tcp_base_port=0,           # also a TCP server per vehicle (0 ephemeral, 5760 SITL's)
     )
     async with Emulator(cfg) as emu:     # binds 127.0.0.1, port 0 = ephemeral

@@ -100,6 +100,7 @@ class Autopilot:
         self.armed = airborne_at is not None
         self.ekf_ready = airborne_at is not None or params["SIM_EKF_DELAY"] <= 0.0
         self.booted = airborne_at is not None or params["SIM_BOOT_S"] <= 0.0
+        self._boot_end: float | None = None  # first contact + SIM_BOOT_S
         self.land_complete = airborne_at is None
         self.touch: float | None = None  # when an armed vehicle last touched the ground
         self.breaches = 0  # fence bits breached at the last check
@@ -402,17 +403,17 @@ class Autopilot:
             out.append(telemetry.gps_global_origin(t, self.origin))
             out.append(telemetry.home_position(t, self.origin, self.home))
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "EKF3 IMU0 origin set"))
-        if not self.booted and t >= p["SIM_BOOT_S"] - 1e-9:
+        out.extend(guards.land_detector(self, now, kin))
+        if now >= self._next_hb - 1e-6:
+            out.append(self.heartbeat())
+            self._next_hb = max(self._next_hb + 1.0, now + 0.5)
+        if self._boot_end is not None and not self.booted and now >= self._boot_end - 1e-9:
             # SITL measured: GUIDED accepted at once, then ~1 s later boot ends and the
             # vehicle is back in STABILIZE (HEARTBEAT custom_mode 0).
             self.booted = True
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "ArduPilot Ready"))
             if not self.armed and self.mode != STABILIZE:
                 self.set_mode(STABILIZE, now, kin)
-        out.extend(guards.land_detector(self, now, kin))
-        if now >= self._next_hb - 1e-6:
-            out.append(self.heartbeat())
-            self._next_hb = max(self._next_hb + 1.0, now + 0.5)
         for msgid, sched in self._streams.items():
             if now >= sched[1] - 1e-6:
                 m = self.build(msgid, now, kin)
@@ -465,8 +466,8 @@ class Autopilot:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
         for sched in self._streams.values():
             d = min(d, sched[1])
-        if not self.booted:
-            d = min(d, self.boot + self.params["SIM_BOOT_S"])
+        if self._boot_end is not None and not self.booted:
+            d = min(d, self._boot_end)
         if self.touch is not None and self.armed and not self.land_complete:
             d = min(d, self.touch + LAND_DETECT_S)
         ctl = self._ctl
@@ -479,6 +480,13 @@ class Autopilot:
         if self.armed and self.last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
             d = min(d, self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
         self.deadline = d
+
+    def contact(self, now: float) -> None:
+        """A ground station was first heard (or connected): boot ends SIM_BOOT_S later,
+        as SITL's does about 1 s after its first connection."""
+        if self._boot_end is None and not self.booted:
+            self._boot_end = now + max(self.params["SIM_BOOT_S"], 0.0)
+            self.deadline = min(self.deadline, self._boot_end)
 
     def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
         """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""

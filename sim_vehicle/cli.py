@@ -98,7 +98,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--boot",
         type=float,
         metavar="S",
-        help="s after boot: 'ArduPilot Ready', back to STABILIZE (0: never, default)",
+        help="s after first contact: 'ArduPilot Ready', STABILIZE (0: never, default)",
     )
     p.add_argument(
         "--sitl-times",

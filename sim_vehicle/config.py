@@ -116,9 +116,9 @@ class EmulatorConfig:
     is False for now: the station does not yet plan within the vehicle's
     envelope, and its tests fly the paper's gains, which ArduCopter (and this
     model) cannot follow; ``sim-vehicle`` uses the preset.
-    ``boot_s``: sim s after boot when the vehicle says
-    "ArduPilot Ready" and returns to STABILIZE, as SITL ~1 s after its first
-    connection (0: no such event, the default for now). ``ekf_ready_s``: sim s
+    ``boot_s``: sim s after the first contact (a station heard or connected)
+    when the vehicle says "ArduPilot Ready" and returns to STABILIZE, as SITL
+    ~1 s after its first connection (0: no such event, the default for now). ``ekf_ready_s``: sim s
     after boot before EKF and GPS are ready (SITL: 20-40 s in real time).
     ``tcp_base_port``: not None -> each vehicle is also a MAVLink TCP server
     (one client at a time) on ``tcp_base_port + 10 * index`` (0: ephemeral),

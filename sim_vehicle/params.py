@@ -51,7 +51,7 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_BRAKE_ACC": (2.0, _R32, "m/s/s braking unshaped (fits 18.7 m); shaped: WPNAV_ACCEL"),
     "SIM_TKOFF_DLY": (3.3, _R32, "s spool-up before a takeoff climbs (fits the sheet's 9.4 s)"),
     "SIM_EKF_DELAY": (2.0, _R32, "s after boot before the EKF/GPS are ready and arming passes"),
-    "SIM_BOOT_S": (0.0, _R32, "s after boot: 'ArduPilot Ready', back to STABILIZE (0 = no event)"),
+    "SIM_BOOT_S": (0.0, _R32, "s after first contact: 'ArduPilot Ready', STABILIZE (0 = no event)"),
     "SIM_ACC_SHAPE": (1, _I8, "1: jerk and lean limits (Eqs. D5-D6) on the command; 0 ideal"),
     "SIM_NOISE_POS": (0.0, _R32, "m, std of noise added to LOCAL_POSITION_NED position"),
     "SIM_NOISE_VEL": (0.0, _R32, "m/s, std of noise added to LOCAL_POSITION_NED velocity"),

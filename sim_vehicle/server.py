@@ -416,6 +416,12 @@ class Emulator:
             self._handed_back = True
             self._wake.set()
 
+    def _contact(self, v: _Vehicle) -> None:
+        """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""
+        v.contacted = True
+        v.ap.contact(self.sim_time_s)
+        self._sync(v, self.sim_time_s)
+
     def _on_tcp_peer(self, ep: Endpoint, addr: Addr, up: bool) -> None:
         """A TCP client connected (a new peer: HEARTBEAT at once, lockstep rule 1, as SITL
         starts when something connects) or went away."""
@@ -425,7 +431,7 @@ class Emulator:
         ep.peers[addr] = None
         for sysid in sorted(ep.sysids):
             v = self._vehicles[ep.sysids[sysid]]
-            v.contacted = True
+            self._contact(v)
             self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
         self._wake.set()
 
@@ -465,14 +471,14 @@ class Emulator:
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             for sysid in sorted(ep.sysids):
                 v = self._vehicles[ep.sysids[sysid]]
-                v.contacted = True
+                self._contact(v)
                 self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
         elif msgs and ep.out == addr and id(ep) not in self._out_heard:
             # The fixed ``out`` peer is known from the start: its first good
             # frame is its contact (rule 1), or a lockstep clock would never start.
             self._out_heard.add(id(ep))
             for key in ep.sysids.values():
-                self._vehicles[key].contacted = True
+                self._contact(self._vehicles[key])
         if not ep.uplink.imp.active:  # no impairment: deliver now, no random draw
             self._deliver(ep, msgs)
             return

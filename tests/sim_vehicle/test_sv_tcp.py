@@ -141,3 +141,36 @@ def test_cli_tcp_flags() -> None:
     assert cfg.tcp_base_port == 6000 and cfg.boot_s == 1.0 and cfg.ekf_ready_s == 25.0
     assert build_config(parse_args([])).tcp_base_port is None  # UDP only by default
     assert build_config(parse_args(["--no-shaping"])).shaping is False
+
+
+def test_boot_ends_one_second_after_the_first_connection_as_on_sitl() -> None:
+    """Lockstep: sim time is frozen at 0 until the TCP connection (rule 1), so the
+    connection is at t = 0 and boot ends at t = SIM_BOOT_S = 1 s (one step of tolerance)."""
+    cfg = EmulatorConfig(
+        vehicles=(VehicleSpec(sysid=1),), clock="lockstep", speedup=10.0, tcp_base_port=0,
+        boot_s=1.0,
+    )  # fmt: skip
+
+    async def run() -> None:
+        async with asyncio.timeout(30), Emulator(cfg) as emu:
+            c = await _tcp(emu.tcp_endpoints[1])
+            await c.recv("HEARTBEAT")
+            ack = await c.command(mav.MAV_CMD_DO_SET_MODE, 1, 4)
+            assert ack.result == mav.MAV_RESULT_ACCEPTED
+            assert (await c.recv("HEARTBEAT", lambda m: m.custom_mode == 4)).custom_mode == 4
+            seen: list[float] = []
+
+            def back_in_stabilize() -> bool:
+                st = emu.vehicle_state(1)
+                if not seen and st.mode == 0:
+                    seen.append(st.sim_time_s)
+                return bool(seen)
+
+            await emu.wait_until(back_in_stabilize)
+            assert abs(seen[0] - 1.0) <= 0.02 + 1e-9
+            text = await c.recv("STATUSTEXT")
+            assert text.text == "ArduPilot Ready"
+            assert (await c.recv("HEARTBEAT")).custom_mode == 0
+            c.close()
+
+    asyncio.run(run())

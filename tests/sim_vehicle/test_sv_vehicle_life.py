@@ -91,18 +91,21 @@ class Sim:
 
 def test_boot_ends_in_stabilize_after_guided_was_accepted() -> None:
     s = Sim(SIM_BOOT_S=1.0, SIM_EKF_DELAY=0.0)
-    s.run(0.1)
+    s.run(2.0)  # nobody connected yet: boot does not end (SITL waits for its connection)
+    assert "ArduPilot Ready" not in s.texts()
+    s.ap.contact(s.t)  # the station's first frame (the server calls this), t = 2.0
     (ack,) = s.send(_cmd(mav.MAV_CMD_DO_SET_MODE, 1, 4))
     assert ack.result == mav.MAV_RESULT_ACCEPTED and s.ap.heartbeat().custom_mode == 4
-    s.run(0.88)  # t = 0.98: still GUIDED
+    s.run(0.98)  # t = 2.98: still GUIDED
     assert s.ap.mode == 4 and "ArduPilot Ready" not in s.texts()
-    s.run(0.02)  # t = 1.0: boot ends
+    s.run(0.02)  # t = 3.0, 1 s after the first contact: boot ends
     assert "ArduPilot Ready" in s.texts()
     assert s.ap.mode == 0 and s.ap.heartbeat().custom_mode == 0
     assert s.send(_cmd(mav.MAV_CMD_DO_SET_MODE, 1, 4))[0].result == 0  # set again: stays
     s.run(5.0)
     assert s.ap.mode == 4
     air = Sim(airborne=True, SIM_BOOT_S=1.0)
+    air.ap.contact(0.0)
     air.run(2.0)
     assert air.ap.mode == 4 and "ArduPilot Ready" not in air.texts()
 
