@@ -20,12 +20,16 @@ Test / embedding API
             VehicleSpec(sysid=2, start_ned_m=(0, 5, -10), airborne=True),
         ),
         clock="lockstep",          # or "realtime" (default) with speedup=...
-        dynamics="ideal",          # or "ardupilot" (0.2 s first-order accel lag, default)
+        dynamics="ideal",          # or "ardupilot" (0.2 s first-order accel lag, default;
+        accel_shaping=None,        #   None: + ArduCopter's jerk / lean limits, docs/emulator.md)
         ekf_ready_s=0.0,           # arming refused ("PreArm: ...") until this sim time
+        boot_s=1.0,                # 1 s after first contact: back to STABILIZE (0: never)
+        tcp_base_port=0,           # also a TCP server per vehicle (0 ephemeral, 5760 SITL's)
     )
     async with Emulator(cfg) as emu:     # binds 127.0.0.1, port 0 = ephemeral
         emu.endpoints                    # {sysid: ("127.0.0.1", port)}; same address for all
                                          # sysids when EmulatorConfig.shared_port is set
+        emu.tcp_endpoints                # {sysid: ("127.0.0.1", port)} with tcp_base_port
         addr = await emu.add_vehicle(VehicleSpec(sysid=3))   # -> (host, port) it serves on
         emu.remove_vehicle(3)            # stops it; its own endpoint is closed
         st = emu.vehicle_state(1)        # VehicleState: mode, armed, landed, pos_ned_m,
@@ -39,7 +43,8 @@ Test / embedding API
 ``VehicleSpec(sysid, port=None, origin=(lat, lon, alt), start_ned_m=(n, e, d),
 airborne=False)``. ``EmulatorConfig(vehicles, host, base_port=0, shared_port=None,
 out=None, rate_hz=50, clock, speedup=1, lockstep_timeout_s=0.5, dynamics,
-accel_tau_s=None, ekf_ready_s=2, noise_pos_m=0, noise_vel_m_s=0, seed=0,
+accel_tau_s=None, accel_shaping=False, boot_s=0, ekf_ready_s=2,
+tcp_base_port=None, noise_pos_m=0, noise_vel_m_s=0, seed=0,
 uplink=Impairment(), downlink=Impairment(), streams={}, params={})``.
 ``Impairment(loss, delay_s, jitter_s, duplicate)``, seeded from ``seed``.
 
@@ -47,13 +52,15 @@ What the vehicle does (station's view)
 --------------------------------------
 - UDP server per endpoint: it answers every address it has heard from (send
   first, e.g. a HEARTBEAT, as ``mavutil.mavlink_connection("udpout:...")``),
-  plus ``out`` if configured. System id per vehicle, component 1.
+  plus ``out`` if configured. System id per vehicle, component 1. With
+  ``tcp_base_port`` also a TCP server per vehicle (``tcp:HOST:PORT``).
 - Streams: only HEARTBEAT (1 Hz) unless asked, as ArduCopter. Ask with
   ``MAV_CMD_SET_MESSAGE_INTERVAL`` (511; interval us, 0 = default rate,
   -1 = off) or ``REQUEST_DATA_STREAM``. Streamable: SYS_STATUS 1, GPS_RAW_INT 24,
   ATTITUDE 30, LOCAL_POSITION_NED 32, GLOBAL_POSITION_INT 33,
   POSITION_TARGET_LOCAL_NED 85 (the setpoint echo: ask for it), EKF_STATUS_REPORT
-  193, HOME_POSITION 242. ``MAV_CMD_REQUEST_MESSAGE`` (512) sends one of these
+  193, HOME_POSITION 242, EXTENDED_SYS_STATE 245 (landed_state).
+  ``MAV_CMD_REQUEST_MESSAGE`` (512) sends one of these
   or GPS_GLOBAL_ORIGIN 49 / AUTOPILOT_VERSION 148. GPS_GLOBAL_ORIGIN and
   HOME_POSITION are also sent once when set (EKF ready; home again at arming).
 - Every COMMAND_LONG / COMMAND_INT gets a COMMAND_ACK (unknown:
@@ -61,8 +68,10 @@ What the vehicle does (station's view)
   ALT_HOLD 2, GUIDED 4, LOITER 5, RTL 6, LAND 9, POSHOLD 16, BRAKE 17.
   Arming (400) refused with MAV_RESULT_FAILED + STATUSTEXT "PreArm: ..." until
   ``ekf_ready_s``; disarms after DISARM_DELAY s armed on the ground;
-  NAV_TAKEOFF (22, param7 m above home) climbs; LAND descends and disarms;
-  RTL climbs to RTL_ALT, flies home, lands.
+  NAV_TAKEOFF (22, param7 m above home) climbs; LAND descends and disarms
+  1 s after touchdown (land detector); RTL climbs to RTL_ALT, flies home,
+  lands. A disarmed vehicle never moves. GCS failsafe (FS_GCS_ENABLE,
+  SYSID_MYGCS) and fence (FENCE_*) as ArduCopter (docs/emulator.md).
 - SET_POSITION_TARGET_LOCAL_NED: only in GUIDED, armed and airborne, with
   ArduCopter's type_mask table (accel-only 3135; velocity(+accel); position;
   position+velocity; FORCE_SET 512 -> dropped; any other combination or an
@@ -70,7 +79,8 @@ What the vehicle does (station's view)
   GUID_TIMEOUT s, then the vehicle brakes to a hover in GUIDED.
 - Parameters via PARAM_REQUEST_LIST / _READ / PARAM_SET (PARAM_VALUE replies):
   GUID_TIMEOUT, SYSID_THISMAV, WP_YAW_BEHAVIOR, DISARM_DELAY, RTL_ALT,
-  FS_GCS_ENABLE, ... and the emulator's own SIM_* limits.
+  WPNAV_*, PSC_JERK_XY/Z, ANGLE_MAX, FS_GCS_*, SYSID_MYGCS, FENCE_*, ... and
+  the emulator's own SIM_* limits (every one: docs/emulator.md).
 
 Lockstep rule (``clock="lockstep"``)
 ------------------------------------

@@ -1,9 +1,10 @@
 """ArduCopter-like autopilot of one vehicle. NO I/O: decoded messages + ``now`` in, replies out.
 
-Owns mode, arming, EKF readiness, home, the GUIDED setpoint rules, the
-GUID_TIMEOUT behaviour, auto-disarm, takeoff/land/RTL sequencing, the GCS
-failsafe, parameters and stream schedules (everything but the vectorised
-LOCAL_POSITION_NED stream, whose interval it publishes as ``lpn_interval_s``).
+Owns mode, arming, boot and EKF readiness, home, the GUIDED setpoint rules,
+the GUID_TIMEOUT behaviour, the land detector, auto-disarm, takeoff/land/RTL
+sequencing, the GCS failsafe and the fence (rules in ``safety``), parameters
+and stream schedules (everything but the vectorised LOCAL_POSITION_NED
+stream, whose interval it publishes as ``lpn_interval_s``).
 
 It never touches the dynamics arrays: it publishes a ``ControlTarget`` and
 bumps ``version`` whenever that target (or a dynamics parameter) changes; the
@@ -13,6 +14,13 @@ an argument). READING of the protocol sheet: setpoints are honoured only in
 GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
 a hover and stays in GUIDED.
+
+READING of ArduCopter's land detector (``land_detector.cpp``, ``mode_land.cpp``,
+``motors.cpp``): a disarmed vehicle is always "land complete"; an armed one
+becomes so after ``LAND_DETECT_S`` (1 s) on the ground. In LAND (and RTL's
+final descent) that disarms it; in any other mode it idles on the ground,
+armed, until DISARM_DELAY disarms it. A disarmed or landed vehicle never
+tracks a target: a mode change then changes nothing physical.
 """
 
 from __future__ import annotations
@@ -23,14 +31,18 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle import commands, telemetry
+from sim_vehicle import commands, guards, reports, telemetry
 from sim_vehicle.dynamics import GRAVITY_M_S2
+from sim_vehicle.guards import LAND_DETECT_S
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
 __all__ = ["MODE_NAMES", "Autopilot", "ControlTarget"]
 
-GUIDED, LOITER, RTL, LAND, BRAKE = 4, 5, 6, 9, 17
+STABILIZE, GUIDED, LOITER, RTL, LAND, BRAKE = 0, 4, 5, 6, 9, 17
+_SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
+"""ATC_ACCEL_R/P_MAX default (110000 cdeg/s^2) times g: the snap of Eq. D5a (per m, m/s^4)."""
+_INF = math.inf
 MODE_NAMES = {
     0: "STABILIZE",
     2: "ALT_HOLD",
@@ -62,6 +74,9 @@ class ControlTarget:
     acc_lim: float = 5.0
     acc_max: float = 5.0
     tau_s: float = 0.2
+    jerk_xy: float = _INF
+    jerk_z: float = _INF
+    lean_acc: float = _INF
 
 
 class Autopilot:
@@ -84,6 +99,11 @@ class Autopilot:
         self.mode = GUIDED if airborne_at is not None else 0
         self.armed = airborne_at is not None
         self.ekf_ready = airborne_at is not None or params["SIM_EKF_DELAY"] <= 0.0
+        self.booted = airborne_at is not None or params["SIM_BOOT_S"] <= 0.0
+        self._boot_end: float | None = None  # first contact + SIM_BOOT_S
+        self.land_complete = airborne_at is None
+        self.touch: float | None = None  # when an armed vehicle last touched the ground
+        self.breaches = 0  # fence bits breached at the last check
         self.home: Vec3 = (airborne_at[0], airborne_at[1], 0.0) if airborne_at else ZERO
         self.yaw = 0.0
         self.version = 0
@@ -93,22 +113,22 @@ class Autopilot:
         self.lpn_kick = False  # the server sends one LOCAL_POSITION_NED at once, then clears it
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
-        self._hold: Vec3 = airborne_at or ZERO
-        self._sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
-        self._echo_mask = 3576
+        self.hold_ned: Vec3 = airborne_at or ZERO
+        self.sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
+        self.echo_mask = 3576
         self._last_sp = -math.inf
         self._t_phase = now  # start of the current takeoff/RTL/ground phase
         self._land_low = False
         self._tk_alt_d = 0.0
-        self._last_gcs_hb: float | None = None
-        self._fs_active = False
+        self.last_gcs_hb: float | None = None
+        self.fs_active = False
         self._next_hb = now
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
         self.target = ControlTarget()
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
-        self._set_ctl(self._ctl, now, Kin(self._hold, ZERO, ZERO, airborne_at is None))
+        self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
     @property
@@ -126,6 +146,18 @@ class Autopilot:
         """What the flight controller does now: ground, takeoff, hold, brake,
         accel, vel, pos, posvel, land, rtl_*, ..."""
         return self._ctl
+
+    @property
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE as ArduCopter reports it: land complete 1, landing 4 (LAND,
+        RTL's descent), taking off 3 (GUIDED take-off), else in air 2."""
+        if self.land_complete:
+            return 1  # MAV_LANDED_STATE_ON_GROUND
+        if self._ctl == "land":
+            return 4  # MAV_LANDED_STATE_LANDING
+        if self._ctl in ("spool", "takeoff"):
+            return 3  # MAV_LANDED_STATE_TAKEOFF
+        return 2  # MAV_LANDED_STATE_IN_AIR
 
     @property
     def mode_name(self) -> str:
@@ -164,46 +196,10 @@ class Autopilot:
 
     def build(self, msgid: int, now: float, kin: Kin) -> mav.MAVLink_message | None:
         """One instance of a streamable / requestable message, or None if not available."""
-        t = now - self.boot
-        if msgid == mav.MAVLINK_MSG_ID_HEARTBEAT:
-            return self.heartbeat()
-        if msgid == mav.MAVLINK_MSG_ID_SYS_STATUS:
-            return telemetry.sys_status(self.ekf_ready)
-        if msgid == mav.MAVLINK_MSG_ID_GPS_RAW_INT:
-            return telemetry.gps_raw_int(t, self.origin, kin, 3 if self.ekf_ready else 1)
-        if msgid == mav.MAVLINK_MSG_ID_ATTITUDE:
-            return telemetry.attitude(t, kin, self._heading(kin))
-        if msgid == LPN:
-            return mav.MAVLink_local_position_ned_message(
-                round(t * 1000) & 0xFFFFFFFF, *kin.pos, *kin.vel
-            )
-        if msgid == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            return telemetry.global_position_int(
-                t, self.origin, self.home[2], kin, self._heading(kin)
-            )
-        if msgid == mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
-            return telemetry.ekf_status_report(self.ekf_ready)
-        if msgid == mav.MAVLINK_MSG_ID_HOME_POSITION:
-            return telemetry.home_position(t, self.origin, self.home) if self.ekf_ready else None
-        if msgid == mav.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
-            return telemetry.gps_global_origin(t, self.origin) if self.ekf_ready else None
-        if msgid == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            return telemetry.autopilot_version(self.sysid)
-        if msgid == mav.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-            if self.mode != GUIDED or not self.armed:
-                return None
-            sp = self._sp
-            return telemetry.position_target_local_ned(
-                t,
-                self._echo_mask,
-                sp.get("p", self._hold),
-                sp.get("v", ZERO),
-                sp.get("a", ZERO),
-                self.yaw,
-            )
-        return None
+        return reports.build(self, msgid, now, kin)
 
-    def _heading(self, kin: Kin) -> float:
+    def heading(self, kin: Kin) -> float:
+        """Yaw (rad): the direction of travel when WP_YAW_BEHAVIOR asks for it and it moves."""
         if self.params["WP_YAW_BEHAVIOR"] != 0 and math.hypot(kin.vel[0], kin.vel[1]) > 0.5:
             self.yaw = math.atan2(kin.vel[1], kin.vel[0])
         return self.yaw
@@ -220,14 +216,18 @@ class Autopilot:
             return False
         self.mode = mode
         self.streaming = False
-        if kin.landed:
-            self._set_ctl("ground", now, kin)
+        if not self.armed:  # a disarmed vehicle never moves on its own
+            self.set_control("ground" if kin.landed else "fall", now, kin)
+        elif kin.landed:
+            self.set_control("ground", now, kin)
+            if mode == LAND and self.land_complete:  # LAND on the ground: disarms at once
+                self.disarm_landed(now, kin)
         elif mode == LAND:
-            self._set_ctl("land", now, kin)
+            self.set_control("land", now, kin)
         elif mode == RTL:
-            self._set_ctl("rtl_climb", now, kin)
+            self.set_control("rtl_climb", now, kin)
         else:
-            self._set_ctl("brake", now, kin)
+            self.set_control("brake", now, kin)
         return True
 
     def arm(self, now: float, kin: Kin, force: bool) -> tuple[bool, str | None]:
@@ -241,7 +241,7 @@ class Autopilot:
         self.armed = True
         self.streaming = False
         self.home = (kin.pos[0], kin.pos[1], kin.pos[2])
-        self._set_ctl("ground" if kin.landed else "brake", now, kin)
+        self.set_control("ground" if kin.landed else "brake", now, kin)
         return True, None
 
     def disarm(self, now: float, kin: Kin, force: bool) -> tuple[bool, str | None]:
@@ -252,34 +252,42 @@ class Autopilot:
             return False, "Disarm: vehicle is flying, use force"
         self.armed = False
         self.streaming = False
-        self._set_ctl("ground" if kin.landed else "fall", now, kin)
+        self.set_control("ground" if kin.landed else "fall", now, kin)
+        self.land_complete = kin.landed
         return True, None
+
+    def disarm_landed(self, now: float, kin: Kin) -> None:
+        """Disarm on the ground (land complete, failsafe, fence); the mode stays."""
+        self.armed = False
+        self.streaming = False
+        self.land_complete = True
+        self.set_control("ground", now, kin)
 
     def takeoff(self, alt_m: float, now: float, kin: Kin) -> bool:
         """NAV_TAKEOFF: climb to ``alt_m`` above home (GUIDED, armed, on the ground)."""
         if self.mode != GUIDED or not self.armed or not kin.landed or alt_m <= 0.0:
             return False
         self._tk_alt_d = self.home[2] - alt_m
-        self._set_ctl("spool", now, kin)
+        self.set_control("spool", now, kin)
         return True
 
     def stop(self, now: float, kin: Kin) -> None:
         """GUIDED 'init': brake to a stop and hold (invalid setpoint, unsupported frame)."""
-        self._sp = {}
-        self._echo_mask = 3576
-        self._set_ctl("brake", now, kin)
+        self.sp = {}
+        self.echo_mask = 3576
+        self.set_control("brake", now, kin)
 
     def apply_setpoint(
         self, kind: str, sp: dict[str, Any], mask: int, now: float, kin: Kin
     ) -> None:
         """Track a GUIDED target: kind in accel, vel, pos, posvel (already in local NED)."""
-        self._sp = sp
-        self._echo_mask = mask
+        self.sp = sp
+        self.echo_mask = mask
         self.streaming = True
         if kind in ("accel", "vel"):
             self._last_sp = now
             self.deadline = min(self.deadline, now + self._timeout_s())
-        self._set_ctl(kind, now, kin)
+        self.set_control(kind, now, kin)
 
     def _timeout_s(self) -> float:
         return max(self.params["GUID_TIMEOUT"], 0.1)
@@ -291,66 +299,83 @@ class Autopilot:
             return self._base[1]
         acc_max = p["SIM_ACC_MAX"]
         vxy, vup, vdn = p["WPNAV_SPEED"] / 100, p["WPNAV_SPEED_UP"] / 100, p["WPNAV_SPEED_DN"] / 100
+        jxy = jz = lean = _INF
+        if p["SIM_ACC_SHAPE"] != 0:
+            # Eq. D5a (AC_PosControl::set_max_speed_accel_xy): the horizontal jerk is
+            # PSC_JERK_XY, at most 0.5 sqrt(WPNAV_ACCEL * snap); WPNAV_ACCEL <= 0 -> 250 cm/s^2.
+            wp_acc = p["WPNAV_ACCEL"] / 100 if p["WPNAV_ACCEL"] > 0 else 2.5
+            jxy = max(0.0, min(p["PSC_JERK_XY"], 0.5 * math.sqrt(wp_acc * _SNAP_RAD_S4)))
+            jz = max(0.0, p["PSC_JERK_Z"])
+            # Eq. D6: lean-angle cap g tan(ANGLE_MAX), ANGLE_MAX in cdeg (kept below 85 deg).
+            angle = math.radians(min(max(p["ANGLE_MAX"], 0.0), 8500.0) / 100)
+            lean = GRAVITY_M_S2 * math.tan(angle)
         base = ControlTarget(
             vmax_xy=vxy, vmax_up=vup, vmax_dn=vdn, tau_s=p["SIM_ACC_TAU"],
-            acc_lim=acc_max, acc_max=acc_max,
+            acc_lim=acc_max, acc_max=acc_max, jerk_xy=jxy, jerk_z=jz, lean_acc=lean,
         )  # fmt: skip
         self._base = (p.generation, base)
         return base
 
-    def _set_ctl(self, ctl: str, now: float, kin: Kin) -> None:
+    def set_control(self, ctl: str, now: float, kin: Kin) -> None:
         self._ctl = ctl
         self._t_phase = now
         p = self.params
         hold = kin.pos
         b = base = self._base_target()
         one: Vec3 = (1.0, 1.0, 1.0)
-        sp = self._sp
+        sp = self.sp
         # The streamed kinds build their target field by field: ``replace`` costs
         # several times more, 50 times a second per vehicle.
         if ctl == "accel":
             tg = ControlTarget(
                 sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl == "vel":
             tg = ControlTarget(
                 sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl in ("pos", "posvel"):
-            self._hold = sp["p"]
+            self.hold_ned = sp["p"]
             tg = ControlTarget(
                 sp.get("a", ZERO), sp["p"], sp.get("v", ZERO), one, 1.0, b.vmax_xy, b.vmax_up,
-                b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s,
+                b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
             )  # fmt: skip
         elif ctl in ("ground", "spool"):
             tg = base
         elif ctl == "fall":
             g = GRAVITY_M_S2
-            tg = replace(base, a_ff=(0.0, 0.0, g), acc_lim=g, acc_max=g)
+            tg = replace(  # motors off: no position controller, no jerk limit
+                base, a_ff=(0.0, 0.0, g), acc_lim=g, acc_max=g, jerk_xy=_INF, jerk_z=_INF,
+                lean_acc=_INF,
+            )  # fmt: skip
         elif ctl == "brake":
-            tg = replace(base, wv=1.0, acc_lim=p["SIM_BRAKE_ACC"])
+            # ArduCopter brakes with input_vel_accel(0, 0) at WPNAV_ACCEL, jerk-limited (Eq. D5);
+            # without shaping (ideal) the deceleration fitted to the sheet's 18.7 m
+            shaped = p["SIM_ACC_SHAPE"] != 0 and p["WPNAV_ACCEL"] > 0
+            acc = p["WPNAV_ACCEL"] / 100 if shaped else p["SIM_BRAKE_ACC"]
+            tg = replace(base, wv=1.0, acc_lim=acc)
         elif ctl == "land":
-            self._hold = hold
+            self.hold_ned = hold
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
             speed = p["LAND_SPEED"] / 100 if low else base.vmax_dn
             tg = replace(base, p_t=hold, v_t=(0.0, 0.0, speed), wp=(1.0, 1.0, 0.0), wv=1.0)
             self._land_low = low
         else:
             if ctl == "takeoff":
-                self._hold = (hold[0], hold[1], self._tk_alt_d)
+                self.hold_ned = (hold[0], hold[1], self._tk_alt_d)
             elif ctl == "rtl_climb":
-                self._hold = (hold[0], hold[1], min(hold[2], self.home[2] - p["RTL_ALT"] / 100))
+                self.hold_ned = (hold[0], hold[1], min(hold[2], self.home[2] - p["RTL_ALT"] / 100))
             elif ctl in ("rtl_return", "rtl_loiter"):
-                self._hold = (self.home[0], self.home[1], self._hold[2])
+                self.hold_ned = (self.home[0], self.home[1], self.hold_ned[2])
             elif ctl != "hold":  # pragma: no cover - programming error
                 raise AssertionError(ctl)
-            tg = replace(base, p_t=self._hold, wp=one, wv=1.0)
+            tg = replace(base, p_t=self.hold_ned, wp=one, wv=1.0)
             if ctl == "takeoff":
                 tg = replace(tg, acc_lim=p["WPNAV_ACCEL_Z"] / 100)
         if ctl == "brake":
-            self._hold = hold
+            self.hold_ned = hold
         self.target = tg
         self.version += 1
         if ctl in _MOVING:
@@ -359,12 +384,12 @@ class Autopilot:
     def refresh(self, now: float, kin: Kin) -> None:
         """Re-derive the target after a parameter change (phase timers kept)."""
         t = self._t_phase
-        self._set_ctl(self._ctl, now, kin)
+        self.set_control(self._ctl, now, kin)
         self._t_phase = t
 
     def _hold_here(self, now: float, kin: Kin) -> None:
-        self._hold = kin.pos
-        self._set_ctl("hold", now, kin)
+        self.hold_ned = kin.pos
+        self.set_control("hold", now, kin)
 
     # ---------------------------------------------------------------- timers
     def poll(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
@@ -378,9 +403,17 @@ class Autopilot:
             out.append(telemetry.gps_global_origin(t, self.origin))
             out.append(telemetry.home_position(t, self.origin, self.home))
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "EKF3 IMU0 origin set"))
+        out.extend(guards.land_detector(self, now, kin))
         if now >= self._next_hb - 1e-6:
             out.append(self.heartbeat())
             self._next_hb = max(self._next_hb + 1.0, now + 0.5)
+        if self._boot_end is not None and not self.booted and now >= self._boot_end - 1e-9:
+            # SITL measured: GUIDED accepted at once, then ~1 s later boot ends and the
+            # vehicle is back in STABILIZE (HEARTBEAT custom_mode 0).
+            self.booted = True
+            out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "ArduPilot Ready"))
+            if not self.armed and self.mode != STABILIZE:
+                self.set_mode(STABILIZE, now, kin)
         for msgid, sched in self._streams.items():
             if now >= sched[1] - 1e-6:
                 m = self.build(msgid, now, kin)
@@ -392,43 +425,34 @@ class Autopilot:
         return out
 
     def _transitions(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
-        out: list[mav.MAVLink_message] = []
+        out = guards.safety_checks(self, now, kin)
+        if out:
+            return out
         p, ctl, el = self.params, self._ctl, now - self._t_phase
-        if self.armed and self._last_gcs_hb is not None and p["FS_GCS_ENABLE"] != 0:
-            lost = now - self._last_gcs_hb > p["FS_GCS_TIMEOUT"]
-            if lost and not self._fs_active and not kin.landed:
-                self._fs_active = True
-                out.append(telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, "GCS Failsafe"))
-                self.set_mode(LAND if p["FS_GCS_ENABLE"] == 5 else RTL, now, kin)
-                return out
         if ctl in ("accel", "vel") and now - self._last_sp > self._timeout_s() - 1e-9:
-            self._set_ctl("brake", now, kin)  # GUID_TIMEOUT: brake to a hover, mode unchanged
+            self.set_control("brake", now, kin)  # GUID_TIMEOUT: brake to a hover, mode unchanged
         elif ctl == "brake" and math.sqrt(sum(v * v for v in kin.vel)) < 0.05:
             self._hold_here(now, kin)
         elif ctl == "fall" and kin.landed:
-            self._set_ctl("ground", now, kin)
+            self.set_control("ground", now, kin)
         elif ctl == "spool":
             if el >= p["SIM_TKOFF_DLY"]:
-                self._set_ctl("takeoff", now, kin)
+                self.set_control("takeoff", now, kin)
         elif ctl == "takeoff" and abs(kin.pos[2] - self._tk_alt_d) < 0.1 and abs(kin.vel[2]) < 0.2:
-            self._set_ctl("hold", now, kin)  # holds the takeoff target
-        elif ctl == "land":
+            self.set_control("hold", now, kin)  # holds the takeoff target
+        elif ctl == "land":  # touchdown: the land detector disarms
             low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
-            if kin.landed and el > 0.5:
-                self.armed = False  # land complete -> disarm, mode stays
-                self.streaming = False
-                self._set_ctl("ground", now, kin)
-            elif low != self._land_low:
-                self._set_ctl("land", now, kin)
+            if low != self._land_low:
+                self.set_control("land", now, kin)
                 self._t_phase = now - el
-        elif ctl == "rtl_climb" and abs(kin.pos[2] - self._hold[2]) < 0.2:
-            self._set_ctl("rtl_return", now, kin)
+        elif ctl == "rtl_climb" and abs(kin.pos[2] - self.hold_ned[2]) < 0.2:
+            self.set_control("rtl_return", now, kin)
         elif ctl == "rtl_return":
             d = math.hypot(kin.pos[0] - self.home[0], kin.pos[1] - self.home[1])
             if d < 0.5 and math.hypot(kin.vel[0], kin.vel[1]) < 0.2:
-                self._set_ctl("rtl_loiter", now, kin)
+                self.set_control("rtl_loiter", now, kin)
         elif ctl == "rtl_loiter" and el >= p["RTL_LOIT_TIME"] / 1000:
-            self._set_ctl("land", now, kin)
+            self.set_control("land", now, kin)
         elif ctl == "ground" and self.armed and p["DISARM_DELAY"] > 0:
             if el >= p["DISARM_DELAY"]:
                 self.armed = False  # auto-disarm: no takeoff within DISARM_DELAY
@@ -442,21 +466,35 @@ class Autopilot:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
         for sched in self._streams.values():
             d = min(d, sched[1])
+        if self._boot_end is not None and not self.booted:
+            d = min(d, self._boot_end)
+        if self.touch is not None and self.armed and not self.land_complete:
+            d = min(d, self.touch + LAND_DETECT_S)
         ctl = self._ctl
-        if ctl in _MOVING:
+        if ctl in _MOVING or (self.armed and self.params["FENCE_ENABLE"] != 0):
             d = now
         elif ctl in ("accel", "vel"):
             d = min(d, self._last_sp + self._timeout_s())
         elif ctl == "ground" and self.armed and self.params["DISARM_DELAY"] > 0:
             d = min(d, self._t_phase + self.params["DISARM_DELAY"])
-        if self.armed and self._last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
-            d = min(d, self._last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
+        if self.armed and self.last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
+            d = min(d, self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
         self.deadline = d
 
-    def gcs_heartbeat(self, now: float) -> None:
-        """A GCS HEARTBEAT arrived (feeds the GCS failsafe)."""
-        self._last_gcs_hb = now
-        self._fs_active = False
+    def contact(self, now: float) -> None:
+        """A ground station was first heard (or connected): boot ends SIM_BOOT_S later,
+        as SITL's does about 1 s after its first connection."""
+        if self._boot_end is None and not self.booted:
+            self._boot_end = now + max(self.params["SIM_BOOT_S"], 0.0)
+            self.deadline = min(self.deadline, self._boot_end)
+
+    def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
+        """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""
+        self.last_gcs_hb = now
+        if self.fs_active:
+            self.fs_active = False
+            return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]
+        return []
 
     def origin_request_ok(self) -> bool:
         """True when GPS_GLOBAL_ORIGIN can be sent (the EKF has set it)."""

@@ -7,7 +7,10 @@ Ctrl-C (SIGINT) or SIGTERM stops it cleanly. Configuration errors print one
 line and exit with status 2; a port that cannot be bound exits with 1.
 
 Example: ``sim-vehicle --count 6 --base-port 5760 --origin-spread 5 --lockstep``
-then connect each vehicle with ``udpout:127.0.0.1:5760``, ``...:5770``, ...
+then connect each vehicle with ``udpout:127.0.0.1:5760``, ``...:5770``, ...;
+with ``--tcp`` each is also served as SITL serves it, ``tcp:127.0.0.1:5760``,
+``...:5770``, ... (``--tcp-base-port`` to move it; UDP stays).
+``--sitl-times`` gives SITL's start-up: ``--boot 1 --ekf-delay 25``.
 """
 
 from __future__ import annotations
@@ -67,6 +70,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--base-port", type=int, default=5760, help="vehicle i on BASE+10*i (5760)")
     p.add_argument("--shared-port", type=int, help="serve every sysid on this one UDP port")
+    p.add_argument(
+        "--tcp",
+        action="store_true",
+        help="also serve vehicle i on TCP BASE+10*i (as SITL: tcp:127.0.0.1:5760)",
+    )
+    p.add_argument("--tcp-base-port", type=int, metavar="BASE",
+                   help="TCP base port (default: --base-port); implies --tcp")  # fmt: skip
     p.add_argument("--sysid-start", type=int, default=1, help="system id of vehicle 0 (1)")
     p.add_argument(
         "--start", type=_triple, action="append", default=[], metavar="N,E,D",
@@ -83,7 +93,20 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--rate", type=float, default=50.0, help="physics steps per second (50)")
     p.add_argument("--ideal", action="store_true", help="no acceleration lag (default 0.2 s)")
     p.add_argument("--tau", type=float, help="acceleration lag time constant, s")
-    p.add_argument("--ekf-delay", type=float, default=2.0, help="s before arming passes (2)")
+    p.add_argument("--ekf-delay", type=float, help="s before EKF/GPS ready, arming passes (2)")
+    p.add_argument(
+        "--boot",
+        type=float,
+        metavar="S",
+        help="s after first contact: 'ArduPilot Ready', STABILIZE (0: never, default)",
+    )
+    p.add_argument(
+        "--sitl-times",
+        action="store_true",
+        help="SITL's start-up times: --boot 1 --ekf-delay 25 unless given",
+    )
+    p.add_argument("--no-shaping", action="store_true",
+                   help="no jerk / lean-angle limits on the command (kept lag)")  # fmt: skip
     p.add_argument("--noise-pos", type=float, default=0.0, help="LOCAL_POSITION_NED noise, m")
     p.add_argument("--noise-vel", type=float, default=0.0, help="LOCAL_POSITION_NED noise, m/s")
     p.add_argument("--seed", type=int, default=0)
@@ -126,6 +149,12 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
             )
         )
     imp = Impairment(loss=args.loss, delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup)
+    sitl = getattr(args, "sitl_times", False)
+    ekf = args.ekf_delay if args.ekf_delay is not None else (25.0 if sitl else 2.0)
+    boot = args.boot if args.boot is not None else (1.0 if sitl else 0.0)
+    tcp_base = args.tcp_base_port
+    if tcp_base is None and args.tcp:
+        tcp_base = args.base_port
     key: bytes | None = None
     if getattr(args, "signing_key_env", None):
         text = os.environ.get(args.signing_key_env, "")
@@ -147,7 +176,10 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         lockstep_timeout_s=args.lockstep_timeout,
         dynamics="ideal" if args.ideal else "ardupilot",
         accel_tau_s=args.tau,
-        ekf_ready_s=args.ekf_delay,
+        accel_shaping=False if args.no_shaping else None,
+        boot_s=boot,
+        ekf_ready_s=ekf,
+        tcp_base_port=tcp_base,
         noise_pos_m=args.noise_pos,
         noise_vel_m_s=args.noise_vel,
         seed=args.seed,
@@ -164,8 +196,9 @@ def _describe(emu: Emulator, sysid: int) -> str:
     host, port = st.endpoint
     n, e, d = st.pos_ned_m
     arm = "ARMED" if st.armed else "disarmed"
+    tcp = f" tcp {st.tcp_endpoint[0]}:{st.tcp_endpoint[1]}" if st.tcp_endpoint else ""
     return (
-        f"sysid {sysid:3d} udp {host}:{port} {st.mode_name:8s} {arm:8s} "
+        f"sysid {sysid:3d} udp {host}:{port}{tcp} {st.mode_name:8s} {arm:8s} "
         f"ned=({n:.2f}, {e:.2f}, {d:.2f}) t={st.sim_time_s:.2f}s"
     )
 

@@ -48,6 +48,7 @@ STREAMABLE: dict[int, float] = {
     mav.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 2.0,
     mav.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
+    mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
 }
 #: REQUEST_DATA_STREAM groups (MAV_DATA_STREAM_*) -> message ids, as ArduPilot groups them.
 DATA_STREAMS: dict[int, tuple[int, ...]] = {
@@ -95,9 +96,9 @@ def _for_me(ap: Autopilot, msg: Any) -> bool:
 def dispatch(ap: Autopilot, msg: Any, now: float, kin: Kin) -> Msgs:
     """Handle one decoded message addressed (or broadcast) to ``ap``; return replies."""
     kind = msg.get_type()
-    if kind == "HEARTBEAT":
-        if msg.type == mav.MAV_TYPE_GCS:
-            ap.gcs_heartbeat(now)
+    if kind == "HEARTBEAT":  # ArduPilot: any HEARTBEAT from SYSID_MYGCS, whatever its type
+        if msg.get_srcSystem() == round(ap.params["SYSID_MYGCS"]):
+            return ap.gcs_heartbeat(now)
         return []
     if kind == "SET_POSITION_TARGET_LOCAL_NED":
         if _for_me(ap, msg):

@@ -107,10 +107,24 @@ class EmulatorConfig:
 
     ``clock``: ``"realtime"`` (paced at ``speedup`` x wall clock) or
     ``"lockstep"`` (see ``sim_vehicle`` docstring for the exact rule).
-    ``dynamics``: ``"ardupilot"`` (first-order lag ``accel_tau_s`` default
-    0.2 s on the acceleration command) or ``"ideal"`` (no lag, exact
-    kinematics). ``shared_port``: not ``None`` -> every vehicle is multiplexed
-    on that one endpoint (0 = ephemeral), told apart by system id.
+    ``dynamics``: ``"ardupilot"`` (ArduCopter's position-controller limits on
+    the acceleration command: jerk PSC_JERK_XY / PSC_JERK_Z, lean ANGLE_MAX,
+    then a first-order lag ``accel_tau_s`` default 0.2 s; docs/emulator.md)
+    or ``"ideal"`` (no jerk limit, no lean cap, no lag: exact kinematics).
+    ``accel_shaping``: the jerk and lean limits on (True) or off (False)
+    whatever the preset; None: the preset's (on for ``ardupilot``). The default
+    is False for now: the station does not yet plan within the vehicle's
+    envelope, and its tests fly the paper's gains, which ArduCopter (and this
+    model) cannot follow; ``sim-vehicle`` uses the preset.
+    ``boot_s``: sim s after the first contact (a station heard or connected)
+    when the vehicle says "ArduPilot Ready" and returns to STABILIZE, as SITL
+    ~1 s after its first connection (0: no such event, the default for now). ``ekf_ready_s``: sim s
+    after boot before EKF and GPS are ready (SITL: 20-40 s in real time).
+    ``tcp_base_port``: not None -> each vehicle is also a MAVLink TCP server
+    (one client at a time) on ``tcp_base_port + 10 * index`` (0: ephemeral),
+    as SITL serves ``tcp:127.0.0.1:5760``; not with ``shared_port``.
+    ``shared_port``: not ``None`` -> every vehicle is multiplexed on that one
+    endpoint (0 = ephemeral), told apart by system id.
     ``streams``: message id -> Hz streamed from the start (default: none but
     HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
     vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
@@ -131,7 +145,10 @@ class EmulatorConfig:
     lockstep_timeout_s: float = 0.5
     dynamics: Literal["ardupilot", "ideal"] = "ardupilot"
     accel_tau_s: float | None = None
+    accel_shaping: bool | None = False
+    boot_s: float = 0.0
     ekf_ready_s: float = 2.0
+    tcp_base_port: int | None = None
     noise_pos_m: float = 0.0
     noise_vel_m_s: float = 0.0
     seed: int = 0
@@ -150,6 +167,10 @@ class EmulatorConfig:
         _check(self.dynamics in ("ardupilot", "ideal"), f"dynamics: unknown {self.dynamics!r}")
         _check(self.lockstep_timeout_s > 0.0, "lockstep_timeout_s: expected > 0")
         _check(self.ekf_ready_s >= 0.0, "ekf_ready_s: expected >= 0")
+        _check(self.boot_s >= 0.0, "boot_s: expected >= 0")
+        if self.tcp_base_port is not None:
+            _check(0 <= self.tcp_base_port <= 65535, "tcp_base_port: expected 0..65535")
+            _check(self.shared_port is None, "tcp_base_port: not with shared_port")
         _check(self.noise_pos_m >= 0.0 and self.noise_vel_m_s >= 0.0, "noise: expected >= 0")
         if self.accel_tau_s is not None:
             _check(self.accel_tau_s >= 0.0, "accel_tau_s: expected >= 0")
@@ -168,3 +189,10 @@ class EmulatorConfig:
         if self.accel_tau_s is not None:
             return self.accel_tau_s
         return 0.2 if self.dynamics == "ardupilot" else 0.0
+
+    @property
+    def shaping(self) -> bool:
+        """Jerk and lean limits on the command (preset unless overridden)."""
+        if self.accel_shaping is not None:
+            return self.accel_shaping
+        return self.dynamics == "ardupilot"

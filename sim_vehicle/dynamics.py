@@ -27,9 +27,18 @@ Equations (named where used):
   ``vmax_xy``, vertical to ``[-vmax_up, vmax_dn]``), ``c = a_ff + kv wv (v_des - v)``,
   then ``|c| <= acc_max`` (norm clamp).
 - (D4) ground: a vehicle may not go below ``ground_d_m``; on the ground its
-  horizontal velocity and downward velocity are zeroed (landed).
+  horizontal velocity and downward velocity are zeroed (landed), and the
+  acceleration (and the shaped command of D5) when it pushes down.
+- (D5) jerk limit of ArduCopter's position controller (``AC_PosControl``
+  ``shape_accel_xy`` / ``shape_accel``): the shaped command ``s`` moves towards
+  the clamped command ``c`` by at most ``j dt`` per step, the horizontal part as
+  a 2-D vector (``|s_h' - s_h| <= j_xy dt``), the vertical as a scalar
+  (``|s_z' - s_z| <= j_z dt``); within the limit ``s' = c`` exactly.
+- (D6) lean-angle cap: ``|s_h| <= a_lean = g tan(ANGLE_MAX)`` (norm clamp of the
+  horizontal shaped command, stored so it does not wind up). D2 then lags ``s``.
+  With ``j = a_lean = inf`` (the ideal preset) D5-D6 give ``s = c`` bit for bit.
 
-``advance_small`` is D3 then D1-D4 for a few vehicles in plain Python floats:
+``advance_small`` is D3 then D1, D5, D6, D2, D4 for a few vehicles in plain Python floats:
 the same operations in the same order as ``tracking_accel`` then ``step``, so
 the same bits (a test compares them on random cases), without numpy's cost
 per call, which dominates below a few tens of vehicles.
@@ -51,6 +60,7 @@ __all__ = [
     "Targets",
     "advance_small",
     "lag_factors",
+    "shape",
     "step",
     "tracking_accel",
 ]
@@ -66,18 +76,21 @@ class KinState:
 
     ``pos_ned_m``, ``vel_ned_m_s``, ``acc_ned_m_s2`` (achieved acceleration,
     the lag state of D1): shape (N, 3). ``landed``: shape (N,), on the ground.
+    ``cmd_ned_m_s2``: the shaped command of D5-D6 (the jerk limiter's state,
+    (N, 3) m/s^2); None = zeros.
     """
 
     pos_ned_m: F64
     vel_ned_m_s: F64
     acc_ned_m_s2: F64
     landed: NDArray[np.bool_]
+    cmd_ned_m_s2: F64 | None = None
 
     @staticmethod
     def zeros(n: int) -> KinState:
         """N vehicles at rest at their origins, landed."""
         z = np.zeros((n, 3))
-        return KinState(z, z.copy(), z.copy(), np.ones(n, dtype=bool))
+        return KinState(z, z.copy(), z.copy(), np.ones(n, dtype=bool), z.copy())
 
 
 @dataclass(frozen=True)
@@ -86,11 +99,16 @@ class DynParams:
 
     ``tau_s``: lag time constant of D1 (0 = ideal); ``acc_max_m_s2``: norm
     clamp of the command; ``ground_d_m``: ground plane (down coordinate).
+    ``jerk_xy_m_s3``, ``jerk_z_m_s3``: jerk limits of D5; ``lean_acc_m_s2``:
+    horizontal cap of D6 (``inf`` = no limit; None = D5-D6 skipped).
     """
 
     tau_s: F64
     acc_max_m_s2: F64
     ground_d_m: F64
+    jerk_xy_m_s3: F64 | None = None
+    jerk_z_m_s3: F64 | None = None
+    lean_acc_m_s2: F64 | None = None
 
 
 @dataclass(frozen=True)
@@ -158,16 +176,44 @@ def tracking_accel(state: KinState, tg: Targets, kp_1_s: float, kv_1_s: float) -
     return out
 
 
+def shape(c: F64, s0: F64, dt: float, params: DynParams) -> F64:
+    """Eqs. D5-D6: the shaped command (N,3) m/s^2 from the clamped command ``c`` and the
+    previous shaped command ``s0``. Within the jerk limit the result is ``c`` itself."""
+    if params.jerk_xy_m_s3 is None or params.jerk_z_m_s3 is None or params.lean_acc_m_s2 is None:
+        return c
+    jx = params.jerk_xy_m_s3 * dt
+    jz = params.jerk_z_m_s3 * dt
+    dh = c[:, :2] - s0[:, :2]
+    nh = np.hypot(dh[:, 0], dh[:, 1])
+    over = nh > jx  # Eq. D5, horizontal: a 2-D rate limit
+    k = np.where(over, jx, 0.0) / np.where(over, nh, 1.0)
+    s = np.empty_like(c)
+    s[:, :2] = np.where(over[:, None], s0[:, :2] + dh * k[:, None], c[:, :2])
+    dz = c[:, 2] - s0[:, 2]  # Eq. D5, vertical
+    s[:, 2] = np.where(dz > jz, s0[:, 2] + jz, np.where(dz < -jz, s0[:, 2] - jz, c[:, 2]))
+    cap = params.lean_acc_m_s2
+    n2 = np.hypot(s[:, 0], s[:, 1])
+    big = n2 > cap  # Eq. D6
+    if big.any():
+        q = np.where(big, cap, 1.0) / np.where(big, n2, 1.0)
+        s[:, 0] *= q
+        s[:, 1] *= q
+    return s
+
+
 def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinState:
     """Advance N point masses by ``dt`` s under ``accel_cmd`` (N,3) NED m/s^2.
 
-    Clamps the command norm to ``acc_max_m_s2``, applies the lag (Eq. D1/D2,
-    exact for a command held over the step), then the ground plane (D4).
-    Returns a new state; inputs are not modified.
+    Clamps the command norm to ``acc_max_m_s2``, shapes it (Eqs. D5-D6, when
+    ``params`` has the limits), applies the lag (Eq. D1/D2, exact for a command
+    held over the step), then the ground plane (D4). Returns a new state;
+    inputs are not modified.
     """
     c = np.asarray(accel_cmd, dtype=np.float64)
     norm = _norm(c)
     c = c * np.minimum(1.0, params.acc_max_m_s2 / np.maximum(norm, 1e-12))[:, None]
+    s0 = state.cmd_ned_m_s2 if state.cmd_ned_m_s2 is not None else np.zeros_like(c)
+    c = shape(c, s0, dt, params)
     p0, v0, a0 = state.pos_ned_m, state.vel_ned_m_s, state.acc_ned_m_s2
     tau = params.tau_s
     lagged = tau > 0.0
@@ -179,6 +225,7 @@ def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinSt
     a1 = c + d * e
     v1 = v0 + c * dt + d * t * (1.0 - e)
     p1 = p0 + v0 * dt + 0.5 * c * (dt * dt) + d * t * (dt - t * (1.0 - e))
+    s1 = c.copy()
     # Eq. D4: ground plane.
     ground = params.ground_d_m
     below = p1[:, 2] >= ground
@@ -187,8 +234,9 @@ def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinSt
         v1[below, :] = np.where(v1[below, 2:3] > 0.0, 0.0, v1[below, :])
         v1[below, 2] = np.minimum(v1[below, 2], 0.0)
         a1[below, :] = np.where(a1[below, 2:3] > 0.0, 0.0, a1[below, :])
+        s1[below, :] = np.where(s1[below, 2:3] > 0.0, 0.0, s1[below, :])
     landed = below & (v1[:, 2] >= 0.0)
-    return KinState(p1, v1, a1, landed)
+    return KinState(p1, v1, a1, landed, s1)
 
 
 def _hypot_rows(rows: list[list[float]]) -> list[float]:
@@ -227,6 +275,45 @@ def lag_factors(tau_s: F64, dt: float) -> list[tuple[float, float]]:
     return list(zip(e.tolist(), t.tolist(), strict=True))
 
 
+def _shape_rows(
+    cs: list[list[float]],
+    s0: Rows,
+    jxy: Sequence[float],
+    jz: Sequence[float],
+    lean: Sequence[float],
+    dt: float,
+) -> list[list[float]]:
+    """``shape`` (Eqs. D5-D6) on rows given as lists, bit for bit (``_hypot_rows`` keeps
+    numpy's hypot). Rows whose limits are all infinite keep ``c`` and cost no hypot."""
+    out = [list(c) for c in cs]
+    inf = math.inf
+    rows = [i for i in range(len(cs)) if jxy[i] != inf or jz[i] != inf or lean[i] != inf]
+    if not rows:
+        return out
+    dh = [[cs[i][0] - s0[i][0], cs[i][1] - s0[i][1]] for i in rows]
+    nh = _hypot_rows(dh)
+    for k, i in enumerate(rows):
+        c, s, o = cs[i], s0[i], out[i]
+        jx = jxy[i] * dt
+        if nh[k] > jx:  # Eq. D5, horizontal
+            q = jx / nh[k]
+            o[0], o[1] = s[0] + dh[k][0] * q, s[1] + dh[k][1] * q
+        j = jz[i] * dt
+        dz = c[2] - s[2]  # Eq. D5, vertical
+        if dz > j:
+            o[2] = s[2] + j
+        elif dz < -j:
+            o[2] = s[2] - j
+    n2 = _hypot_rows([out[i] for i in rows])
+    for k, i in enumerate(rows):
+        cap = lean[i]
+        if n2[k] > cap:  # Eq. D6
+            q = cap / n2[k]
+            o = out[i]
+            o[0], o[1] = o[0] * q, o[1] * q
+    return out
+
+
 def advance_small(
     pos: Rows,
     vel: Rows,
@@ -248,12 +335,15 @@ def advance_small(
     dt: float,
     kp_1_s: float,
     kv_1_s: float,
-) -> tuple[list[list[float]], list[list[float]], list[list[float]], list[bool]]:
+    shaping: tuple[Rows, Sequence[float], Sequence[float], Sequence[float]] | None = None,
+) -> tuple[list[list[float]], list[list[float]], list[list[float]], list[bool], list[list[float]]]:
     """``tracking_accel`` then ``step`` for rows given as Python lists, bit for bit.
 
     ``tg`` holds the ``Targets`` fields in their order, ``acc_max`` and
-    ``ground`` the ``DynParams`` ones, ``lag`` is ``lag_factors(tau, dt)``.
-    Returns (pos, vel, acc, landed) as lists. numpy's elementwise rules are
+    ``ground`` the ``DynParams`` ones, ``lag`` is ``lag_factors(tau, dt)``,
+    ``shaping`` is (shaped command rows, jerk_xy, jerk_z, lean_acc) for D5-D6
+    (None: skipped). Returns (pos, vel, acc, landed, shaped command) as lists.
+    numpy's elementwise rules are
     copied where Python's differ: ``np.maximum(a, b)`` is ``a if a > b else b``
     (``b`` on a tie, which matters for signed zeros), ``np.minimum`` likewise,
     ``np.clip(x, lo, hi)`` with array bounds is ``np.minimum(np.maximum(x, lo), hi)``
@@ -286,9 +376,9 @@ def advance_small(
         sv = (far if e > lin else kp_1_s * e) / (e if e > 1e-12 else 1e-12)
         v_des.append([vt[0] + er[0] * sh, vt[1] + er[1] * sh, vt[2] + er[2] * sv])
     hs = _hypot_rows(v_des)
-    p1s, v1s, a1s, landed = [], [], [], []
+    cs = []
     for i in range(n):
-        vd, v0, p0, a0, af = v_des[i], vel[i], pos[i], acc[i], a_ff[i]
+        vd, v0, af = v_des[i], vel[i], a_ff[i]
         h = hs[i]
         q = vmax_xy[i] / (h if h > 1e-12 else 1e-12)
         scale = 1.0 if 1.0 < q else q
@@ -303,11 +393,17 @@ def advance_small(
         q = acc_lim[i] / (norm if norm > 1e-12 else 1e-12)
         lim = 1.0 if 1.0 < q else q
         c0, c1, c2 = c0 * lim, c1 * lim, c2 * lim  # tracking_accel's output
-        norm = sqrt(c0 * c0 + c1 * c1 + c2 * c2)  # step: Eq. D1 clamp, D2
+        norm = sqrt(c0 * c0 + c1 * c1 + c2 * c2)  # step: Eq. D1 clamp
         q = acc_max[i] / (norm if norm > 1e-12 else 1e-12)
         lim = 1.0 if 1.0 < q else q
-        c0, c1, c2 = c0 * lim, c1 * lim, c2 * lim
-        e, t = lag[i]
+        cs.append([c0 * lim, c1 * lim, c2 * lim])
+    if shaping is not None:  # Eqs. D5-D6
+        cs = _shape_rows(cs, *shaping, dt)
+    p1s, v1s, a1s, landed, s1s = [], [], [], [], []
+    for i in range(n):
+        v0, p0, a0 = vel[i], pos[i], acc[i]
+        c0, c1, c2 = cs[i]
+        e, t = lag[i]  # Eq. D2
         d0, d1, d2 = a0[0] - c0, a0[1] - c1, a0[2] - c2
         a1 = [c0 + d0 * e, c1 + d1 * e, c2 + d2 * e]
         u, w = 1.0 - e, dt - t * (1.0 - e)
@@ -322,6 +418,7 @@ def advance_small(
             p0[1] + v0[1] * dt + 0.5 * c1 * hh + d1 * t * w,
             p0[2] + v0[2] * dt + 0.5 * c2 * hh + d2 * t * w,
         ]
+        s1 = [c0, c1, c2]
         g = ground[i]
         below = p1[2] >= g
         if below:  # Eq. D4
@@ -331,8 +428,11 @@ def advance_small(
             v1[2] = v1[2] if v1[2] < 0.0 else 0.0
             if a1[2] > 0.0:
                 a1 = [0.0, 0.0, 0.0]
+            if c2 > 0.0:
+                s1 = [0.0, 0.0, 0.0]
         p1s.append(p1)
         v1s.append(v1)
         a1s.append(a1)
+        s1s.append(s1)
         landed.append(below and v1[2] >= 0.0)
-    return p1s, v1s, a1s, landed
+    return p1s, v1s, a1s, landed, s1s

@@ -24,11 +24,13 @@ __all__ = ["KP_1_S", "KV_1_S", "Fleet"]
 #: Gains of Eq. D3 (ArduCopter PSC_POSXY_P = 1, PSC_VELXY_P = 2).
 KP_1_S = 1.0
 KV_1_S = 2.0
-_V3 = ("pos", "vel", "acc", "a_ff", "p_t", "v_t", "wp")
+_V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
+    "jerk_xy", "jerk_z", "lean",
 )  # fmt: skip
+_INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
 _I1 = ("seq", "sysid", "compid")
 _B1 = ("landed", "awaiting", "holding")
 _SMALL_STEP = 24
@@ -41,6 +43,10 @@ class Fleet:
     pos: NDArray[np.float64]
     vel: NDArray[np.float64]
     acc: NDArray[np.float64]
+    shp: NDArray[np.float64]  # shaped command of dynamics Eqs. D5-D6 (the jerk limiter's state)
+    jerk_xy: NDArray[np.float64]
+    jerk_z: NDArray[np.float64]
+    lean: NDArray[np.float64]
     a_ff: NDArray[np.float64]
     p_t: NDArray[np.float64]
     v_t: NDArray[np.float64]
@@ -68,6 +74,7 @@ class Fleet:
 
     def __init__(self) -> None:
         self.n = 0
+        self.changed: list[int] = []  # rows whose ``landed`` flag the last step changed
         self._views: tuple[Targets, DynParams] | None = None  # step()'s inputs over the arrays
         self._lag: tuple[list[float], float, list[tuple[float, float]]] | None = None
         for name in _V3:
@@ -89,7 +96,7 @@ class Fleet:
             setattr(
                 self,
                 name,
-                np.append(getattr(self, name), np.inf if name == "lpn_interval" else 0.0),
+                np.append(getattr(self, name), np.inf if name in _INF_DEFAULT else 0.0),
             )
         for name, val in (("seq", 0), ("sysid", sysid), ("compid", compid)):
             setattr(self, name, np.append(getattr(self, name), np.int64(val)))
@@ -127,6 +134,9 @@ class Fleet:
             and tg.acc_lim is prev.acc_lim
             and tg.acc_max is prev.acc_max
             and tg.tau_s is prev.tau_s
+            and tg.jerk_xy is prev.jerk_xy
+            and tg.jerk_z is prev.jerk_z
+            and tg.lean_acc is prev.lean_acc
         ):
             return
         self.p_t[row] = tg.p_t
@@ -139,14 +149,22 @@ class Fleet:
         self.acc_lim[row] = tg.acc_lim
         self.acc_max[row] = tg.acc_max
         self.tau[row] = tg.tau_s
+        self.jerk_xy[row] = tg.jerk_xy
+        self.jerk_z[row] = tg.jerk_z
+        self.lean[row] = tg.lean_acc
 
     def step(self, dt: float) -> None:
-        """Advance every vehicle by ``dt`` s: Eq. D3 then ``dynamics.step`` (D1, D2, D4)."""
+        """Advance every vehicle by ``dt`` s: Eq. D3 then ``dynamics.step`` (D1, D5, D6, D2, D4)."""
         if self.n == 0:
             return
-        if self.n < _SMALL_STEP and self._step_small(dt):
-            return
-        self.step_numpy(dt)
+        before = self.landed
+        if not (self.n < _SMALL_STEP and self._step_small(dt)):
+            self.step_numpy(dt)
+        if self.n < _SMALL_STEP:
+            now_landed = self.landed.tolist()
+            self.changed = [r for r, a in enumerate(before.tolist()) if a != now_landed[r]]
+        else:
+            self.changed = np.flatnonzero(before != self.landed).tolist()
 
     def _step_small(self, dt: float) -> bool:
         """``step`` through ``dynamics.advance_small``; False (nothing changed) where it
@@ -161,18 +179,26 @@ class Fleet:
             self.vmax_dn.tolist(), self.acc_lim.tolist(),
         )  # fmt: skip
         try:
-            pos, vel, acc, landed = dynamics.advance_small(
+            shaping = (
+                self.shp.tolist(),
+                self.jerk_xy.tolist(),
+                self.jerk_z.tolist(),
+                self.lean.tolist(),
+            )
+            pos, vel, acc, landed, shp = dynamics.advance_small(
                 self.pos.tolist(), self.vel.tolist(), self.acc.tolist(), tg,
                 self.acc_max.tolist(), self.ground.tolist(), lag[2], dt, KP_1_S, KV_1_S,
+                shaping,
             )  # fmt: skip
         except ValueError:
             return False
         chk = 0.0
-        for p, v, a in zip(pos, vel, acc, strict=True):
-            chk += p[0] + p[1] + p[2] + v[0] + v[1] + v[2] + a[0] + a[1] + a[2]
+        for p, v, a, c in zip(pos, vel, acc, shp, strict=True):
+            chk += p[0] + p[1] + p[2] + v[0] + v[1] + v[2] + a[0] + a[1] + a[2] + c[0] + c[1] + c[2]
         if not math.isfinite(chk):  # NaN or inf somewhere: numpy's rules for those
             return False
         self.pos, self.vel, self.acc = np.array(pos), np.array(vel), np.array(acc)
+        self.shp = np.array(shp)
         self.landed = np.array(landed, dtype=bool)
         return True
 
@@ -180,23 +206,27 @@ class Fleet:
         """``step`` with numpy whatever the number of vehicles (the reference of the small path)."""
         if self.n == 0:
             return
-        st = KinState(self.pos, self.vel, self.acc, self.landed)
+        st = KinState(self.pos, self.vel, self.acc, self.landed, self.shp)
         if self._views is None:  # the arrays are written in place; only add/remove replace them
             self._views = (
                 Targets(
                     self.a_ff, self.p_t, self.v_t, self.wp, self.wv,
                     self.vmax_xy, self.vmax_up, self.vmax_dn, self.acc_lim,
                 ),
-                DynParams(self.tau, self.acc_max, self.ground),
+                DynParams(
+                    self.tau, self.acc_max, self.ground, self.jerk_xy, self.jerk_z, self.lean
+                ),
             )  # fmt: skip
         tg, params = self._views
         cmd = dynamics.tracking_accel(st, tg, KP_1_S, KV_1_S)
         new = dynamics.step(st, cmd, dt, params)
-        self.pos, self.vel, self.acc, self.landed = (
+        assert new.cmd_ned_m_s2 is not None
+        self.pos, self.vel, self.acc, self.landed, self.shp = (
             new.pos_ned_m,
             new.vel_ned_m_s,
             new.acc_ned_m_s2,
             new.landed,
+            new.cmd_ned_m_s2,
         )
 
     def encode_lpn(

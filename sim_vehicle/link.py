@@ -1,11 +1,16 @@
-"""UDP endpoints of the emulator and the seeded link impairments.
+"""UDP (and TCP) endpoints of the emulator and the seeded link impairments.
 
 Owns ``Impairer`` (pure: per datagram, lost / delayed / duplicated, from a
-seeded ``numpy.random.Generator``) and ``Endpoint`` (one bound UDP socket
+seeded ``numpy.random.Generator``), ``Endpoint`` (one bound UDP socket
 hosting one or several system ids: the peers it has heard, its outbox and its
-parser). Sends go straight to the non-blocking socket (a full socket buffer
-drops the datagram and counts it, as a radio would); receives come through
-asyncio. Datagrams are batched per peer up to ``MAX_DATAGRAM`` bytes.
+parser) and ``TcpPort`` (the same vehicle also served as a MAVLink TCP
+server, one client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
+go straight to the non-blocking socket (a full socket buffer drops the
+datagram and counts it, as a radio would); receives come through asyncio.
+Datagrams are batched per peer up to ``MAX_DATAGRAM`` bytes. A TCP client is
+one more peer of its endpoint, under the address ``("tcp:HOST", PORT)``
+(``TCP_PREFIX``): everything sent to the endpoint's peers goes to it too, as
+a byte stream.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ from sim_vehicle import signing
 from sim_vehicle.codec import crc16
 from sim_vehicle.config import Impairment
 
-__all__ = ["MAX_DATAGRAM", "Endpoint", "Impairer", "LinkStats"]
+__all__ = ["MAX_DATAGRAM", "TCP_PREFIX", "Endpoint", "Impairer", "LinkStats", "TcpPort"]
 
 MAX_DATAGRAM = 1200
+TCP_PREFIX = "tcp:"
 Addr = tuple[str, int]
 
 
@@ -81,6 +87,7 @@ class Endpoint(asyncio.DatagramProtocol):
     transport: asyncio.DatagramTransport | None = None
     signing_key: bytes | None = field(default=None, repr=False)
     silent: bool = False  # radio off: nothing sent, nothing heard (Emulator.set_silent)
+    tcp: TcpPort | None = None  # the same vehicle served over TCP too
 
     def __post_init__(self) -> None:
         self.parser = signing.mavlink(0, 0, self.signing_key)
@@ -180,6 +187,10 @@ class Endpoint(asyncio.DatagramProtocol):
 
     def sendto(self, data: bytes, addr: Addr) -> None:
         """Send one datagram now (no impairment here; see ``Emulator``)."""
+        if addr[0].startswith(TCP_PREFIX):
+            if self.tcp is not None and self.tcp.write(data, addr):
+                self.stats.tx_datagrams += 1
+            return
         try:
             self.sock.sendto(data, addr)
             self.stats.tx_datagrams += 1
@@ -189,11 +200,107 @@ class Endpoint(asyncio.DatagramProtocol):
             pass  # the peer vanished (ICMP): UDP keeps no state
 
     def close(self) -> None:
-        """Close the transport (and so the socket)."""
+        """Close the transport (and so the socket), and the TCP port if any."""
+        if self.tcp is not None:
+            self.tcp.close()
         if self.transport is not None:
             self.transport.close()
         else:
             self.sock.close()
+
+
+class TcpPort:
+    """A MAVLink TCP server for one endpoint: one client at a time (a new one replaces
+    the old). Frames from the stream are parsed across reads by a parser of its own;
+    ``on_messages(ep, msgs, addr)`` gets them, ``on_peer(ep, addr, up)`` the comings
+    and goings."""
+
+    def __init__(
+        self,
+        ep: Endpoint,
+        on_messages: Callable[[Endpoint, list[mav.MAVLink_message], Addr], None],
+        on_peer: Callable[[Endpoint, Addr, bool], None],
+    ) -> None:
+        self.ep = ep
+        self.on_messages = on_messages
+        self.on_peer = on_peer
+        self.server: asyncio.Server | None = None
+        self.address: Addr = ("", 0)
+        self._client: tuple[Addr, asyncio.Transport] | None = None
+
+    async def start(self, host: str, port: int) -> None:
+        """Listen on (host, port); port 0 = ephemeral."""
+        loop = asyncio.get_running_loop()
+        self.server = await loop.create_server(lambda: _TcpClient(self), host, port)
+        h, p = self.server.sockets[0].getsockname()[:2]
+        self.address = (str(h), int(p))
+
+    def attach(self, addr: Addr, transport: asyncio.Transport) -> None:
+        if self._client is not None:  # one client at a time: the newest wins
+            old_addr, old = self._client
+            self._client = None
+            old.close()
+            self.on_peer(self.ep, old_addr, False)
+        self._client = (addr, transport)
+        self.on_peer(self.ep, addr, True)
+
+    def detach(self, addr: Addr) -> None:
+        if self._client is not None and self._client[0] == addr:
+            self._client = None
+            self.on_peer(self.ep, addr, False)
+
+    def write(self, data: bytes, addr: Addr) -> bool:
+        """Write ``data`` to the client ``addr`` if it is still connected."""
+        if self._client is None or self._client[0] != addr or self._client[1].is_closing():
+            return False
+        self._client[1].write(data)
+        return True
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client[1].close()
+            self._client = None
+        if self.server is not None:
+            self.server.close()
+
+
+class _TcpClient(asyncio.Protocol):
+    """One TCP connection: a stream parser (frames may span reads) feeding its port."""
+
+    def __init__(self, port: TcpPort) -> None:
+        self.port = port
+        self.parser = signing.mavlink(0, 0, port.ep.signing_key)
+        self.addr: Addr = ("", 0)
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = transport.get_extra_info("peername") or ("?", 0)
+        self.addr = (TCP_PREFIX + str(peer[0]), int(peer[1]))
+        self.port.attach(self.addr, transport)  # type: ignore[arg-type]
+
+    def data_received(self, data: bytes) -> None:
+        stats = self.port.ep.stats
+        rejected = self.parser.signing.reject_count
+        try:
+            msgs = self.parser.parse_buffer(data) or []
+        except (mav.MAVError, ValueError, IndexError):
+            stats.bad_frames += 1
+            self.parser = signing.mavlink(0, 0, self.port.ep.signing_key)
+            return
+        rejected = self.parser.signing.reject_count - rejected
+        stats.signature_rejected += rejected
+        stats.bad_frames -= rejected  # pymavlink reports them as bad data too
+        good = []
+        for m in msgs:
+            if isinstance(m, mav.MAVLink_bad_data):
+                stats.bad_frames += 1
+            elif isinstance(m, mav.MAVLink_unknown):
+                stats.unknown_frames += 1
+            else:
+                good.append(m)
+        self.port.on_messages(self.port.ep, good, self.addr)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.port.detach(self.addr)
 
 
 def bind_udp(host: str, port: int) -> socket.socket:

@@ -29,7 +29,7 @@ from sim_vehicle import signing
 from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.fleet import Fleet
-from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, bind_udp
+from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, TcpPort, bind_udp
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
@@ -62,6 +62,8 @@ class VehicleState:
     endpoint: Addr
     params: dict[str, float]
     control: str = ""  # what GUIDED tracks now: "accel" once the station's law flies it
+    tcp_endpoint: Addr | None = None  # (host, port) of its TCP server, if served over TCP
+    landed_state: int = 0  # EXTENDED_SYS_STATE.landed_state (1 ground, 2 air, 3 up, 4 down)
 
 
 @dataclass
@@ -170,7 +172,9 @@ class Emulator:
                 fut.set_exception(RuntimeError("emulator stopped"))
         self._waiters.clear()
 
-    async def _open_endpoint(self, port: int, shared: bool, key: int) -> Endpoint:
+    async def _open_endpoint(
+        self, port: int, shared: bool, key: int, tcp_port: int | None = None
+    ) -> Endpoint:
         cfg = self.config
         ss = np.random.SeedSequence([cfg.seed, key, 7])
         up, down = (np.random.default_rng(s) for s in ss.spawn(2))
@@ -188,6 +192,15 @@ class Emulator:
         loop = asyncio.get_running_loop()
         await loop.create_datagram_endpoint(lambda: ep, sock=sock)
         self._endpoints.append(ep)
+        if tcp_port is not None:
+            try:
+                tcp = TcpPort(ep, self._on_tcp_messages, self._on_tcp_peer)
+                await tcp.start(cfg.host, tcp_port)
+            except BaseException:
+                self._endpoints.remove(ep)
+                ep.close()
+                raise
+            ep.tcp = tcp
         return ep
 
     # ------------------------------------------------------------ vehicles
@@ -195,6 +208,12 @@ class Emulator:
     def endpoints(self) -> dict[int, Addr]:
         """Vehicle key (its system id unless ``VehicleSpec.vid`` is set) -> (host, port)."""
         return {s: v.ep.address for s, v in self._vehicles.items()}
+
+    @property
+    def tcp_endpoints(self) -> dict[int, Addr]:
+        """Vehicle key -> (host, port) of its TCP server (``EmulatorConfig.tcp_base_port``);
+        connect with ``tcp:HOST:PORT``."""
+        return {s: v.ep.tcp.address for s, v in self._vehicles.items() if v.ep.tcp is not None}
 
     async def add_vehicle(self, spec: VehicleSpec) -> Addr:
         """Add a vehicle while running; returns the address it is served on."""
@@ -215,10 +234,14 @@ class Emulator:
             port = spec.port
             if port is None:
                 port = cfg.base_port + 10 * index if cfg.base_port else 0
-            ep = await self._open_endpoint(port, shared=False, key=key)
+            tcp = cfg.tcp_base_port
+            tcp_port = None if tcp is None else (tcp + 10 * index if tcp else 0)
+            ep = await self._open_endpoint(port, shared=False, key=key, tcp_port=tcp_port)
         overrides: dict[str, float] = {
             "SIM_ACC_TAU": cfg.tau_s,
             "SIM_EKF_DELAY": cfg.ekf_ready_s,
+            "SIM_BOOT_S": cfg.boot_s,
+            "SIM_ACC_SHAPE": 1.0 if cfg.shaping else 0.0,
             "SIM_NOISE_POS": cfg.noise_pos_m,
             "SIM_NOISE_VEL": cfg.noise_vel_m_s,
             **cfg.params,
@@ -331,6 +354,8 @@ class Emulator:
             endpoint=v.ep.address,
             params=dict(ap.params.values),
             control=ap.control,
+            tcp_endpoint=v.ep.tcp.address if v.ep.tcp is not None else None,
+            landed_state=ap.landed_state,
         )
 
     def set_param(self, sysid: int, name: str, value: float) -> None:
@@ -391,13 +416,44 @@ class Emulator:
             self._handed_back = True
             self._wake.set()
 
+    def _contact(self, v: _Vehicle) -> None:
+        """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""
+        v.contacted = True
+        v.ap.contact(self.sim_time_s)
+        self._sync(v, self.sim_time_s)
+
+    def _on_tcp_peer(self, ep: Endpoint, addr: Addr, up: bool) -> None:
+        """A TCP client connected (a new peer: HEARTBEAT at once, lockstep rule 1, as SITL
+        starts when something connects) or went away."""
+        if not up:
+            ep.peers.pop(addr, None)
+            return
+        ep.peers[addr] = None
+        for sysid in sorted(ep.sysids):
+            v = self._vehicles[ep.sysids[sysid]]
+            self._contact(v)
+            self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
+        self._wake.set()
+
+    def _on_tcp_messages(self, ep: Endpoint, msgs: list[Any], addr: Addr) -> None:
+        if not self._stepping:
+            self._receive_msgs(ep, msgs, addr)
+            return
+        self._receive_msgs(ep, msgs, addr)
+        if not self._blocked():  # lockstep rule 3, as for a datagram
+            self._step_now()
+
     def _receive(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
+        if ep.silent:
+            return
+        self._receive_msgs(ep, ep.parse(data), addr)
+
+    def _receive_msgs(self, ep: Endpoint, msgs: list[Any], addr: Addr) -> None:
         if ep.silent:
             return
         self.stats.link.rx_datagrams += 1
         if not self._stepping:  # the clock is blocked: only a step may change that
             self._wake.set()
-        msgs = ep.parse(data)
         # Only a peer that sent one good (with signing: well-signed) frame is
         # served: garbage or forgeries from elsewhere never evict the station.
         new_peer = bool(msgs) and addr not in ep.peers
@@ -415,14 +471,14 @@ class Emulator:
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             for sysid in sorted(ep.sysids):
                 v = self._vehicles[ep.sysids[sysid]]
-                v.contacted = True
+                self._contact(v)
                 self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
         elif msgs and ep.out == addr and id(ep) not in self._out_heard:
             # The fixed ``out`` peer is known from the start: its first good
             # frame is its contact (rule 1), or a lockstep clock would never start.
             self._out_heard.add(id(ep))
             for key in ep.sysids.values():
-                self._vehicles[key].contacted = True
+                self._contact(self._vehicles[key])
         if not ep.uplink.imp.active:  # no impairment: deliver now, no random draw
             self._deliver(ep, msgs)
             return
@@ -595,6 +651,9 @@ class Emulator:
             polled = [r for r, d in enumerate(f.deadline.tolist()) if d <= lim]
         else:
             polled = np.flatnonzero(f.deadline <= now + _EPS).tolist()
+        if f.changed:  # touched down or lifted off: the land detector looks (autopilot)
+            polled = sorted(set(polled).union(f.changed))
+            f.changed = []
         for row in polled:
             v = self._rows[row]
             out = v.ap.poll(now, self._kin(v))

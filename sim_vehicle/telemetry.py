@@ -285,3 +285,9 @@ def command_ack(
         target_system=target_system,
         target_component=target_component,
     )
+
+
+def extended_sys_state(landed_state: int) -> mav.MAVLink_message:
+    """EXTENDED_SYS_STATE (245): ``landed_state`` MAV_LANDED_STATE (1 on ground, 2 in air,
+    3 taking off, 4 landing), ``vtol_state`` 0 (MAV_VTOL_STATE_UNDEFINED), as a copter."""
+    return mav.MAVLink_extended_sys_state_message(vtol_state=0, landed_state=landed_state)

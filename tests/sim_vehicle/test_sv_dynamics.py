@@ -185,6 +185,11 @@ def _random_fleet(rng: np.random.Generator, n: int) -> Fleet:
         v = rng.uniform(lo, hi, n)
         v = np.where(rng.integers(0, 5, n) == 0, 0.0, v)  # zero limits, ideal dynamics
         setattr(f, name, v)
+    f.shp = _awkward(rng, (n, 3), 5.0)  # the jerk limiter's state (Eqs. D5-D6)
+    for name, hi in (("jerk_xy", 20.0), ("jerk_z", 20.0), ("lean", 8.0)):
+        v = rng.uniform(0.0, hi, n)
+        pick = rng.integers(0, 4, n)  # unlimited (the ideal preset), zero, or a limit
+        setattr(f, name, np.where(pick == 0, np.inf, np.where(pick == 1, 0.0, v)))
     f.ground = np.where(rng.integers(0, 3, n) == 0, f.pos[:, 2], rng.uniform(-1, 1, n))
     f.pos[:, 2] = np.where(rng.integers(0, 4, n) == 0, f.ground + 1e-3, f.pos[:, 2])
     return f
@@ -193,7 +198,8 @@ def _random_fleet(rng: np.random.Generator, n: int) -> Fleet:
 def test_small_step_is_bit_identical_to_numpy() -> None:
     """advance_small (the Fleet path below _SMALL_STEP vehicles) against the numpy path:
     the same bits on 3000 random fleets of 1 to _SMALL_STEP - 1 vehicles, several steps
-    each, with zeros of both signs, ties, landings and ideal (tau <= 0) vehicles."""
+    each, with zeros of both signs, ties, landings, ideal (tau <= 0) vehicles and jerk /
+    lean limits (Eqs. D5-D6) infinite, zero or finite, including the shaped command."""
     rng = np.random.default_rng(8)
     small_runs = 0
     for case in range(3000):
@@ -205,7 +211,7 @@ def test_small_step_is_bit_identical_to_numpy() -> None:
         for _ in range(3):
             small_runs += fast._step_small(DT)
             ref.step_numpy(DT)
-            for name in ("pos", "vel", "acc", "landed"):
+            for name in ("pos", "vel", "acc", "landed", "shp"):
                 got, want = getattr(fast, name), getattr(ref, name)
                 assert got.dtype == want.dtype and got.shape == want.shape, (case, name)
                 assert got.tobytes() == want.tobytes(), (case, name, got, want)

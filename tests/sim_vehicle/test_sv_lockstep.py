@@ -10,6 +10,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from sv_client import connect
 
 from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
+from sim_vehicle.dynamics import GRAVITY_M_S2, DynParams, KinState, step
 
 DT = 0.02
 START = (0.0, 0.0, -10.0)
@@ -62,13 +63,22 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
     n = 150  # +1 m/s^2 north for 3 s, as measured on SITL
 
     async def run() -> None:
-        async with asyncio.timeout(30), Emulator(_cfg()) as emu:
+        async with asyncio.timeout(30), Emulator(_cfg(accel_shaping=None)) as emu:
             await _accel_steps(emu, (1.0, 0.0, 0.0), n)
             st = emu.vehicle_state(1)
-            tau, t = 0.2, n * DT
-            e = math.exp(-t / tau)
-            # exact first-order response (Eq. D1) to rounding
-            assert abs(st.vel_ned_m_s[0] - (t - tau * (1 - e))) < 1e-9
+            # the pure dynamics advanced by hand n steps (jerk Eq. D5 at PSC_JERK_XY 5 m/s^3,
+            # lean cap D6 at 30 deg, lag D1-D2 at 0.2 s): the same to rounding
+            ref = KinState(np.array([START]), np.zeros((1, 3)), np.zeros((1, 3)),
+                           np.zeros(1, dtype=bool), np.zeros((1, 3)))  # fmt: skip
+            one = np.ones(1)
+            par = DynParams(0.2 * one, 5.0 * one, 0.0 * one, 5.0 * one, 5.0 * one,
+                            GRAVITY_M_S2 * math.tan(math.radians(30.0)) * one)  # fmt: skip
+            for _ in range(n):
+                ref = step(ref, np.array([[1.0, 0.0, 0.0]]), DT, par)
+            np.testing.assert_allclose(st.vel_ned_m_s, ref.vel_ned_m_s[0], rtol=0, atol=1e-9)
+            # closed form: the ramp 0.1, 0.2, .. 1.0 m/s^2 over 10 steps (5 m/s^3 x 0.02 s per
+            # step) costs DT * sum(1 - k / 10) = 0.09 m/s, the lag tau (1 - e^-t/tau) = 0.2 m/s
+            assert abs(st.vel_ned_m_s[0] - (n * DT - 0.09 - 0.2)) < 1e-6
             # sheet: 0.985-0.989 m/s^2 and 2.74 m/s reached (ideal 2.95); state tolerance
             # 0.02 m/s^2 and 0.1 m/s covers the SITL spread and its unmodelled drag
             assert abs(st.accel_ned_m_s2[0] - 0.987) < 0.02
@@ -81,7 +91,7 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
 def test_guid_timeout_keeps_last_accel_then_brakes_to_hover_in_guided() -> None:
     async def run() -> None:
         # a short wall timeout lets the clock run on once the client stops answering
-        cfg = _cfg(lockstep_timeout_s=0.002)
+        cfg = _cfg(lockstep_timeout_s=0.002, accel_shaping=None)  # the ardupilot preset's
         async with asyncio.timeout(60), Emulator(cfg) as emu:
             c = await connect(emu.endpoints[1])
             c.heartbeat()
@@ -100,8 +110,10 @@ def test_guid_timeout_keeps_last_accel_then_brakes_to_hover_in_guided() -> None:
             assert end.mode_name == "GUIDED" and end.armed
             assert np.linalg.norm(end.vel_ned_m_s) < 0.05  # hovering
             past = end.pos_ned_m[0] - last.pos_ned_m[0]
-            # sheet: 5.14 m/s peak, 18.7 m past the last setpoint; 1 m covers SITL's shaping
-            assert abs(past - 18.7) < 1.0, past
+            # sheet: 5.14 m/s peak, 18.7 m past the last setpoint. The jerk-limited brake
+            # (Eq. D5, 5 m/s^3 from +1 to -2.5 m/s^2 at WPNAV_ACCEL) and the 0.2 s lag give
+            # 19.8 m: 1.5 m covers that 1.1 m excess (docs/emulator.md) and SITL's spread
+            assert abs(past - 18.7) < 1.5, past
 
     asyncio.run(run())
 
