@@ -163,4 +163,5 @@ def judge_ground(
         return True, "armed, height unknown (no landed state)"
     ground = height_m < ground_height_m
     where = "on the ground" if ground else "in the air"
-    return ground, f"{where} ({height_m:.1f} m above its EKF origin, no landed state)"
+    up = round(height_m, 1) + 0.0  # never "-0.0 m"
+    return ground, f"{where} ({up:.1f} m above its EKF origin, no landed state)"

@@ -217,8 +217,8 @@ class VehicleProtocol:
 
     # ----------------------------------------------------------- station input
     def enable(self, now: float) -> None:
-        """Start readying a vehicle created with ``enabled=False`` (a reserve
-        waiting for its join event), or one that ended, from its next HEARTBEAT."""
+        """Start readying a vehicle created with ``enabled=False`` (held back
+        by its owner), or one that ended, from its next HEARTBEAT."""
         self.enabled = True
         if self.phase in FINAL_PHASES:
             self.phase = Phase.CONNECTING
@@ -269,7 +269,7 @@ class VehicleProtocol:
         if self.phase in (Phase.ENDING, Phase.ENDED) or self._yielded:
             return
         self._end_mode = self.config.end_mode if mode is None else mode
-        ground = self.on_ground
+        ground, where = self._ground()
         undo = self.armed or self._arm_sent
         if self.phase is Phase.LOST:
             # Best effort, not awaited: it may still hear us. Otherwise its own
@@ -287,6 +287,7 @@ class VehicleProtocol:
             return
         self._set_phase(Phase.ENDING, now)
         if ground:
+            self._event("info", f"vehicle {self.sysid} is {where}: disarming it")
             self._disarming = True
             self._send_disarm(now)
         else:

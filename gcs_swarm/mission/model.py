@@ -92,13 +92,17 @@ class Startup:
     """Start-up sequence settings (mavlink-protocol.md "Start-up sequence").
 
     takeoff_alt [m] above each vehicle's home; ready_timeout [s] for every
-    active vehicle to be armed, airborne and at its start; guid_timeout [s]
-    the GUID_TIMEOUT parameter the station sets before the formation starts.
+    vehicle (reserves too) to be armed, airborne and at its start; guid_timeout
+    [s] the GUID_TIMEOUT parameter the station sets before the formation
+    starts; start_tolerance [m] and start_speed_tolerance [m/s]: a vehicle is
+    at its start (READY) within this distance of it and below this speed.
     """
 
     takeoff_alt: float = 5.0
     ready_timeout: float = 90.0
     guid_timeout: float = 0.5
+    start_tolerance: float = 0.3
+    start_speed_tolerance: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -5,20 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from vehicle_harness import (
-    BRAKE,
-    GUIDED,
-    LOITER,
-    STABILIZE,
-    SYS,
-    commands,
-    configure,
-    hb,
-    make,
-    origin_msg,
-    pos,
-    ready_sensors,
-)
 
 from gcs_swarm.mavlink import Phase, VehicleProtocol
 from gcs_swarm.mavlink.builders import (
@@ -38,6 +24,20 @@ from gcs_swarm.mavlink.inbound import (
     Heartbeat,
     ParamValue,
     StatusText,
+)
+from tests.mavlink.vehicle_harness import (
+    BRAKE,
+    GUIDED,
+    LOITER,
+    STABILIZE,
+    SYS,
+    commands,
+    configure,
+    hb,
+    make,
+    origin_msg,
+    pos,
+    ready_sensors,
 )
 
 

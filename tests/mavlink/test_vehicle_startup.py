@@ -11,17 +11,6 @@ the arm's ACK; a take-off refused with result 4 and no STATUSTEXT of its own.
 from __future__ import annotations
 
 import pytest
-from vehicle_harness import (
-    GUIDED,
-    STABILIZE,
-    SYS,
-    commands,
-    configure,
-    hb,
-    make,
-    pos,
-    ready_sensors,
-)
 
 from gcs_swarm.mavlink import MessageSpec, Phase, VehicleProtocol
 from gcs_swarm.mavlink.builders import (
@@ -32,6 +21,17 @@ from gcs_swarm.mavlink.builders import (
 )
 from gcs_swarm.mavlink.commands import NO_REASON, refusal_reason
 from gcs_swarm.mavlink.inbound import CommandAck, ExtendedSysState, StatusText
+from tests.mavlink.vehicle_harness import (
+    GUIDED,
+    STABILIZE,
+    SYS,
+    commands,
+    configure,
+    hb,
+    make,
+    pos,
+    ready_sensors,
+)
 
 LAND = COPTER_MODES["LAND"]
 INFO, WARNING, CRITICAL = 6, 4, 2
