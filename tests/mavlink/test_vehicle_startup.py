@@ -11,13 +11,15 @@ the arm's ACK; a take-off refused with result 4 and no STATUSTEXT of its own.
 from __future__ import annotations
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from gcs_swarm.mavlink import MessageSpec, Phase, VehicleProtocol
+from gcs_swarm.mavlink import Codec, MessageSpec, Phase, VehicleProtocol, from_pymavlink
 from gcs_swarm.mavlink.builders import (
     COPTER_MODES,
     MAV_CMD_COMPONENT_ARM_DISARM,
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_NAV_TAKEOFF,
+    MAV_CMD_SET_MESSAGE_INTERVAL,
 )
 from gcs_swarm.mavlink.commands import NO_REASON, refusal_reason
 from gcs_swarm.mavlink.inbound import CommandAck, ExtendedSysState, StatusText
@@ -221,6 +223,18 @@ def test_landed_state_on_the_ground_wins_over_a_height() -> None:
     vp.handle_message(landed(1), 0.05)
     ready_sensors(vp, 0.1, ned=(0.0, 0.0, -3.0))
     assert vp.phase is Phase.TAKING_OFF and not vp.took_over
+
+
+def test_extended_sys_state_decodes_from_the_wire_and_streams_at_the_status_rate() -> None:
+    mav = dialect.MAVLink(None, SYS, 1)
+    (msg,) = Codec().decode(mav.extended_sys_state_encode(0, 2).pack(mav))
+    assert from_pymavlink(msg) == ExtendedSysState(SYS, 1, 0, 2)
+    vp = make()
+    vp.handle_message(hb(STABILIZE), 0.0)
+    for _ in range(3):
+        vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), 0.0)
+    (ask,) = commands(vp.take_outbound(), MAV_CMD_SET_MESSAGE_INTERVAL)[-1:]
+    assert (ask["param1"], ask["param2"]) == (245, 500_000)  # 2 Hz, as EKF_STATUS_REPORT
 
 
 def test_denied_landed_state_stream_is_said_once_in_the_log() -> None:
