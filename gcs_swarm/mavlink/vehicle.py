@@ -378,7 +378,7 @@ class VehicleProtocol:
         elif name == "arm":
             self._send_arm(now)
         elif name == "mode_confirm":
-            self._send_guided(now)
+            self._guided_lost(now, "no HEARTBEAT in GUIDED since it was asked")
         elif name == "takeoff":
             self._fail(now, f"take-off not complete after {self.config.takeoff_timeout_s:g} s")
         elif name == "end_confirm":
@@ -543,19 +543,21 @@ class VehicleProtocol:
         # Confirm in the next HEARTBEAT (spec step 3); ask again if it does not come.
         self._timers["mode_confirm"] = now + 2 * self.config.command_timeout_s
 
-    def _guided_lost(self, now: float) -> None:
+    def _guided_lost(self, now: float, why: str | None = None) -> None:
         """The autopilot left GUIDED while the vehicle is readied (ArduCopter's
-        end-of-boot STABILIZE): ask for it again, confirm it by HEARTBEAT, then
-        decide afresh; nothing is armed or taken off meanwhile."""
-        was = self.phase.value
+        end-of-boot STABILIZE), or no HEARTBEAT confirmed it (``why``): ask for
+        it again, confirm it by HEARTBEAT, then decide afresh; nothing is armed
+        or taken off meanwhile."""
+        why = why or f"in {self.mode_name} while {self.phase.value}"
         self._timers.pop("arm", None)
         self._timers.pop("takeoff", None)
         self._set_phase(Phase.SETTING_GUIDED, now)
-        self._event(
-            "warning",
-            f"vehicle {self.sysid}: in {self.mode_name} while {was}: asking for GUIDED "
-            f"again ({self._guided_asks + 1} of at most {self.config.guided_attempts})",
-        )
+        if self._guided_asks < self.config.guided_attempts:  # else _send_guided fails it
+            self._event(
+                "warning",
+                f"vehicle {self.sysid}: {why}: asking for GUIDED again "
+                f"({self._guided_asks + 1} of at most {self.config.guided_attempts})",
+            )
         self._send_guided(now)
 
     def _guided(self) -> bool:

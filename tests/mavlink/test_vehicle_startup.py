@@ -119,6 +119,13 @@ def test_arm_is_never_sent_while_the_heartbeat_says_stabilize() -> None:
     assert not arms(out) and not commands(out, TAKEOFF)
     assert guided_asks(out) == vp.config.guided_attempts == 8
     assert vp.failure == "GUIDED not kept: asked 8 times, the vehicle is in STABILIZE"
+    # Each ask after the first was reported, with why.
+    asks = [e.text for e in vp.take_events() if e.kind == "warning"]
+    assert len(asks) == 7 and asks[-1].endswith("asking for GUIDED again (8 of at most 8)")
+    assert asks[0] == (
+        f"vehicle {SYS}: no HEARTBEAT in GUIDED since it was asked: asking for GUIDED "
+        "again (2 of at most 8)"
+    )
 
 
 def test_mode_lost_between_arm_attempts_is_set_again_before_the_retry() -> None:
