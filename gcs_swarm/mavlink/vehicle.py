@@ -140,6 +140,7 @@ class VehicleProtocol:
         self._ekf_flags = 0
         self._gps_fix = 0
         self._guided_asks = 0
+        self._guided_accepted = False
         self._arm_sent = False
         """An arm command went out since the readying began (it may still land)."""
         self._yielded = False
@@ -401,6 +402,11 @@ class VehicleProtocol:
             if hb.custom_mode == GUIDED:
                 del self._timers["mode_confirm"]
                 self._after_guided(now)
+            elif self._guided_accepted:
+                # Sent after the accepting ACK, so it shows what became of it:
+                # the autopilot left GUIDED again (end of boot): ask at once.
+                del self._timers["mode_confirm"]
+                self._guided_lost(now, f"in {self.mode_name} after GUIDED was accepted")
         elif phase in READYING_PHASES:
             if hb.custom_mode != GUIDED:
                 self._guided_lost(now)
@@ -538,6 +544,7 @@ class VehicleProtocol:
         )
 
     def _guided_acked(self, result: int, now: float) -> None:
+        self._guided_accepted = result == 0
         if result != 0:
             self._refused(now, "GUIDED", result)
         # Confirm in the next HEARTBEAT (spec step 3); ask again if it does not come.

@@ -91,12 +91,36 @@ def test_guided_lost_to_stabilize_at_end_of_boot_is_set_again_before_arming() ->
     ]
     # EKF, GPS and origin ready while GUIDED is not yet confirmed: no arm.
     ready_sensors(vp, 2.0)
+    vp.handle_message(hb(STABILIZE), 2.05)  # sent before the switch: before its ACK
     vp.handle_message(CommandAck(SYS, 1, SET_MODE, 0), 2.1)
-    vp.handle_message(hb(STABILIZE), 2.2)  # a HEARTBEAT from before the switch
     assert not arms(vp.take_outbound()) and vp.phase is Phase.SETTING_GUIDED
     vp.handle_message(hb(GUIDED), 2.5)
     assert vp.phase is Phase.ARMING
     assert len(arms(vp.take_outbound())) == 1
+
+
+def test_stabilize_shown_after_guided_was_accepted_asks_again_at_once() -> None:
+    # The boot ends between the accepting ACK and the next HEARTBEAT (as the
+    # emulator with boot_s = 1 s does): that HEARTBEAT says STABILIZE.
+    vp = make(heartbeat_timeout_s=100.0)
+    configure(vp, 0.0)
+    vp.take_outbound()
+    vp.handle_message(CommandAck(SYS, 1, SET_MODE, 0), 0.2)
+    vp.handle_message(StatusText(SYS, 1, INFO, "ArduPilot Ready"), 1.0)
+    vp.handle_message(hb(STABILIZE), 1.0)
+    assert guided_asks(vp.take_outbound()) == 1  # at once, not after the 2 s confirm wait
+    vp.handle_message(CommandAck(SYS, 1, SET_MODE, 0), 1.1)
+    vp.handle_message(hb(GUIDED), 2.0)
+    assert vp.phase is Phase.WAITING_ARMABLE
+    # A refused GUIDED is not asked again on every HEARTBEAT: after the wait.
+    vp = make(heartbeat_timeout_s=100.0)
+    configure(vp, 0.0)
+    vp.take_outbound()
+    vp.handle_message(CommandAck(SYS, 1, SET_MODE, 4), 0.2)
+    vp.handle_message(hb(STABILIZE), 1.0)
+    assert guided_asks(vp.take_outbound()) == 0
+    vp.handle_timer(0.2 + 2 * vp.config.command_timeout_s)
+    assert guided_asks(vp.take_outbound()) == 1
 
 
 def test_arm_is_never_sent_while_the_heartbeat_says_stabilize() -> None:
@@ -123,7 +147,7 @@ def test_arm_is_never_sent_while_the_heartbeat_says_stabilize() -> None:
     asks = [e.text for e in vp.take_events() if e.kind == "warning"]
     assert len(asks) == 7 and asks[-1].endswith("asking for GUIDED again (8 of at most 8)")
     assert asks[0] == (
-        f"vehicle {SYS}: no HEARTBEAT in GUIDED since it was asked: asking for GUIDED "
+        f"vehicle {SYS}: in STABILIZE after GUIDED was accepted: asking for GUIDED "
         "again (2 of at most 8)"
     )
 
