@@ -636,7 +636,8 @@ class VehicleProtocol:
             return
         why = self._refused(now, f"arming (attempt {self._arm_tries})", result)
         if self._arm_tries >= self.config.arm_attempts:
-            self._fail(now, f"arming refused {self._arm_tries} times: {why}")
+            verdict = MAV_RESULT_NAMES.get(result, str(result))
+            self._fail(now, f"arming refused {self._arm_tries} times ({verdict}): {why}")
         else:
             self._timers["arm"] = self._commands.last_sent_at + self.config.arm_retry_interval_s
 

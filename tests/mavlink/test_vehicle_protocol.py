@@ -158,7 +158,7 @@ def test_arming_refused_too_often_fails_with_the_vehicles_words() -> None:
         t = vp.next_deadline() or t
         vp.handle_timer(t)
     assert vp.phase is Phase.FAILED
-    assert vp.failure == "arming refused 3 times: PreArm: Compass not calibrated"
+    assert vp.failure == "arming refused 3 times (failed): PreArm: Compass not calibrated"
 
 
 def test_unanswered_command_is_resent_with_confirmation_then_fails() -> None:
