@@ -10,17 +10,28 @@ MAV_RESULT_IN_PROGRESS restarts the wait. Resends carry an increasing
 queue (``failed``), unless it is ``optional``: then its ``on_done`` gets
 ``NO_ANSWER`` and the queue goes on. No I/O: specs go to the ``out`` list
 the owner drains; time is an argument.
+
+The STATUSTEXT lines heard while a command waits for its answer (from its
+first sending to its COMMAND_ACK: one command is in flight at a time) belong
+to it; ``refusal_reason`` picks the autopilot's reasons among them.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 from gcs_swarm.mavlink.codec import MessageSpec
 
-__all__ = ["MAV_RESULT_NAMES", "NO_ANSWER", "CommandQueue", "same_param_value"]
+__all__ = [
+    "MAV_RESULT_NAMES",
+    "NO_ANSWER",
+    "NO_REASON",
+    "CommandQueue",
+    "refusal_reason",
+    "same_param_value",
+]
 
 MAV_RESULT_NAMES = {
     0: "accepted",
@@ -34,6 +45,9 @@ MAV_RESULT_NAMES = {
 _IN_PROGRESS = 5
 NO_ANSWER = -1
 """The result an ``optional`` command's ``on_done`` gets when nobody answered."""
+_MAV_SEVERITY_WARNING = 4
+NO_REASON = "no reason given"
+"""What a refusal says when the autopilot gave no reason of its own."""
 
 Done = Callable[[int, float], None]
 """Called with (MAV_RESULT, now [s]); a PARAM_VALUE answer counts as 0."""
@@ -59,6 +73,8 @@ class _Command:
     """The last PARAM_VALUE of ``param`` that was not ``expect`` (a mismatch)."""
     sent_at: float = 0.0
     attempts: int = 0
+    texts: list[tuple[int, str]] = field(default_factory=list)
+    """(MAV_SEVERITY, text) of the STATUSTEXT heard while this was pending."""
 
 
 class CommandQueue:
@@ -74,6 +90,9 @@ class CommandQueue:
         self.failed: str | None = None
         self.last_sent_at = 0.0
         """When the most recently answered command was last sent [s]."""
+        self.answered_texts: tuple[tuple[int, str], ...] = ()
+        """The STATUSTEXT heard while the most recently answered command was
+        pending (``note_text``), for its ``on_done`` to explain a refusal."""
 
     @property
     def busy(self) -> bool:
@@ -105,6 +124,11 @@ class CommandQueue:
         else:
             self._queue.append(cmd)
         self._send_next(now)
+
+    def note_text(self, severity: int, text: str) -> None:
+        """A STATUSTEXT from the vehicle: it belongs to the pending command."""
+        if self._pending is not None:
+            self._pending.texts.append((severity, text))
 
     def clear(self) -> None:
         self._pending = None
@@ -156,6 +180,7 @@ class CommandQueue:
     def _answered(self, pending: _Command, result: int, now: float) -> None:
         self._pending = None
         self.last_sent_at = pending.sent_at
+        self.answered_texts = tuple(pending.texts)
         pending.on_done(result, now)
         self._send_next(now)
 
@@ -173,3 +198,14 @@ class CommandQueue:
         cmd.sent_at = now
         self._pending = cmd
         self._out.append(spec)
+
+
+def refusal_reason(texts: Sequence[tuple[int, str]]) -> str:
+    """The autopilot's own reasons among ``texts`` ((MAV_SEVERITY, text) heard
+    while a command was pending), joined by "; ": first the ``PreArm:`` and
+    ``Arm:`` lines, then any other line of severity WARNING (4) or worse, each
+    once. INFO and NOTICE chatter ("Arming motors", "EKF3 IMU0 is using GPS")
+    is never a reason: with nothing else, ``NO_REASON``."""
+    checks = [t for _, t in texts if t.startswith(("PreArm:", "Arm:"))]
+    severe = [t for sev, t in texts if sev <= _MAV_SEVERITY_WARNING and t not in checks]
+    return "; ".join(dict.fromkeys(checks + severe)) or NO_REASON

@@ -21,6 +21,7 @@ __all__ = [
     "SPEED_LIMIT_MPS",
     "CommandAck",
     "EkfStatus",
+    "ExtendedSysState",
     "GpsGlobalOrigin",
     "GpsRaw",
     "Heartbeat",
@@ -123,6 +124,18 @@ class EkfStatus:
 
 
 @dataclass(frozen=True, slots=True)
+class ExtendedSysState:
+    """EXTENDED_SYS_STATE (245): ``landed_state`` is a MAV_LANDED_STATE (0
+    undefined, 1 on the ground, 2 in the air, 3 taking off, 4 landing);
+    ArduCopter sends it when asked with SET_MESSAGE_INTERVAL."""
+
+    sysid: int
+    compid: int
+    vtol_state: int
+    landed_state: int
+
+
+@dataclass(frozen=True, slots=True)
 class GpsRaw:
     """GPS_RAW_INT (24): ``fix_type`` (3 = 3D fix), satellites visible."""
 
@@ -162,6 +175,7 @@ Inbound = (
     | StatusText
     | GpsGlobalOrigin
     | EkfStatus
+    | ExtendedSysState
     | GpsRaw
     | ParamValue
     | PositionTarget
@@ -211,6 +225,8 @@ def from_pymavlink(msg: Any) -> Inbound | None:
         )
     if kind == "EKF_STATUS_REPORT":
         return EkfStatus(sysid, compid, int(msg.flags))
+    if kind == "EXTENDED_SYS_STATE":
+        return ExtendedSysState(sysid, compid, int(msg.vtol_state), int(msg.landed_state))
     if kind == "GPS_RAW_INT":
         return GpsRaw(sysid, compid, int(msg.fix_type), int(msg.satellites_visible))
     if kind == "PARAM_VALUE":

@@ -20,10 +20,13 @@ __all__ = [
     "FINAL_PHASES",
     "GUIDED",
     "IDLE_PHASES",
+    "LANDED_STATE_NAMES",
+    "READYING_PHASES",
     "TELEMETRY_PHASES",
     "Phase",
     "ProtocolConfig",
     "ProtocolEvent",
+    "judge_ground",
     "mode_name",
 ]
 
@@ -33,6 +36,9 @@ vertical velocity, absolute horizontal and vertical position."""
 EKF_UNINITIALIZED = 1024
 _MODE_NAMES = {v: k for k, v in b.COPTER_MODES.items()}
 GUIDED = b.COPTER_MODES["GUIDED"]
+LANDED_STATE_NAMES = {1: "on the ground", 2: "in the air", 3: "taking off", 4: "landing"}
+"""EXTENDED_SYS_STATE.landed_state (MAV_LANDED_STATE) values that say
+something; 0 (undefined) is missing, as is the message."""
 
 
 class Phase(enum.Enum):
@@ -57,6 +63,13 @@ AIRBORNE_PHASES = frozenset({Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY
 """Phases in which the vehicle is (or is becoming) airborne under our control."""
 TELEMETRY_PHASES = frozenset({Phase.GOING_TO_START, Phase.READY, Phase.FLYING})
 """Phases that need fresh LOCAL_POSITION_NED (stale beyond the timeout -> LOST)."""
+READYING_PHASES = frozenset(
+    {Phase.WAITING_ARMABLE, Phase.ARMING, Phase.TAKING_OFF, Phase.GOING_TO_START}
+)
+"""Phases after GUIDED was confirmed and before the vehicle holds at its start:
+a HEARTBEAT with another mode here is the autopilot (ArduCopter returns to
+STABILIZE when it finishes booting) and GUIDED is asked again; in READY and
+FLYING it means someone else took the vehicle."""
 FINAL_PHASES = frozenset({Phase.ENDED, Phase.FAILED})
 IDLE_PHASES = FINAL_PHASES | {Phase.CONNECTING, Phase.LOST}
 """Phases with no heartbeat watchdog."""
@@ -74,7 +87,14 @@ class ProtocolConfig:
       trip fails 36 % of the time, so 5 attempts lost about one start-up of
       ~36 commands in 5, 10 attempts about 1 in 800);
       ``arm_retry_interval_s``/``arm_attempts``:
-      a refused arming is retried (spec: every 2 s) up to this many times.
+      a refused arming is retried (spec: every 2 s) up to this many times;
+      ``guided_attempts``: GUIDED is asked at most this often while readying
+      (a first time, then each time the autopilot leaves it or a HEARTBEAT
+      does not confirm it: on SITL twice, the second after "ArduPilot Ready").
+    - ``ground_height_m``: with no EXTENDED_SYS_STATE landed state, an armed
+      vehicle less than this above its EKF origin (LOCAL_POSITION_NED -z; the
+      origin is where it booted, on the ground) is on the ground; a disarmed
+      one always is.
     - ``takeoff_min_alt_m``: take-off height above home, at least (more if the
       start point is higher); ``goto_tolerance_m``/``goto_speed_tolerance_mps``:
       "at the start point" means within this distance and below this speed.
@@ -93,6 +113,8 @@ class ProtocolConfig:
     command_attempts: int = 10
     arm_retry_interval_s: float = 2.0
     arm_attempts: int = 15
+    guided_attempts: int = 8
+    ground_height_m: float = 1.0
     origin_request_interval_s: float = 2.0
     takeoff_min_alt_m: float = 2.0
     takeoff_timeout_s: float = 40.0
@@ -119,3 +141,27 @@ class ProtocolEvent:
 def mode_name(custom_mode: int) -> str:
     """The ArduCopter name of a ``custom_mode`` number (the number if unknown)."""
     return _MODE_NAMES.get(custom_mode, str(custom_mode))
+
+
+def judge_ground(
+    landed_state: int | None, armed: bool, height_m: float | None, ground_height_m: float
+) -> tuple[bool, str]:
+    """Is the vehicle on the ground, and why (words for the log)?
+
+    ``landed_state`` (EXTENDED_SYS_STATE) decides when the vehicle sends one
+    of ``LANDED_STATE_NAMES``: 1 is the ground; 2, 3 and 4 (in the air, taking
+    off, landing) are not. Without it: a disarmed vehicle is on the ground,
+    and an armed one is when its ``height_m`` above its EKF origin [m] is
+    below ``ground_height_m`` (or unknown). The armed flag alone never says
+    airborne: a late arm command leaves a vehicle armed on the ground
+    (mavlink-protocol.md, "Start-up sequence")."""
+    if landed_state in LANDED_STATE_NAMES:
+        return landed_state == 1, f"{LANDED_STATE_NAMES[landed_state]} (EXTENDED_SYS_STATE)"
+    if not armed:
+        return True, "disarmed (no landed state)"
+    if height_m is None:
+        return True, "armed, height unknown (no landed state)"
+    ground = height_m < ground_height_m
+    where = "on the ground" if ground else "in the air"
+    up = round(height_m, 1) + 0.0  # never "-0.0 m"
+    return ground, f"{where} ({up:.1f} m above its EKF origin, no landed state)"

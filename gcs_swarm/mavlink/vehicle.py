@@ -13,20 +13,29 @@ Phases follow the start-up sequence of mavlink-protocol.md:
       -> GOING_TO_START (position setpoints) -> READY (holding)
       -> FLYING (the station streams acceleration setpoints)
       -> ENDING (zero acceleration + end mode) -> ENDED
+    WAITING_ARMABLE..GOING_TO_START -> SETTING_GUIDED (the autopilot left GUIDED)
     any -> LOST (heartbeat or telemetry stale) -> CONFIGURING on the next heartbeat
     any -> FAILED (refused too often, or someone else took the vehicle)
 
-A vehicle found armed in GUIDED is taken over: no arming, no second takeoff.
+GUIDED is confirmed by HEARTBEAT before arming and asked again (at most
+``guided_attempts`` times) whenever the autopilot leaves it while the vehicle
+is readied: a freshly booted ArduCopter returns to STABILIZE about 1 s after
+the first GUIDED. Take-off or take-over is decided from the landed state
+(EXTENDED_SYS_STATE, else the armed flag and the height: ``judge_ground``),
+never from the armed flag: in the air, armed, in GUIDED is taken over (no
+arming, no take-off); armed on the ground takes off at once.
 Every command is awaited (COMMAND_ACK or PARAM_VALUE), resent on timeout up
 to ``ProtocolConfig.command_attempts`` times; arming is retried every
 ``arm_retry_interval_s`` (spec: 2 s) and each refusal is reported with the
-vehicle's own STATUSTEXT.
+result and the STATUSTEXT heard while that command was pending
+(``refusal_reason``). ``finish`` drops every pending command and retry, then
+disarms a vehicle on the ground and gives one in the air the end mode.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections.abc import Callable
 from functools import partial
 
 import numpy as np
@@ -35,7 +44,7 @@ import numpy.typing as npt
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
-from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue
+from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
 from gcs_swarm.mavlink.frames import (
     GeoPoint,
     mission_to_ned,
@@ -44,6 +53,7 @@ from gcs_swarm.mavlink.frames import (
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
     EkfStatus,
+    ExtendedSysState,
     GpsGlobalOrigin,
     GpsRaw,
     Heartbeat,
@@ -55,16 +65,18 @@ from gcs_swarm.mavlink.inbound import (
     plausible,
 )
 from gcs_swarm.mavlink.states import (
-    AIRBORNE_PHASES,
     EKF_READY_FLAGS,
     EKF_UNINITIALIZED,
     FINAL_PHASES,
     GUIDED,
     IDLE_PHASES,
+    LANDED_STATE_NAMES,
+    READYING_PHASES,
     TELEMETRY_PHASES,
     Phase,
     ProtocolConfig,
     ProtocolEvent,
+    judge_ground,
     mode_name,
 )
 from gcs_swarm.mavlink.vehicle_params import ParamSettings, VehicleParams
@@ -77,7 +89,6 @@ multicopter, far inside float32, and above every figure of the paper."""
 
 FloatArray = npt.NDArray[np.float64]
 
-_MAV_SEVERITY_WARNING = 4
 _REBOOT_MS = 10_000
 """Telemetry older than the last by more than this is a reboot, not a reorder."""
 _FLYING = Phase.FLYING
@@ -114,6 +125,9 @@ class VehicleProtocol:
         self.last_accel_ned: FloatArray = np.zeros(3)
         self.failure: str | None = None
         self.took_over = False
+        """Found flying (in the air, armed, GUIDED): readied without a take-off."""
+        self.landed_state: int | None = None
+        """EXTENDED_SYS_STATE.landed_state when it says something, else None."""
         self.clipped_setpoints = 0
         """Acceleration setpoints scaled to ACCEL_CEILING_MPS2 or zeroed (NaN)."""
         self.rejected_values = 0
@@ -128,7 +142,13 @@ class VehicleProtocol:
         telemetry still flowing is a lossy link, not a lost vehicle)."""
         self._ekf_flags = 0
         self._gps_fix = 0
-        self._texts: deque[tuple[float, int, str]] = deque(maxlen=16)
+        self._guided_asks = 0
+        self._guided_accepted = False
+        self._arm_sent = False
+        """An arm command went out since the readying began (it may still land)."""
+        self._yielded = False
+        """Someone else took the vehicle in flight: the station leaves it alone."""
+        self._disarming = False
         self._out: list[MessageSpec] = []
         self._events: list[ProtocolEvent] = []
         self._commands = CommandQueue(
@@ -163,6 +183,15 @@ class VehicleProtocol:
     def restoring(self) -> bool:
         """True while an ended vehicle's old parameter values are being put back."""
         return self.phase in FINAL_PHASES and self._commands.busy
+
+    @property
+    def on_ground(self) -> bool:
+        """On the ground by the landed state, or the armed flag and height."""
+        return self._ground()[0]
+
+    def _ground(self) -> tuple[bool, str]:
+        height = None if self.position is None else -self.position.z
+        return judge_ground(self.landed_state, self.armed, height, self.config.ground_height_m)
 
     @property
     def goto_m(self) -> FloatArray:
@@ -208,8 +237,8 @@ class VehicleProtocol:
 
     # ----------------------------------------------------------- station input
     def enable(self, now: float) -> None:
-        """Start readying a vehicle created with ``enabled=False`` (a reserve
-        waiting for its join event), or one that ended, from its next HEARTBEAT."""
+        """Start readying a vehicle created with ``enabled=False`` (held back
+        by its owner), or one that ended, from its next HEARTBEAT."""
         self.enabled = True
         if self.phase in FINAL_PHASES:
             self.phase = Phase.CONNECTING
@@ -248,26 +277,42 @@ class VehicleProtocol:
         return b.accel_setpoint(self.sysid, self.compid, self.boot_ms(), (x, y, z))
 
     def finish(self, now: float, *, mode: int | None = None) -> None:
-        """End this vehicle: zero acceleration, then ``mode`` (default the
-        config's end mode) confirmed by heartbeat. A vehicle still on the
-        ground simply stops being readied."""
-        if self.phase in FINAL_PHASES or self.phase is Phase.ENDING:
+        """End this vehicle. Every pending command and retry is dropped first
+        (no late arm or take-off goes out). In the air: zero acceleration, then
+        ``mode`` (default the config's end mode) confirmed by heartbeat. On the
+        ground (``on_ground``): disarmed if it is armed or an arm command went
+        out (MAV_CMD_COMPONENT_ARM_DISARM 0, which ArduCopter refuses in flight;
+        then the end mode follows), confirmed by heartbeat; otherwise it just
+        stops being readied. A vehicle someone else took in flight (it left
+        GUIDED, or was disarmed) is left alone, as is a failed one on the
+        ground with nothing to undo."""
+        if self.phase in (Phase.ENDING, Phase.ENDED) or self._yielded:
             return
         self._end_mode = self.config.end_mode if mode is None else mode
+        ground, where = self._ground()
+        undo = self.armed or self._arm_sent
         if self.phase is Phase.LOST:
             # Best effort, not awaited: it may still hear us. Otherwise its own
             # GUID_TIMEOUT (set short at start-up) brakes it to a hover.
-            if self.armed:
+            if undo and ground:
+                self._out.append(b.arm(self.sysid, self.compid, armed=False))
+            elif self.armed:
                 self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
                 self._out.append(b.set_mode(self.sysid, self.compid, self._end_mode))
             return
         self._reset()
-        if not self.armed and self.phase not in AIRBORNE_PHASES:
-            self._set_phase(Phase.ENDED, now)
+        if ground and not undo:
+            if self.phase is not Phase.FAILED:
+                self._set_phase(Phase.ENDED, now)
             return
-        self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
         self._set_phase(Phase.ENDING, now)
-        self._send_end_mode(now)
+        if ground:
+            self._event("info", f"vehicle {self.sysid} is {where}: disarming it")
+            self._disarming = True
+            self._send_disarm(now)
+        else:
+            self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
+            self._send_end_mode(now)
 
     # --------------------------------------------------------- vehicle input
     def handle_message(self, msg: Inbound, now: float) -> None:
@@ -285,16 +330,20 @@ class VehicleProtocol:
         elif isinstance(msg, CommandAck):
             self._commands.on_ack(msg.command, msg.result, now)
         elif isinstance(msg, StatusText):
-            self._texts.append((now, msg.severity, msg.text))
+            self._commands.note_text(msg.severity, msg.text)
             self._event("statustext", f"vehicle {self.sysid} says: {msg.text}")
         elif isinstance(msg, GpsGlobalOrigin):
             self._on_origin(msg, now)
         elif isinstance(msg, EkfStatus):
             self._ekf_flags = msg.flags
-            self._check_armable(now)
+            self._decide(now)
         elif isinstance(msg, GpsRaw):
             self._gps_fix = msg.fix_type
-            self._check_armable(now)
+            self._decide(now)
+        elif isinstance(msg, ExtendedSysState):
+            known = msg.landed_state in LANDED_STATE_NAMES
+            self.landed_state = msg.landed_state if known else None
+            self._decide(now)
         elif isinstance(msg, ParamValue):
             self.params[msg.name] = msg.value
             self._commands.on_param(msg.name, now, msg.value)
@@ -349,11 +398,14 @@ class VehicleProtocol:
         elif name == "arm":
             self._send_arm(now)
         elif name == "mode_confirm":
-            self._send_guided(now)
+            self._guided_lost(now, "no HEARTBEAT in GUIDED since it was asked")
         elif name == "takeoff":
             self._fail(now, f"take-off not complete after {self.config.takeoff_timeout_s:g} s")
         elif name == "end_confirm":
-            self._send_end_mode(now)
+            if self._disarming:
+                self._send_disarm(now)
+            else:
+                self._send_end_mode(now)
 
     def _on_heartbeat(self, hb: Heartbeat, now: float) -> None:
         if not hb.is_autopilot:
@@ -369,17 +421,22 @@ class VehicleProtocol:
             if hb.custom_mode == GUIDED:
                 del self._timers["mode_confirm"]
                 self._after_guided(now)
-        elif phase in (Phase.GOING_TO_START, Phase.READY, Phase.FLYING):
+            elif self._guided_accepted:
+                # Sent after the accepting ACK, so it shows what became of it:
+                # the autopilot left GUIDED again (end of boot): ask at once.
+                del self._timers["mode_confirm"]
+                self._guided_lost(now, f"in {self.mode_name} after GUIDED was accepted")
+        elif phase in READYING_PHASES:
             if hb.custom_mode != GUIDED:
-                self._fail(
-                    now,
-                    f"left GUIDED (now {self.mode_name}): someone else has it; "
-                    "removed from the formation",
-                )
+                self._guided_lost(now)
+        elif phase in (Phase.READY, Phase.FLYING):
+            if hb.custom_mode != GUIDED:
+                self._yield(now, f"left GUIDED (now {self.mode_name}): someone else has it")
             elif not hb.armed:
-                self._fail(now, "disarmed in flight; removed from the formation")
+                self._yield(now, "disarmed in flight")
         elif phase is Phase.ENDING and "end_confirm" in self._timers:
-            if hb.custom_mode == self._end_mode:
+            done = not hb.armed if self._disarming else hb.custom_mode == self._end_mode
+            if done:
                 del self._timers["end_confirm"]
                 self._set_phase(Phase.ENDED, now)
 
@@ -404,11 +461,11 @@ class VehicleProtocol:
                 self._go_to_start(now)
         elif phase in (Phase.GOING_TO_START, Phase.READY):
             self._go_to_start(now)
-        elif phase is Phase.ENDING:
+        elif phase is Phase.ENDING and not self._disarming:
             # Zero acceleration answers every telemetry until the mode is confirmed.
             self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
         elif phase is Phase.WAITING_ARMABLE:
-            self._check_armable(now)
+            self._decide(now)
 
     def _on_origin(self, msg: GpsGlobalOrigin, now: float) -> None:
         origin = GeoPoint.from_mavlink(msg.lat_e7, msg.lon_e7, msg.alt_mm)
@@ -420,7 +477,7 @@ class VehicleProtocol:
             f"{origin.alt_m:.2f} m",
         )
         self._update_offset()
-        self._check_armable(now)
+        self._decide(now)
 
     def _update_offset(self) -> None:
         if self.origin is None or self.reference is None:
@@ -435,17 +492,21 @@ class VehicleProtocol:
 
     def _start_configuring(self, now: float) -> None:
         self._reset()
-        self._arm_tries = 0
-        self.took_over = False
+        self._arm_tries = self._guided_asks = 0
+        self.took_over = self._arm_sent = self._yielded = False
+        self.landed_state = None
         self._set_phase(Phase.CONFIGURING, now)
         cfg, s, c = self.config, self.sysid, self.compid
         for label, msg_id, hz in (
             ("LOCAL_POSITION_NED", b.MSG_ID_LOCAL_POSITION_NED, cfg.control_rate_hz),
             ("EKF_STATUS_REPORT", b.MSG_ID_EKF_STATUS_REPORT, cfg.status_rate_hz),
             ("GPS_RAW_INT", b.MSG_ID_GPS_RAW_INT, cfg.status_rate_hz),
+            ("EXTENDED_SYS_STATE", b.MSG_ID_EXTENDED_SYS_STATE, cfg.status_rate_hz),
         ):
             make = partial(b.set_message_interval, s, c, msg_id, 1.0 / hz)
-            done = partial(self._refused_if, f"stream {label}")
+            done: Callable[[int, float], None] = partial(self._refused_if, f"stream {label}")
+            if msg_id == b.MSG_ID_EXTENDED_SYS_STATE:
+                done = self._landed_stream_acked
             self._commands.push(
                 now, f"SET_MESSAGE_INTERVAL {label}", make, done,
                 command=b.MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -465,6 +526,15 @@ class VehicleProtocol:
         if result != 0:
             self._refused(now, what, result)
 
+    def _landed_stream_acked(self, result: int, now: float) -> None:
+        if result != 0:
+            verdict = MAV_RESULT_NAMES.get(result, str(result))
+            self._event(
+                "info",
+                f"vehicle {self.sysid}: no EXTENDED_SYS_STATE stream ({verdict}): on the "
+                "ground or in the air is judged from the armed flag and the height",
+            )
+
     def _param_set(self, name: str, why: str, result: int, now: float) -> None:
         value = self.params.get(name, math.nan)
         self._event("param", f"vehicle {self.sysid}: {name} = {value:g} {why}")
@@ -473,57 +543,112 @@ class VehicleProtocol:
 
     def _after_configuring(self, now: float) -> None:
         hb = self.heartbeat
-        if hb is not None and hb.armed:
-            self._event(
-                "info",
-                f"vehicle {self.sysid} is already armed in {self.mode_name}: "
-                "taking it over without a take-off",
-            )
         if hb is not None and hb.custom_mode == GUIDED:
             self._after_guided(now)
         else:
             self._set_phase(Phase.SETTING_GUIDED, now)
             self._send_guided(now)
 
-    def _send_guided(self, now: float, *, then_arm: bool = False) -> None:
+    def _send_guided(self, now: float) -> None:
+        if self._guided_asks >= self.config.guided_attempts:
+            self._fail(
+                now,
+                f"GUIDED not kept: asked {self._guided_asks} times, the vehicle is in "
+                f"{self.mode_name}",
+            )
+            return
+        self._guided_asks += 1
         make = partial(b.set_mode, self.sysid, self.compid, GUIDED)
-        done = partial(self._refused_if, "GUIDED") if then_arm else self._guided_acked
-        self._commands.push(now, "set mode GUIDED", make, done, command=b.MAV_CMD_DO_SET_MODE)
+        self._commands.push(
+            now, "set mode GUIDED", make, self._guided_acked, command=b.MAV_CMD_DO_SET_MODE
+        )
 
     def _guided_acked(self, result: int, now: float) -> None:
+        self._guided_accepted = result == 0
         if result != 0:
             self._refused(now, "GUIDED", result)
         # Confirm in the next HEARTBEAT (spec step 3); ask again if it does not come.
         self._timers["mode_confirm"] = now + 2 * self.config.command_timeout_s
 
-    def _after_guided(self, now: float) -> None:
-        self.took_over = self.armed
-        self._set_phase(Phase.WAITING_ARMABLE, now)
-        self._check_armable(now)
+    def _guided_lost(self, now: float, why: str | None = None) -> None:
+        """The autopilot left GUIDED while the vehicle is readied (ArduCopter's
+        end-of-boot STABILIZE), or no HEARTBEAT confirmed it (``why``): ask for
+        it again, confirm it by HEARTBEAT, then decide afresh; nothing is armed
+        or taken off meanwhile."""
+        why = why or f"in {self.mode_name} while {self.phase.value}"
+        self._timers.pop("arm", None)
+        self._timers.pop("takeoff", None)
+        self._set_phase(Phase.SETTING_GUIDED, now)
+        if self._guided_asks < self.config.guided_attempts:  # else _send_guided fails it
+            self._event(
+                "warning",
+                f"vehicle {self.sysid}: {why}: asking for GUIDED again "
+                f"({self._guided_asks + 1} of at most {self.config.guided_attempts})",
+            )
+        self._send_guided(now)
 
-    def _check_armable(self, now: float) -> None:
+    def _guided(self) -> bool:
+        """The latest HEARTBEAT says GUIDED."""
+        return self.heartbeat is not None and self.heartbeat.custom_mode == GUIDED
+
+    def _after_guided(self, now: float) -> None:
+        self._set_phase(Phase.WAITING_ARMABLE, now)
+        self._decide(now)
+
+    def _decide(self, now: float) -> None:
+        """WAITING_ARMABLE (GUIDED confirmed) -> take-over, take-off or arming,
+        from the landed state and height (``judge_ground``), never from the
+        armed flag alone."""
         if self.phase is not Phase.WAITING_ARMABLE or self.position is None:
             return
         if self.offset_m is not None:  # the fence, queued before the arming
             self.vehicle_params.home_known(now, self._commands, self.compid, _vec(self.offset_m))
-        if self.took_over:
-            # Already flying: it only needs its origin and a position to join.
-            if self.offset_m is not None:
+        if not self._guided():
+            self._guided_lost(now)
+            return
+        ground, where = self._ground()
+        if not ground:
+            # Flying: taken over once it has its origin. Disarmed in the air is
+            # never armed; it waits.
+            if self.armed and self.offset_m is not None:
+                if not self.took_over:
+                    self.took_over = True
+                    self._event(
+                        "info",
+                        f"vehicle {self.sysid} is {where}, armed in GUIDED: "
+                        "taking it over without a take-off",
+                    )
                 self._go_to_start(now)
+            return
+        self.took_over = False
+        if self.offset_m is None:
+            return
+        if self.armed:
+            self._event(
+                "info",
+                f"vehicle {self.sysid} is armed {where}: arming is a no-op; "
+                "taking off at once (it disarms itself after DISARM_DELAY)",
+            )
+            self._send_takeoff(now)
             return
         flags = self._ekf_flags
         ekf_ok = flags & EKF_READY_FLAGS == EKF_READY_FLAGS and not flags & EKF_UNINITIALIZED
-        if ekf_ok and self._gps_fix >= 3 and self.offset_m is not None:
+        if ekf_ok and self._gps_fix >= 3:
             self._set_phase(Phase.ARMING, now)
             self._send_arm(now)
 
     def _send_arm(self, now: float) -> None:
-        if self.phase is Phase.ARMING:
-            self._arm_tries += 1
-            make = partial(b.arm, self.sysid, self.compid)
-            self._commands.push(
-                now, "arm", make, self._arm_acked, command=b.MAV_CMD_COMPONENT_ARM_DISARM
-            )
+        if self.phase is not Phase.ARMING:
+            return
+        if not self._guided():  # confirmed right before every attempt
+            self._guided_lost(now)
+            return
+        self._arm_tries += 1
+        self._arm_sent = True
+        make = partial(b.arm, self.sysid, self.compid)
+        self._commands.push(
+            now, "arm", make, self._arm_acked, command=b.MAV_CMD_COMPONENT_ARM_DISARM
+        )
 
     def _arm_acked(self, result: int, now: float) -> None:
         if self.phase is not Phase.ARMING:
@@ -531,19 +656,18 @@ class VehicleProtocol:
         if result == 0:
             self._send_takeoff(now)  # at once: ArduCopter disarms after DISARM_DELAY
             return
-        self._refused(now, f"arming (attempt {self._arm_tries})", result)
-        hb = self.heartbeat
-        if hb is not None and hb.custom_mode != GUIDED:
-            # Someone switched it while we waited ("Arm: Mode not armable"); it
-            # is still on the ground, so ask for GUIDED again before the retry.
-            self._send_guided(now, then_arm=True)
+        why = self._refused(now, f"arming (attempt {self._arm_tries})", result)
         if self._arm_tries >= self.config.arm_attempts:
-            self._fail(now, f"arming refused {self._arm_tries} times: {self._last_text()}")
+            verdict = MAV_RESULT_NAMES.get(result, str(result))
+            self._fail(now, f"arming refused {self._arm_tries} times ({verdict}): {why}")
         else:
             self._timers["arm"] = self._commands.last_sent_at + self.config.arm_retry_interval_s
 
     def _send_takeoff(self, now: float) -> None:
         assert self.position is not None and self.offset_m is not None
+        if not self._guided():
+            self._guided_lost(now)
+            return
         up_now = -self.position.z
         goto_up = float(self._goto_m[2] - self.offset_m[2])
         alt = max(self.config.takeoff_min_alt_m, goto_up - up_now)
@@ -557,9 +681,44 @@ class VehicleProtocol:
         )  # fmt: skip
 
     def _takeoff_acked(self, result: int, now: float) -> None:
-        if result != 0 and self.phase is Phase.TAKING_OFF:
-            self._refused(now, "take-off", result)
-            self._fail(now, f"take-off refused: {self._last_text()}")
+        if result == 0 or self.phase is not Phase.TAKING_OFF:
+            return
+        why = self._refused(now, "take-off", result)
+        if not self._guided():
+            self._guided_lost(now)  # then take off again, armed or not
+        elif not self.armed and self.on_ground and self._arm_tries < self.config.arm_attempts:
+            # It disarmed itself (DISARM_DELAY) before the take-off came.
+            self._timers.pop("takeoff", None)
+            self._set_phase(Phase.WAITING_ARMABLE, now)
+            what = f"vehicle {self.sysid}: disarmed before its take-off; arming again"
+            self._event("warning", what)
+            self._decide(now)
+        else:
+            verdict = MAV_RESULT_NAMES.get(result, str(result))
+            state = "armed" if self.armed else "disarmed"
+            self._fail(now, f"take-off refused ({verdict}) in {self.mode_name}, {state}: {why}")
+
+    def _send_disarm(self, now: float) -> None:
+        make = partial(b.arm, self.sysid, self.compid, armed=False)
+        self._commands.push(
+            now, "disarm", make, self._disarm_acked,
+            command=b.MAV_CMD_COMPONENT_ARM_DISARM, urgent=True,
+        )  # fmt: skip
+
+    def _disarm_acked(self, result: int, now: float) -> None:
+        if self.phase is not Phase.ENDING or not self._disarming:
+            return
+        if result != 0:
+            # ArduCopter refuses to disarm a vehicle it thinks is flying: end it
+            # as one.
+            self._refused(now, "disarm", result)
+            self._disarming = False
+            self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
+            self._send_end_mode(now)
+            return
+        # Confirmed by a HEARTBEAT that says disarmed (the ACK may be a late
+        # answer to an earlier arm command); asked again if none comes.
+        self._timers["end_confirm"] = now + self.config.end_confirm_timeout_s
 
     def _send_end_mode(self, now: float) -> None:
         make = partial(b.set_mode, self.sysid, self.compid, self._end_mode)
@@ -610,31 +769,30 @@ class VehicleProtocol:
         self._out.append(b.request_message(self.sysid, self.compid, b.MSG_ID_GPS_GLOBAL_ORIGIN))
         self._timers["origin"] = now + self.config.origin_request_interval_s
 
-    def _refused(self, now: float, what: str, result: int) -> None:
-        # The vehicle's STATUSTEXT (why) may come a little before its COMMAND_ACK.
-        since = min(self._commands.last_sent_at, now) - 0.5
-        recent = [(sev, t) for at, sev, t in self._texts if at >= since]
-        # Prefer the warnings and errors (PreArm:/Arm: are CRITICAL) over INFO chatter.
-        why = [t for sev, t in recent if sev <= _MAV_SEVERITY_WARNING] or [t for _, t in recent]
-        said = "; ".join(why) or "no STATUSTEXT"
+    def _refused(self, now: float, what: str, result: int) -> str:
+        """Report a refusal with its result and the autopilot's own reasons
+        (the STATUSTEXT heard while that command was pending); returns them."""
+        why = refusal_reason(self._commands.answered_texts)
         verdict = MAV_RESULT_NAMES.get(result, str(result))
-        self._event("refused", f"vehicle {self.sysid}: {what} refused ({verdict}): {said}")
-
-    def _last_text(self) -> str:
-        for _, sev, text in reversed(self._texts):
-            if sev <= _MAV_SEVERITY_WARNING:
-                return text
-        return self._texts[-1][2] if self._texts else "no STATUSTEXT from the vehicle"
+        self._event("refused", f"vehicle {self.sysid}: {what} refused ({verdict}): {why}")
+        return why
 
     def _reset(self) -> None:
         self._commands.clear()
         self._timers.clear()
+        self._disarming = False
 
     def _lose(self, now: float, why: str) -> None:
         self._reset()
         self.failure = why
         self._set_phase(Phase.LOST, now)
         self._event("lost", f"vehicle {self.sysid} lost: {why}")
+
+    def _yield(self, now: float, why: str) -> None:
+        """Someone else has the vehicle in flight: out of the formation for good
+        and never fought over (``finish`` leaves it alone)."""
+        self._fail(now, f"{why}; removed from the formation")
+        self._yielded = True
 
     def _fail(self, now: float, why: str) -> None:
         self._reset()

@@ -256,6 +256,18 @@ SETTINGS = Obj(
                         "GUID_TIMEOUT set on ArduPilot vehicles [s]",
                     ),
                     Key(
+                        "start_tolerance",
+                        Num(lo=0.01, hi=100.0),
+                        _ST.start_tolerance,
+                        "a vehicle is at its start within this distance of it [m]",
+                    ),
+                    Key(
+                        "start_speed_tolerance",
+                        Num(lo=0.01, hi=100.0),
+                        _ST.start_speed_tolerance,
+                        "... and below this speed [m/s]",
+                    ),
+                    Key(
                         "read_envelope",
                         Bool(nullable=True),
                         _ST.read_envelope,

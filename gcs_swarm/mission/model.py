@@ -93,8 +93,10 @@ class Startup:
     """Start-up sequence settings (mavlink-protocol.md "Start-up sequence").
 
     takeoff_alt [m] above each vehicle's home; ready_timeout [s] for every
-    active vehicle to be armed, airborne and at its start; guid_timeout [s]
-    the GUID_TIMEOUT parameter the station sets before the formation starts;
+    vehicle (reserves too) to be armed, airborne and at its start; guid_timeout
+    [s] the GUID_TIMEOUT parameter the station sets before the formation
+    starts; start_tolerance [m] and start_speed_tolerance [m/s]: a vehicle is
+    at its start (READY) within this distance of it and below this speed;
     read_envelope: read each vehicle's position-controller limits
     (WPNAV_*, PSC_JERK_*, ANGLE_MAX) at start-up; None: for ``ardupilot``
     vehicles, not for ``sim`` ones.
@@ -103,6 +105,8 @@ class Startup:
     takeoff_alt: float = 5.0
     ready_timeout: float = 90.0
     guid_timeout: float = 0.5
+    start_tolerance: float = 0.3
+    start_speed_tolerance: float = 0.3
     read_envelope: bool | None = None
 
 

@@ -44,6 +44,9 @@ class StationConfig:
     end_timeout_s: float = 15.0
     guid_timeout_s: float = 0.5
     takeoff_alt_m: float = 5.0
+    start_tolerance_m: float = 0.3
+    start_speed_tolerance_mps: float = 0.3
+    """At its start (READY) within this distance [m] and below this speed [m/s]."""
     mission_origin: GeoPoint | None = None
     events: tuple[tuple[float, str, int], ...] = ()
     lockstep: bool = False
@@ -59,6 +62,8 @@ class StationConfig:
             control_rate_hz=self.rate_hz,
             guid_timeout_s=self.guid_timeout_s,
             takeoff_min_alt_m=self.takeoff_alt_m,
+            goto_tolerance_m=self.start_tolerance_m,
+            goto_speed_tolerance_mps=self.start_speed_tolerance_mps,
             stale_timeout_s=self.stale_timeout_s,
             end_mode=self.end_mode,
             mission_origin=self.mission_origin,

@@ -4,7 +4,9 @@
 127.0.0.1 when vehicles are ``sim`` (unless the caller gives the links),
 readies the swarm, flies the formation for the mission's duration, and
 always ends every vehicle (zero acceleration, then the end action confirmed
-by heartbeat), also when it is cancelled or the start-up fails (then LAND).
+by heartbeat), also when it is cancelled or the start-up fails (then LAND
+for the airborne ones; those on the ground are disarmed and every pending
+retry is dropped).
 ``run_command`` is the synchronous command-line wrapper: Ctrl-C or SIGTERM
 ends the run cleanly, a second Ctrl-C quits at once.
 """
@@ -161,6 +163,8 @@ def station_config(
         ready_timeout_s=s.startup.ready_timeout,
         guid_timeout_s=s.startup.guid_timeout,
         takeoff_alt_m=s.startup.takeoff_alt,
+        start_tolerance_m=s.startup.start_tolerance,
+        start_speed_tolerance_mps=s.startup.start_speed_tolerance,
         mission_origin=_geo(mission.origin_geo()),
         events=tuple((e.t, e.action, e.sysid) for e in mission.events),
         lockstep=lockstep,
@@ -175,8 +179,9 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
     Each sim vehicle's EKF origin (its home, on the ground) comes from the
     mission; with ``airborne`` (or ``emulator.spawn: air``) the initial
     vehicles start armed in GUIDED, hovering at their mission start points
-    (the station then takes them over); reserves always wait on the ground
-    until their join event. ``emulator.accel_max`` sets SIM_ACC_MAX,
+    (the station then takes them over); reserves always start on the ground
+    (the station readies them with the others: take-off, then holding at
+    their start until their join event). ``emulator.accel_max`` sets SIM_ACC_MAX,
     ``noise_pos``/``noise_vel`` the seeded telemetry noise, ``base_port`` and
     ``shared`` where the endpoints bind.
     """
@@ -379,6 +384,10 @@ async def _write_run_report(
     extra: dict[str, Any] = {
         "outcome": summary.outcome,
         "wall_time_s": summary.wall_time_s,
+        "startup": {
+            "start_tolerance_m": summary.start_tolerance_m,
+            "start_speed_tolerance_mps": summary.start_speed_tolerance_mps,
+        },
         "links": {
             "messages_sent": summary.messages_sent,
             "setpoints_dropped": summary.setpoints_dropped,

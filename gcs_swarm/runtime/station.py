@@ -12,10 +12,12 @@
   LOCAL_POSITION_NED (or a fallback delay after the first one), and answers
   each fresh telemetry with exactly one setpoint: the emulator's lockstep
   rule, and a steady rate on real vehicles;
-- membership: initial vehicles fly from the start; a reserve joins on its
-  event; a vehicle leaves on its event, or when its protocol reports it LOST
-  or FAILED; the law simply gets the current set (formation-law.md s9). A
-  lost vehicle that comes back is readied again and rejoins at its slot.
+- membership: initial vehicles fly from the start; a reserve is readied with
+  them (it takes off and holds at its start, its reserve point) and joins on
+  its event, so that the join happens at the mission's time; a vehicle leaves
+  on its event, or when its protocol reports it LOST or FAILED; the law simply
+  gets the current set (formation-law.md s9). A lost vehicle that comes back
+  is readied again and rejoins at its slot.
 """
 
 from __future__ import annotations
@@ -83,9 +85,7 @@ class Station:
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
         self.vehicles = {
-            p.sysid: VehicleProtocol(
-                p.sysid, pcfg, goto_m=p.start_m, enabled=not p.reserve, params=p.params
-            )
+            p.sysid: VehicleProtocol(p.sysid, pcfg, goto_m=p.start_m, params=p.params)
             for p in config.vehicles
         }
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
@@ -181,22 +181,23 @@ class Station:
 
     # ------------------------------------------------------------- phases
     async def ready(self) -> None:
-        """Until every initial vehicle is READY at its start point; raises
+        """Until every vehicle, reserves included, is READY at its start point
+        (a reserve then holds there until its join event); raises
         ``StartupError`` (naming each vehicle, with its own words) on a
-        failure or after ``ready_timeout_s``."""
+        failure or after ``ready_timeout_s``. The caller then ends every
+        vehicle (``end``): grounded ones are disarmed, pending retries dropped."""
+        everyone = [self.vehicles[s] for s in sorted(self.vehicles)]
         try:
             async with asyncio.timeout(self.config.ready_timeout_s):
                 while True:
-                    initial = [self.vehicles[s] for s in sorted(self.members)]
-                    failed = [vp for vp in initial if vp.phase is Phase.FAILED]
+                    failed = [vp for vp in everyone if vp.phase is Phase.FAILED]
                     if failed:
                         raise StartupError(self._not_ready("could not be readied", failed))
-                    if all(vp.phase is Phase.READY for vp in initial):
+                    if all(vp.phase is Phase.READY for vp in everyone):
                         return
                     await self._wait_change()
         except TimeoutError:
-            late = [self.vehicles[s] for s in sorted(self.members)]
-            late = [vp for vp in late if vp.phase is not Phase.READY]
+            late = [vp for vp in everyone if vp.phase is not Phase.READY]
             what = f"not ready after {self.config.ready_timeout_s:g} s"
             raise StartupError(self._not_ready(what, late)) from None
 
@@ -365,7 +366,8 @@ class Station:
             if self.recorder is not None:
                 self.recorder.member(self.control.t_s, vp.sysid, True)
             if self.started:
-                self._note(f"vehicle {vp.sysid} joins the formation ({len(self.flying)} flying)")
+                self._note(f"t={self.control.t_s:.2f} s: vehicle {vp.sysid} joins the formation "
+                           f"({len(self.flying)} flying)")  # fmt: skip
 
     # --------------------------------------------------------------- timers
     def _arm_timer(self, vp: VehicleProtocol) -> None:
@@ -497,7 +499,10 @@ class Station:
             if action == "join":
                 self.members.add(sysid)
                 self.left.discard(sysid)
-                vp.enable(now)  # to its start point (the mission's waiting place), then in
+                if vp.phase is Phase.READY:
+                    self._join(vp, now)  # holding at its reserve point: in at once
+                else:
+                    vp.enable(now)  # readied (again) to its start point, then in
             else:
                 self.members.discard(sysid)
                 self.left.add(sysid)

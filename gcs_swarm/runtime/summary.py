@@ -60,6 +60,9 @@ class RunSummary:
     signature_rejected: int
     safety: str
     log: tuple[str, ...]
+    start_tolerance_m: float = 0.3
+    start_speed_tolerance_mps: float = 0.3
+    """What "at its start" meant at start-up (``mission.startup``)."""
 
     @classmethod
     def from_station(cls, station: Station, *, outcome: str, wall_time_s: float) -> RunSummary:
@@ -112,6 +115,8 @@ class RunSummary:
                 "no finite limit)"
             ),
             log=tuple(station.log),
+            start_tolerance_m=station.config.start_tolerance_m,
+            start_speed_tolerance_mps=station.config.start_speed_tolerance_mps,
         )
 
     def positions(self) -> dict[int, npt.NDArray[np.float64]]:
@@ -126,6 +131,9 @@ class RunSummary:
             f"{self.wall_time_s:.1f} s wall, {self.steps} control steps",
             f"leader at ({', '.join(f'{c:.3f}' for c in self.leader_pos_m)}) m, "
             f"behaviour {self.behaviour}, minimum separation {sep}",
+            f"start-up: at its start within {self.start_tolerance_m:g} m and below "
+            f"{self.start_speed_tolerance_mps:g} m/s (mission.startup.start_tolerance, "
+            "start_speed_tolerance)",
         ]
         if math.isfinite(self.min_clearance_m):
             lines.append(

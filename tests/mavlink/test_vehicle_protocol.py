@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gcs_swarm.mavlink import GeoPoint, MessageSpec, Phase, ProtocolConfig, VehicleProtocol
+from gcs_swarm.mavlink import Phase, VehicleProtocol
 from gcs_swarm.mavlink.builders import (
     COPTER_MODES,
     MAV_CMD_COMPONENT_ARM_DISARM,
@@ -20,66 +20,25 @@ from gcs_swarm.mavlink.builders import (
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
     EkfStatus,
-    GpsGlobalOrigin,
     GpsRaw,
     Heartbeat,
-    LocalPositionNed,
     ParamValue,
     StatusText,
 )
-
-SYS = 3
-GUIDED, BRAKE, STABILIZE, LOITER = (
-    COPTER_MODES[k] for k in ("GUIDED", "BRAKE", "STABILIZE", "LOITER")
+from tests.mavlink.vehicle_harness import (
+    BRAKE,
+    GUIDED,
+    LOITER,
+    STABILIZE,
+    SYS,
+    commands,
+    configure,
+    hb,
+    make,
+    origin_msg,
+    pos,
+    ready_sensors,
 )
-REF = GeoPoint(-35.0, 149.0, 600.0)
-# Vehicle origin 100 m north-ish of the mission origin and 10 m below it.
-ORIGIN = GeoPoint(-35.0 + 100 / 6378137.0 * 180 / np.pi, 149.0, 590.0)
-
-
-def hb(mode: int, armed: bool = False) -> Heartbeat:
-    return Heartbeat(SYS, 1, 2, 3, 1 | (128 if armed else 0), mode, 4)
-
-
-def pos(t_ms: int, ned: tuple[float, float, float], vel: tuple[float, float, float] = (0, 0, 0)):
-    return LocalPositionNed(SYS, 1, t_ms, *ned, *vel)
-
-
-def origin_msg() -> GpsGlobalOrigin:
-    return GpsGlobalOrigin(
-        SYS, 1, round(ORIGIN.lat_deg * 1e7), round(ORIGIN.lon_deg * 1e7), round(ORIGIN.alt_m * 1e3)
-    )
-
-
-def commands(out: list[MessageSpec], command: int) -> list[MessageSpec]:
-    return [m for m in out if m.name == "COMMAND_LONG" and m["command"] == command]
-
-
-def make(**kw: object) -> VehicleProtocol:
-    cfg = ProtocolConfig(mission_origin=REF, **kw)  # type: ignore[arg-type]
-    return VehicleProtocol(SYS, cfg, goto_m=(5.0, 0.0, 12.0))
-
-
-def configure(vp: VehicleProtocol, now: float, *, mode: int = STABILIZE, armed: bool = False):
-    """Drive CONNECTING -> past CONFIGURING, answering every request."""
-    vp.handle_message(hb(mode, armed), now)
-    assert vp.phase is Phase.CONFIGURING
-    for _ in range(3):
-        out = vp.take_outbound()
-        (cmd,) = commands(out, MAV_CMD_SET_MESSAGE_INTERVAL)
-        vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), now)
-    for name, value in (("GUID_TIMEOUT", 0.5), ("WP_YAW_BEHAVIOR", 0.0)):
-        (ps,) = [m for m in vp.take_outbound() if m.name == "PARAM_SET"]
-        assert ps["param_id"] == name and ps["param_value"] == value
-        vp.handle_message(ParamValue(SYS, 1, name, value), now)
-    return cmd
-
-
-def ready_sensors(vp: VehicleProtocol, now: float, ned=(0.0, 0.0, 0.0)) -> None:
-    vp.handle_message(origin_msg(), now)
-    vp.handle_message(GpsRaw(SYS, 1, 3, 10), now)
-    vp.handle_message(EkfStatus(SYS, 1, 1 | 2 | 4 | 8 | 16 | 32), now)
-    vp.handle_message(pos(1000, ned), now)
 
 
 def test_start_up_sequence_to_ready_then_fly_and_end() -> None:
@@ -95,8 +54,8 @@ def test_start_up_sequence_to_ready_then_fly_and_end() -> None:
     vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), t)
     rest = vp.take_outbound()
     assert [c["param1"] for c in commands(rest, MAV_CMD_SET_MESSAGE_INTERVAL)] == [193]
-    vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), t)
-    vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), t)
+    for _ in range(3):  # EKF_STATUS_REPORT, GPS_RAW_INT, EXTENDED_SYS_STATE
+        vp.handle_message(CommandAck(SYS, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0), t)
     for name, value in (("GUID_TIMEOUT", 0.5), ("WP_YAW_BEHAVIOR", 0.0)):
         vp.take_outbound()
         vp.handle_message(ParamValue(SYS, 1, name, value), t)
@@ -199,7 +158,7 @@ def test_arming_refused_too_often_fails_with_the_vehicles_words() -> None:
         t = vp.next_deadline() or t
         vp.handle_timer(t)
     assert vp.phase is Phase.FAILED
-    assert vp.failure == "arming refused 3 times: PreArm: Compass not calibrated"
+    assert vp.failure == "arming refused 3 times (failed): PreArm: Compass not calibrated"
 
 
 def test_unanswered_command_is_resent_with_confirmation_then_fails() -> None:
@@ -220,10 +179,13 @@ def test_unanswered_command_is_resent_with_confirmation_then_fails() -> None:
 
 
 def test_armed_guided_vehicle_is_taken_over_without_a_takeoff() -> None:
+    # No EXTENDED_SYS_STATE (the stream denied): the height decides, once a
+    # LOCAL_POSITION_NED says it (22 m above its origin): in the air.
     vp = make()
-    configure(vp, 0.0, mode=GUIDED, armed=True)
-    assert vp.phase is Phase.WAITING_ARMABLE and vp.took_over
+    configure(vp, 0.0, mode=GUIDED, armed=True, landed_stream=2)
+    assert vp.phase is Phase.WAITING_ARMABLE and not vp.took_over
     ready_sensors(vp, 0.1, ned=(-100.0, 5.0, -22.0))
+    assert vp.took_over
     out = vp.take_outbound()
     assert not commands(out, MAV_CMD_COMPONENT_ARM_DISARM)
     assert not commands(out, MAV_CMD_NAV_TAKEOFF)
@@ -348,18 +310,19 @@ def test_messages_from_other_systems_and_non_autopilots_are_ignored() -> None:
 
 
 def test_mode_switched_by_someone_else_before_arming_is_set_back_to_guided() -> None:
+    # Seen in the HEARTBEAT before the vehicle is armable: GUIDED is asked at
+    # once and no arm goes out in LAND ("Arm: Mode not armable" never happens).
     vp = make(heartbeat_timeout_s=100.0)
     configure(vp, 0.0, mode=GUIDED)
     vp.handle_message(hb(COPTER_MODES["LAND"]), 0.5)  # another station switched it
-    ready_sensors(vp, 1.0)
-    vp.take_outbound()
-    vp.handle_message(StatusText(SYS, 1, 2, "Arm: Mode not armable"), 1.01)
-    vp.handle_message(CommandAck(SYS, 1, MAV_CMD_COMPONENT_ARM_DISARM, 4), 1.02)
+    assert vp.phase is Phase.SETTING_GUIDED
     (guided,) = commands(vp.take_outbound(), MAV_CMD_DO_SET_MODE)
     assert guided["param2"] == GUIDED
+    ready_sensors(vp, 1.0)
+    assert not commands(vp.take_outbound(), MAV_CMD_COMPONENT_ARM_DISARM)
     vp.handle_message(CommandAck(SYS, 1, MAV_CMD_DO_SET_MODE, 0), 1.03)
     vp.handle_message(hb(GUIDED), 2.0)
-    vp.handle_timer(3.0)  # 2 s after the refused attempt
+    assert vp.phase is Phase.ARMING
     assert commands(vp.take_outbound(), MAV_CMD_COMPONENT_ARM_DISARM)
-    vp.handle_message(CommandAck(SYS, 1, MAV_CMD_COMPONENT_ARM_DISARM, 0), 3.01)
+    vp.handle_message(CommandAck(SYS, 1, MAV_CMD_COMPONENT_ARM_DISARM, 0), 2.01)
     assert vp.phase is Phase.TAKING_OFF

@@ -63,9 +63,11 @@ def test_fifth_vehicle_joins_and_five_re_form_a_triangular_bipyramid() -> None:
     s = flown.ok
     assert s.outcome == "completed"
     log = "\n".join(s.log)
-    # The reserve went through the whole start-up on its event: armed, took off.
+    # The reserve went through the whole start-up with the others (armed,
+    # took off, held at its start) and joined on its event.
     assert "vehicle 5: arming" in log and "vehicle 5: takeoff" in log
-    assert "vehicle 5 joins the formation (5 flying)" in log
+    assert log.index("vehicle 5: ready") < log.index("formation started with vehicles [1, 2, 3, 4]")
+    assert "t=15.00 s: vehicle 5 joins the formation (5 flying)" in log
     assert flown.emu.stats.lockstep_timeouts == 0
     _assert_bipyramid(s, [1, 2, 3, 4, 5])
 
