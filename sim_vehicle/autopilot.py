@@ -121,6 +121,13 @@ class Autopilot:
         self._land_low = False
         self._tk_alt_d = 0.0
         self.last_gcs_hb: float | None = None
+        self.wall_s: float | None = None
+        """Wall-clock time [s] of this call, set by the server in lockstep (None in
+        real time). The ground station is not sped up with the emulator, so in
+        lockstep the GCS failsafe counts FS_GCS_TIMEOUT in wall-clock seconds of
+        silence; in real time sim time is the wall clock (times the speed-up, as
+        a sped-up SITL counts it)."""
+        self.last_gcs_hb_wall: float | None = None
         self.fs_active = False
         self._next_hb = now
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
@@ -478,7 +485,10 @@ class Autopilot:
         elif ctl == "ground" and self.armed and self.params["DISARM_DELAY"] > 0:
             d = min(d, self._t_phase + self.params["DISARM_DELAY"])
         if self.armed and self.last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
-            d = min(d, self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3)
+            due = self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3
+            # lockstep: sim time runs faster than the station's wall clock; look again
+            # every 0.1 s of sim time once it could be due (guards.safety_checks)
+            d = min(d, due if self.wall_s is None else max(due, now + 0.1))
         self.deadline = d
 
     def contact(self, now: float) -> None:
@@ -491,6 +501,7 @@ class Autopilot:
     def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
         """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""
         self.last_gcs_hb = now
+        self.last_gcs_hb_wall = self.wall_s
         if self.fs_active:
             self.fs_active = False
             return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]

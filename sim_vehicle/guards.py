@@ -63,7 +63,10 @@ def safety_checks(ap: Autopilot, now: float, kin: Kin) -> list[mav.MAVLink_messa
     """GCS failsafe and fence (``safety`` module), while armed."""
     p, out = ap.params, []
     if ap.armed and ap.last_gcs_hb is not None and p["FS_GCS_ENABLE"] != 0:
-        lost = now - ap.last_gcs_hb > p["FS_GCS_TIMEOUT"]
+        if ap.wall_s is not None and ap.last_gcs_hb_wall is not None:  # lockstep: wall time
+            lost = ap.wall_s - ap.last_gcs_hb_wall > p["FS_GCS_TIMEOUT"]
+        else:
+            lost = now - ap.last_gcs_hb > p["FS_GCS_TIMEOUT"]
         if lost and not ap.fs_active:
             ap.fs_active = True
             landing = ap.control == "land"

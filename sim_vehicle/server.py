@@ -16,6 +16,7 @@ import asyncio
 import heapq
 import itertools
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -101,6 +102,7 @@ class Emulator:
         self.config = config
         self.dt = 1.0 / config.rate_hz
         self.sim_time_s = 0.0
+        self._lockstep = config.clock == "lockstep"
         self.step_count = 0
         self.stats = EmulatorStats()
         self.fleet = Fleet()
@@ -495,8 +497,16 @@ class Emulator:
                 item = (self.sim_time_s + d, next(self._tie), ep, msgs)
                 heapq.heappush(self._delayed_in, item)
 
+    def _set_wall(self) -> None:
+        """Lockstep: tell every autopilot the wall clock (``Autopilot.wall_s``)."""
+        wall = time.monotonic()
+        for v in self._rows:
+            v.ap.wall_s = wall
+
     def _deliver(self, ep: Endpoint, msgs: list[Any]) -> None:
         now = self.sim_time_s
+        if self._lockstep:
+            self._set_wall()
         for m in msgs:
             ts = getattr(m, "target_system", 0)
             if ts == 0:
@@ -631,6 +641,8 @@ class Emulator:
         self.step_count += 1
         self.stats.steps = self.step_count
         self.sim_time_s = now = self.step_count * self.dt
+        if self._lockstep:
+            self._set_wall()
         self._emit(now)
         self._notify()
 

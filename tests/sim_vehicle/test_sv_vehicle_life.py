@@ -189,6 +189,20 @@ def test_gcs_failsafe_listens_only_to_sysid_mygcs() -> None:
     assert quiet.ap.mode == 4  # never heard its GCS: never triggers (ArduCopter)
 
 
+def test_gcs_failsafe_counts_wall_seconds_in_lockstep() -> None:
+    """In lockstep sim time outruns the station's 1 Hz wall-clock HEARTBEAT: the
+    failsafe waits FS_GCS_TIMEOUT of wall time (the server sets ``wall_s``)."""
+    s = Sim(airborne=True, FS_GCS_ENABLE=5, FS_GCS_TIMEOUT=5.0)
+    s.ap.wall_s = 100.0
+    s.send(_hb(255))
+    s.ap.wall_s = 104.0  # 4 s of wall time while 30 s of sim time pass
+    s.run(30.0)
+    assert s.ap.mode == 4 and "GCS Failsafe" not in s.texts()
+    s.ap.wall_s = 105.5  # 5.5 s of wall silence: LAND
+    s.run(0.2)
+    assert s.ap.mode == 9 and "GCS Failsafe" in s.texts()
+
+
 def test_gcs_failsafe_actions_as_arducopter() -> None:
     act = safety.gcs_failsafe
     modes = {v: act(v, 16, 4, False, False) for v in range(8)}
