@@ -120,7 +120,7 @@ def predict_plane_lengths(
     tgt = np.concatenate([targets_m, targets_m])
     vertical = np.zeros((2 * n, 1), dtype=bool)
     vertical[n:] = True
-    v_term = avoidance.F_D / (gains.D + gains.k)
+    v_term = avoidance.F_D / gains.damping_scaled  # READING (time scale): Eq. 1 as flown
     if horizon_s is None:
         dist = float(np.max(np.linalg.norm(targets_m - pos_m, axis=1)))
         horizon_s = 20.0 + 4.0 * dist / max(v_term, 1e-6)
@@ -131,8 +131,8 @@ def predict_plane_lengths(
     sh = np.ones((2 * n, 1))
     sv = np.ones((2 * n, 1))
     r0 = avoidance.r0
-    inv_m = 1.0 / gains.M
-    c = gains.D + gains.k
+    inv_m = 1.0 / gains.mass_scaled
+    c = gains.damping_scaled
 
     def accel(pp: F64, vv: F64) -> F64:
         f_des = desired_force(pp, tgt, avoidance.F_D)

@@ -37,6 +37,23 @@ Pairs share the work: the relative barrier uses 2 a_b and each vehicle takes
 half of u_min (n_ij.a_i >= u_min/2, n_ji.a_j >= u_min/2). Coincident vehicles
 use the fixed direction +x (the lower index is pushed to -x).
 
+Vehicle envelope (``Limits.envelope``, docs/vehicle-envelope.md). When it is
+bounded the filter plans within what the vehicle can deliver:
+
+- the acceleration set is the envelope's: the ball |a| <= min(a_max,
+  accel_xy) and the two vertical half-spaces |a_z| <= accel_z; with a finite
+  jerk, the horizontal disk becomes an inscribed 16-gon of half-spaces, the
+  ball is the jerk step |a - a'| <= min(jerk_xy, jerk_z) dt around the last
+  command a' (the projection stays exact: it is solved for a - a'), and
+  |a| <= a_max is clamped after;
+- each barrier's braking budget is a_b = brake_fraction x the envelope's
+  extent along its normal (0.5 m/s^2 against a floor for ArduCopter's 1 m/s^2
+  vertical), and (B1)-(B2) become (B1')-(B2') of
+  ``gcs_swarm.control.reaction``: the stopping distance of a vehicle whose
+  acceleration is its command of lag_s ago and whose command ramps at the
+  jerk, so clearance and separation hold on that vehicle, not only on a
+  point mass. The unbounded envelope keeps (B1)-(B2), bit for bit.
+
 The per-vehicle projection is ``gcs_swarm.control.limits.project`` (exact).
 When the rows conflict the filter returns a best effort and flags the vehicle
 infeasible: it drops the speed row, then the separation rows, then relaxes the
@@ -59,10 +76,12 @@ from gcs_swarm.control.limits import (
     FloatArray,
     box_signed_distance,
     braking_bound,
+    clamp_norm,
     project,
     speed_rows,
 )
-from gcs_swarm.control.params import Box, Limits, Safety
+from gcs_swarm.control.params import Box, Envelope, Limits, Safety
+from gcs_swarm.control.reaction import cap_rows, radial_extent, reaction_bound
 from gcs_swarm.errors import InfeasibleError
 
 __all__ = [
@@ -86,7 +105,18 @@ def filter_acts(limits: Limits, safety: Safety) -> bool:
     )  # fmt: skip
 
 
-_ENV, _PAIR, _SPEED = 0, 1, 2  # row classes, in the order the best effort keeps them
+_CAP, _ENV, _PAIR, _SPEED = -1, 0, 1, 2  # row classes, in the order the best effort keeps them
+_BIG_MPS2 = 1e6  # stands in for an unbounded closing acceleration in (B0')
+
+
+def _planning(envelope: Envelope) -> bool:
+    """Whether the filter must plan within ``envelope`` (a finite acceleration
+    or jerk bound, or a lag); speeds alone are checked, not filtered."""
+    e = envelope
+    finite = any(math.isfinite(x) for x in (e.accel_xy, e.accel_z, e.jerk_xy, e.jerk_z))
+    return finite or e.lag_s > 0.0
+
+
 _RELAX_STEPS = 40  # bisection steps of the best-effort relaxation (2^-40 of the range)
 
 
@@ -269,6 +299,30 @@ class SafetyFilter:
         self._plane_offset = np.array([p[2] for p in planes], dtype=np.float64)
         self._plane_n = np.zeros((len(planes), 3))
         self._plane_n[np.arange(len(planes)), self._plane_axis] = self._plane_sign
+        env = limits.envelope
+        self.envelope = env
+        self._plan = _planning(env)
+        self._jerk = min(env.jerk_xy, env.jerk_z)
+        self._r_xy = min(a_max, env.accel_xy)  # horizontal radius of the set [m/s^2]
+        self._z_cap = env.accel_z
+        if self._plan and math.isfinite(self._jerk):
+            # Jerk step ball around the last command; caps as half-spaces.
+            self._ball = self._jerk * dt
+            self._cap_n, self._cap_b = cap_rows(self._r_xy, min(a_max, env.accel_z))
+            self._z_cap = min(a_max, env.accel_z)
+            self._r_in = self._r_xy * math.cos(math.pi / 16)
+        elif self._plan:
+            self._ball = self._r_xy
+            self._cap_n, self._cap_b = cap_rows(math.inf, env.accel_z)
+            self._r_in = self._r_xy
+        else:
+            self._ball = a_max
+            self._cap_n, self._cap_b = np.zeros((0, 3)), np.zeros(0)
+            self._r_in = a_max
+        if self._plan:
+            budget = min(self._r_in, self._z_cap)
+            if math.isfinite(budget):
+                self._a_b = self.tuning.brake_fraction * budget
 
     def filter(
         self,
@@ -277,6 +331,7 @@ class SafetyFilter:
         accel_des_mps2: FloatArray,
         *,
         ids: Sequence[object] | None = None,
+        prev_accel_mps2: FloatArray | None = None,
     ) -> tuple[FloatArray, SafetyReport]:
         """Filter one cycle. pos_m, vel_mps, accel_des_mps2: (N, 3), mission frame.
 
@@ -284,12 +339,18 @@ class SafetyFilter:
         Never returns NaN: a non-finite ``a_des`` row is treated as zero; a
         vehicle with a non-finite position or velocity gets a = 0 and is
         flagged infeasible. ``ids`` only names vehicles in ``InfeasibleError``.
+        ``prev_accel_mps2 (N, 3)``: the last command sent to each vehicle
+        (zero if None), used only when the envelope is bounded.
         """
         pos = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3)
         vel = np.asarray(vel_mps, dtype=np.float64).reshape(-1, 3)
         a_des = np.asarray(accel_des_mps2, dtype=np.float64).reshape(-1, 3)
         if not pos.shape == vel.shape == a_des.shape:
             raise ValueError(f"shape mismatch: {pos.shape}, {vel.shape}, {a_des.shape}")
+        prev = np.zeros_like(pos)
+        if self._plan and prev_accel_mps2 is not None:
+            prev = np.asarray(prev_accel_mps2, dtype=np.float64).reshape(pos.shape)
+            prev = np.where(np.isfinite(prev), prev, 0.0)
         state_ok: BoolArray = np.asarray(
             np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1)
         )
@@ -298,22 +359,42 @@ class SafetyFilter:
         pos = np.where(state_ok[:, None], pos, 0.0)
         vel = np.where(state_ok[:, None], vel, 0.0)
         geo = self._geometry(pos, state_ok)
-        normals, bounds, classes = self._rows(pos, vel, a0, geo, state_ok)
+        normals, bounds, classes = self._rows(pos, vel, a0, geo, state_ok, prev)
+        if self._cap_b.size:
+            nv = pos.shape[0]
+            normals = np.concatenate(
+                [normals, np.broadcast_to(self._cap_n, (nv, *self._cap_n.shape))], axis=1
+            )
+            bounds = np.concatenate(
+                [bounds, np.broadcast_to(self._cap_b, (nv, self._cap_b.size))], axis=1
+            )
+            classes = np.concatenate([classes, np.full(self._cap_b.size, _CAP)])
         rows = np.ones(bounds.shape, dtype=bool)
+        ball = self._ball
+        if self._plan and math.isfinite(self._jerk):
+            # The ball is the jerk step around the last command: solve for a - a'.
+            shift = bounds - np.einsum("nkj,nj->nk", normals, prev)
+            delta, feasible = project(a0 - prev, normals, shift, rows, ball)
+            if not feasible.all():
+                delta = self._best_effort(delta, feasible, a0 - prev, normals, shift, classes)
+            accel = prev + delta
+        else:
+            accel, feasible = project(a0, normals, bounds, rows, ball)
+            if not feasible.all():
+                accel = self._best_effort(accel, feasible, a0, normals, bounds, classes)
         a_max = self.limits.a_max
-        accel, feasible = project(a0, normals, bounds, rows, a_max)
-        if not feasible.all():
-            accel = self._best_effort(accel, feasible, a0, normals, bounds, classes)
+        if self._plan and math.isfinite(a_max) and ball != a_max:
+            accel = clamp_norm(accel, a_max)
         accel[~state_ok] = 0.0
         infeasible = ~feasible | ~state_ok
 
         scale = np.maximum(1.0, np.linalg.norm(a0, axis=-1))
-        if math.isfinite(a_max):
-            scale = np.maximum(scale, a_max)
+        if math.isfinite(ball):
+            scale = np.maximum(scale, ball)
         resid = bounds - np.einsum("nkj,nj->nk", normals, accel)
         active = np.count_nonzero(np.abs(resid) <= FEAS_TOL * scale[:, None], axis=1)
-        if math.isfinite(a_max):
-            active += np.abs(np.linalg.norm(accel, axis=-1) - a_max) <= FEAS_TOL * scale
+        if math.isfinite(ball):
+            active += np.abs(np.linalg.norm(accel - prev, axis=-1) - ball) <= FEAS_TOL * scale
         violation = np.where(infeasible, np.maximum(resid.max(axis=1, initial=0.0), 0.0), 0.0)
         report = SafetyReport(
             correction_mps2=np.linalg.norm(accel - a0, axis=-1),
@@ -360,17 +441,20 @@ class SafetyFilter:
         a0: FloatArray,
         geo: _Geometry,
         ok: BoolArray,
+        prev: FloatArray,
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """All half-space rows n.a >= b: normals (N, m, 3), bounds (N, m), class (m,)."""
         nv = pos.shape[0]
-        dt, a_b, gamma = self.dt, self._a_b, self.tuning.gamma_per_s
+        bound = self._bound
+        dt, a_b = self.dt, self._a_b
         normals: list[FloatArray] = []
         bounds: list[FloatArray] = []
         classes: list[int] = []
         if self.safety.enabled and self._centres.shape[0]:
             # (a) boxes: (B1)-(B2) on the signed distance, supporting-plane normal.
             closing = -np.einsum("nkj,nj->nk", geo.box_n, vel)
-            u = braking_bound(geo.clearance - self.safety.clearance, closing, a_b, dt, gamma)
+            c_prev = -np.einsum("nkj,nj->nk", geo.box_n, prev)
+            u = bound(geo.box_n, geo.clearance - self.safety.clearance, closing, c_prev, 1.0)
             normals.append(geo.box_n)
             bounds.append(u)
             classes += [_ENV] * geo.box_n.shape[1]
@@ -378,8 +462,10 @@ class SafetyFilter:
             # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
             gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset
             closing = -self._plane_sign * vel[:, self._plane_axis]
-            normals.append(np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape)))
-            bounds.append(braking_bound(gap, closing, a_b, dt, gamma))
+            plane_n = np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape))
+            c_prev = -self._plane_sign * prev[:, self._plane_axis]
+            normals.append(plane_n)
+            bounds.append(bound(plane_n, gap, closing, c_prev, 1.0))
             classes += [_ENV] * self._plane_axis.size
         if self.safety.enabled and nv > 1:
             # (b) pairs: relative barrier with 2 a_b, each vehicle takes half.
@@ -388,7 +474,8 @@ class SafetyFilter:
             closing = -np.einsum("ijk,ijk->ij", geo.pair_n, rel_v)
             real = np.isfinite(geo.pair_d)
             gap = np.where(real, geo.pair_d, 0.0) - self.safety.separation
-            u = np.where(real, 0.5 * braking_bound(gap, closing, 2.0 * a_b, dt, gamma), -math.inf)
+            c_prev = -np.einsum("ijk,ijk->ij", geo.pair_n, prev[:, None, :] - prev[None, :, :])
+            u = np.where(real, 0.5 * bound(geo.pair_n, gap, closing, c_prev, 2.0), -math.inf)
             normals.append(geo.pair_n[off].reshape(nv, nv - 1, 3))
             bounds.append(u[off].reshape(nv, nv - 1))
             classes += [_PAIR] * (nv - 1)
@@ -404,6 +491,29 @@ class SafetyFilter:
         bnd[~ok] = -math.inf
         return np.concatenate(normals, axis=1), bnd, np.array(classes, dtype=np.int64)
 
+    def _bound(
+        self, normal: FloatArray, gap: FloatArray, closing: FloatArray, c_prev: FloatArray,
+        rel: float,
+    ) -> FloatArray:  # fmt: skip
+        """u_min of one barrier family: (B1)-(B2) (``limits.braking_bound``) for
+        the point mass, (B1')-(B2') (``reaction.reaction_bound``) within a
+        bounded envelope. ``rel`` is 2 for a pair (relative motion: twice the
+        budget, the caps and the jerk), else 1."""
+        dt, gamma = self.dt, self.tuning.gamma_per_s
+        if not self._plan:
+            return braking_bound(gap, closing, rel * self._a_b, dt, gamma)
+        frac = self.tuning.brake_fraction
+        a_b = frac * radial_extent(normal, self._r_in, self._z_cap)
+        a_b = np.where(np.isfinite(a_b), a_b, self.tuning.brake_unbounded_mps2)
+        nz = np.abs(normal[..., 2])
+        nxy = np.sqrt(np.maximum(1.0 - nz * nz, 0.0))
+        cap = np.where(nxy > 0.0, self._r_xy * nxy, 0.0) + np.where(nz > 0.0, self._z_cap * nz, 0.0)
+        cap = np.minimum(cap, _BIG_MPS2)
+        return reaction_bound(
+            gap, closing, c_prev, rel * a_b, rel * cap,
+            jerk=rel * self._jerk, lag=self.envelope.lag_s, dt=dt, gamma=gamma,
+        )  # fmt: skip
+
     def _best_effort(
         self,
         accel: FloatArray,
@@ -414,8 +524,9 @@ class SafetyFilter:
         classes: NDArray[np.int64],
     ) -> FloatArray:
         """Best command for infeasible vehicles: drop speed, then pairs, then
-        relax the environment rows by the least uniform amount t >= 0."""
-        a_max = self.limits.a_max
+        relax the environment rows by the least uniform amount t >= 0 (the
+        acceleration caps are never dropped nor relaxed)."""
+        a_max = self._ball
         out = accel.copy()
         bad = np.flatnonzero(~feasible)
         for keep in (_PAIR, _ENV):
@@ -425,16 +536,18 @@ class SafetyFilter:
             bad = bad[~ok]
             if bad.size == 0:
                 return out
-        rows = np.broadcast_to(classes == _ENV, bounds[bad].shape)
+        rows = np.broadcast_to(classes <= _ENV, bounds[bad].shape)
         env_b = np.where(rows, bounds[bad], -math.inf)
+        relax = np.broadcast_to(classes == _ENV, env_b.shape)
         lo = np.zeros(bad.size)
-        hi = np.maximum(env_b.max(axis=1), 0.0) * (1.0 + 1e-12) + 1e-12  # a = 0 meets b - hi
+        hi = np.maximum(np.where(relax, env_b, -math.inf).max(axis=1), 0.0)
+        hi = hi * (1.0 + 1e-12) + 1e-12  # a = 0 meets b - hi
         for _ in range(_RELAX_STEPS):
             mid = 0.5 * (lo + hi)
-            _, ok = project(a0[bad], normals[bad], env_b - mid[:, None], rows, a_max)
+            _, ok = project(a0[bad], normals[bad], env_b - relax * mid[:, None], rows, a_max)
             hi = np.where(ok, mid, hi)
             lo = np.where(ok, lo, mid)
-        x, _ = project(a0[bad], normals[bad], env_b - hi[:, None], rows, a_max)
+        x, _ = project(a0[bad], normals[bad], env_b - relax * hi[:, None], rows, a_max)
         out[bad] = x
         return out
 
