@@ -43,7 +43,7 @@ __all__ = ["cap_rows", "radial_extent", "reaction_bound", "stop_distance", "supp
 
 FloatArray = NDArray[np.float64]
 
-_BISECT_STEPS = 26  # 2^-26 of the closing-acceleration range (< 1e-7 m/s^2)
+_ROOT_STEPS = 12  # Illinois (regula falsi) steps on the bracket; then its feasible end
 _POLYGON_SIDES = 16  # horizontal acceleration disk as an inscribed 16-gon (98 % of the radius)
 
 
@@ -128,8 +128,9 @@ def stop_distance(
     the plan (B0') from closing speed ``s`` and commanded closing acceleration
     ``c``; >= 0. Arrays broadcast together; ``jerk`` [m/s^3] may be inf,
     ``lag`` [s] >= 0."""
-    s, c, a_b, c_cap = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in
-                                             (s, c, a_b, c_cap)))  # fmt: skip
+    if not (np.shape(s) == np.shape(c) == np.shape(a_b) == np.shape(c_cap)):
+        s, c, a_b, c_cap = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in
+                                                 (s, c, a_b, c_cap)))  # fmt: skip
     t_f, c0, t_r, j = _phases(c, a_b, c_cap, jerk, lag)
     # Flat phase: c_cap > 0, so the displacement is convex there: ends only.
     x1 = s * t_f + 0.5 * c_cap * t_f * t_f
@@ -169,39 +170,50 @@ def reaction_bound(
     shape). Returns -inf where no command of closing part <= c_cap can break
     (B2'); otherwise the bisected bound, capped at a_b and at one jerk step
     n.a' + jerk dt (what the vehicle can reach)."""
-    dist, closing, c_prev, a_b, c_cap = np.broadcast_arrays(
+    arrays = np.broadcast_arrays(
         *(np.asarray(x, dtype=np.float64) for x in (dist, closing, c_prev, a_b, c_cap))
     )
+    shape = arrays[0].shape
+    dist, closing, c_prev, a_b, c_cap = (x.reshape(-1) for x in arrays)
     out = np.full(dist.shape, -math.inf)
     if dist.size == 0:
-        return out
+        return out.reshape(shape)
     h = dist - stop_distance(closing, c_prev, a_b, c_cap, jerk, lag)
     r = (1.0 - min(gamma * dt, 1.0)) * h
     ph = _phases(c_prev, a_b, c_cap, jerk, lag)
     x_dt, s_next = _state_at(closing, ph, c_cap, a_b, dt)
     d_next = dist - x_dt
 
-    def ok(c_new: FloatArray, sel: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    def margin(c_new: FloatArray, sel: NDArray[np.bool_]) -> FloatArray:
+        """H'(d+, s+, c_new) - (1 - gamma dt) H' [m]: >= 0 meets (B2'); decreasing."""
         s_new = stop_distance(s_next[sel], c_new, a_b[sel], c_cap[sel], jerk, lag)
-        res: NDArray[np.bool_] = d_next[sel] - s_new >= r[sel]
+        res: FloatArray = d_next[sel] - s_new - r[sel]
         return res
 
     every = np.ones(dist.shape, dtype=bool)
-    free = ok(c_cap, every)
-    need = np.flatnonzero(~free)
-    if need.size == 0:
-        return out
-    sel = np.zeros(dist.shape, dtype=bool)
-    sel[need] = True
+    sel = margin(c_cap, every) < 0.0
+    if not sel.any():
+        return out.reshape(shape)
     reach = c_prev[sel] - jerk * dt if math.isfinite(jerk) else -c_cap[sel]
     lo = np.minimum(reach, c_cap[sel])  # the most braking the vehicle can command now
     hi = c_cap[sel]
-    feasible = ok(lo, sel)
-    for _ in range(_BISECT_STEPS):
-        mid = 0.5 * (lo + hi)
-        good = ok(mid, sel)
-        lo = np.where(good, mid, lo)
-        hi = np.where(good, hi, mid)
+    g_lo = margin(lo, sel)
+    g_hi = margin(hi, sel)
+    feasible = g_lo >= 0.0
+    # Illinois regula falsi on the bracket [lo (margin >= 0), hi (margin < 0)].
+    side = np.zeros(lo.shape)
+    for _ in range(_ROOT_STEPS):
+        denom = np.where(feasible, g_lo - g_hi, 1.0)
+        mid = np.where(feasible, lo + (hi - lo) * g_lo / np.where(denom > 0.0, denom, 1.0), lo)
+        mid = np.clip(mid, np.minimum(lo, hi), np.maximum(lo, hi))
+        g_mid = margin(mid, sel)
+        good = g_mid >= 0.0
+        lo, g_lo = np.where(good, mid, lo), np.where(good, g_mid, g_lo)
+        hi, g_hi = np.where(good, hi, mid), np.where(good, g_hi, g_mid)
+        # Illinois: halve the weight of the end that stayed twice in a row.
+        g_hi = np.where(good & (side > 0), 0.5 * g_hi, g_hi)
+        g_lo = np.where(~good & (side < 0), 0.5 * g_lo, g_lo)
+        side = np.where(good, 1.0, -1.0)
     u = np.where(feasible, -lo, -reach)
     out[sel] = np.minimum(np.minimum(u, a_b[sel]), -reach)
-    return out
+    return out.reshape(shape)

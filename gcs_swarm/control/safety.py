@@ -482,6 +482,9 @@ class SafetyFilter:
         if math.isfinite(self.limits.v_max):
             # (d) speed: tangent planes of |v_next| = v_max (limits.speed_rows).
             n, b = speed_rows(vel, a0, self.limits.v_max, dt, a_b)
+            if self._plan and math.isfinite(self._jerk):
+                # No more than one jerk step from the last command (else it only conflicts).
+                b = np.minimum(b, np.einsum("nkj,nj->nk", n, prev) + 0.999 * self._ball)
             normals.append(n)
             bounds.append(b)
             classes += [_SPEED, _SPEED]
