@@ -445,27 +445,36 @@ class SafetyFilter:
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """All half-space rows n.a >= b: normals (N, m, 3), bounds (N, m), class (m,)."""
         nv = pos.shape[0]
-        bound = self._bound
         dt, a_b = self.dt, self._a_b
         normals: list[FloatArray] = []
         bounds: list[FloatArray] = []
         classes: list[int] = []
+        # Barrier families (normals, gap, closing, c_prev); a pair's is halved:
+        # (B1')-(B2') are homogeneous in lengths, so half the relative problem
+        # with one vehicle's budget, caps and jerk is each vehicle's half share.
+        fams: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
         if self.safety.enabled and self._centres.shape[0]:
             # (a) boxes: (B1)-(B2) on the signed distance, supporting-plane normal.
             closing = -np.einsum("nkj,nj->nk", geo.box_n, vel)
-            c_prev = -np.einsum("nkj,nj->nk", geo.box_n, prev)
-            u = bound(geo.box_n, geo.clearance - self.safety.clearance, closing, c_prev, 1.0)
+            gap = geo.clearance - self.safety.clearance
             normals.append(geo.box_n)
-            bounds.append(u)
+            if self._plan:
+                fams.append((geo.box_n, gap, closing, -np.einsum("nkj,nj->nk", geo.box_n, prev)))
+                bounds.append(gap)  # placeholder, replaced below
+            else:
+                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
             classes += [_ENV] * geo.box_n.shape[1]
         if self._plane_axis.size:
             # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
             gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset
             closing = -self._plane_sign * vel[:, self._plane_axis]
             plane_n = np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape))
-            c_prev = -self._plane_sign * prev[:, self._plane_axis]
             normals.append(plane_n)
-            bounds.append(bound(plane_n, gap, closing, c_prev, 1.0))
+            if self._plan:
+                fams.append((plane_n, gap, closing, -self._plane_sign * prev[:, self._plane_axis]))
+                bounds.append(gap)
+            else:
+                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
             classes += [_ENV] * self._plane_axis.size
         if self.safety.enabled and nv > 1:
             # (b) pairs: relative barrier with 2 a_b, each vehicle takes half.
@@ -474,11 +483,32 @@ class SafetyFilter:
             closing = -np.einsum("ijk,ijk->ij", geo.pair_n, rel_v)
             real = np.isfinite(geo.pair_d)
             gap = np.where(real, geo.pair_d, 0.0) - self.safety.separation
-            c_prev = -np.einsum("ijk,ijk->ij", geo.pair_n, prev[:, None, :] - prev[None, :, :])
-            u = np.where(real, 0.5 * bound(geo.pair_n, gap, closing, c_prev, 2.0), -math.inf)
-            normals.append(geo.pair_n[off].reshape(nv, nv - 1, 3))
-            bounds.append(u[off].reshape(nv, nv - 1))
+            pair_n = geo.pair_n[off].reshape(nv, nv - 1, 3)
+            normals.append(pair_n)
+            if self._plan:
+                c_prev = -np.einsum("ijk,ijk->ij", geo.pair_n, prev[:, None, :] - prev[None, :, :])
+
+                def half(x: FloatArray) -> FloatArray:
+                    out: FloatArray = 0.5 * x[off].reshape(nv, nv - 1)
+                    return out
+
+                fams.append((pair_n, half(gap), half(closing), half(c_prev)))
+                bounds.append(np.where(real[off].reshape(nv, nv - 1), 0.0, -math.inf))
+            else:
+                u = braking_bound(gap, closing, 2.0 * a_b, dt, self.tuning.gamma_per_s)
+                u = np.where(real, 0.5 * u, -math.inf)
+                bounds.append(u[off].reshape(nv, nv - 1))
             classes += [_PAIR] * (nv - 1)
+        if fams:
+            flat = [np.concatenate([f[i].reshape(nv, -1) for f in fams], axis=1) for i in (1, 2, 3)]
+            normal = np.concatenate([f[0].reshape(nv, -1, 3) for f in fams], axis=1)
+            u_all = self._reaction(normal, *flat)
+            col = 0
+            for slot, b in enumerate(bounds):
+                width = b.shape[1]
+                # Pairs' placeholder is 0 (real) or -inf (unusable): -inf stays.
+                bounds[slot] = np.where(np.isneginf(b), -math.inf, u_all[:, col : col + width])
+                col += width
         if math.isfinite(self.limits.v_max):
             # (d) speed: tangent planes of |v_next| = v_max (limits.speed_rows).
             n, b = speed_rows(vel, a0, self.limits.v_max, dt, a_b)
@@ -494,17 +524,13 @@ class SafetyFilter:
         bnd[~ok] = -math.inf
         return np.concatenate(normals, axis=1), bnd, np.array(classes, dtype=np.int64)
 
-    def _bound(
-        self, normal: FloatArray, gap: FloatArray, closing: FloatArray, c_prev: FloatArray,
-        rel: float,
-    ) -> FloatArray:  # fmt: skip
-        """u_min of one barrier family: (B1)-(B2) (``limits.braking_bound``) for
-        the point mass, (B1')-(B2') (``reaction.reaction_bound``) within a
-        bounded envelope. ``rel`` is 2 for a pair (relative motion: twice the
-        budget, the caps and the jerk), else 1."""
-        dt, gamma = self.dt, self.tuning.gamma_per_s
-        if not self._plan:
-            return braking_bound(gap, closing, rel * self._a_b, dt, gamma)
+    def _reaction(
+        self, normal: FloatArray, gap: FloatArray, closing: FloatArray, c_prev: FloatArray
+    ) -> FloatArray:
+        """u_min of (B1')-(B2') (``reaction.reaction_bound``) within the bounded
+        envelope, for rows with unit normals ``normal (N, m, 3)``: the budget is
+        brake_fraction x the envelope's extent along n, the closing cap its
+        support along n."""
         frac = self.tuning.brake_fraction
         a_b = frac * radial_extent(normal, self._r_in, self._z_cap)
         a_b = np.where(np.isfinite(a_b), a_b, self.tuning.brake_unbounded_mps2)
@@ -513,8 +539,8 @@ class SafetyFilter:
         cap = np.where(nxy > 0.0, self._r_xy * nxy, 0.0) + np.where(nz > 0.0, self._z_cap * nz, 0.0)
         cap = np.minimum(cap, _BIG_MPS2)
         return reaction_bound(
-            gap, closing, c_prev, rel * a_b, rel * cap,
-            jerk=rel * self._jerk, lag=self.envelope.lag_s, dt=dt, gamma=gamma,
+            gap, closing, c_prev, a_b, cap, jerk=self._jerk, lag=self.envelope.lag_s,
+            dt=self.dt, gamma=self.tuning.gamma_per_s,
         )  # fmt: skip
 
     def _best_effort(
