@@ -70,9 +70,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.dt <= 0.0:
         raise SwarmError(f"--dt: expected a positive step in seconds, got {args.dt}")
     out = simulate_mission(mission, dt_s=args.dt, duration_s=args.duration)
-    print(
-        f"{mission.settings.name}: simulated {out.result.times_s[-1]:.2f} s (RK4, dt {args.dt} s)"
-    )
+    how = f"RK4, dt {args.dt} s"
+    if out.envelope is not None:
+        how = f"vehicle envelope, control period {1.0 / mission.settings.rate:g} s"
+    print(f"{mission.settings.name}: simulated {out.result.times_s[-1]:.2f} s ({how})")
     print(out.text())
     if args.out is not None:
         try:
