@@ -95,6 +95,7 @@ class EnvelopeHook:
     ) -> F64:
         """The command sent (N, 3) [m/s^2] for the law's ``accel_mps2``."""
         accel = accel_mps2
+        self.shaper.retain(ids)  # a vehicle out of the simulation left: it rejoins from rest
         if self.safety_filter is not None:
             prev = self.shaper.previous(ids)
             accel, report = self.safety_filter.filter(

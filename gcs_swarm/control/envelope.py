@@ -113,8 +113,9 @@ class CommandShaper:
 
     Keeps the last command sent to each vehicle id. ``shape`` is the identity
     (the input array itself) while the envelope is unbounded in acceleration
-    and jerk. A vehicle not seen at the previous step (joined, back from a
-    gap) starts from zero acceleration.
+    and jerk. A vehicle missing from a step keeps its last command (the
+    autopilot holds it); one never seen or ``forget``-ten (it left) starts
+    from zero acceleration (hover).
     """
 
     def __init__(self, envelope: Envelope, dt_s: float) -> None:
@@ -141,14 +142,24 @@ class CommandShaper:
 
     def shape(self, ids: Sequence[int], accel_mps2: FloatArray) -> FloatArray:
         """The commands to send (N, 3) [m/s^2]: (E1) then (E2) from each
-        vehicle's previous command; remembers them. Vehicles absent from
-        ``ids`` are forgotten."""
+        vehicle's previous command; remembers them."""
         if not self.active:
             return accel_mps2
         capped = cap_accel(accel_mps2, self.envelope)
         out = jerk_limit(self.previous(ids), capped, self.envelope, self.dt_s)
-        self._last = {int(vid): out[j].copy() for j, vid in enumerate(ids)}
+        for j, vid in enumerate(ids):
+            self._last[int(vid)] = out[j].copy()
         return out
+
+    def forget(self, vid: int) -> None:
+        """Vehicle ``vid`` left: its next command starts from hover."""
+        self._last.pop(int(vid), None)
+
+    def retain(self, ids: Sequence[int]) -> None:
+        """Forget every vehicle not in ``ids`` (the simulator: absent = left)."""
+        keep = {int(v) for v in ids}
+        for vid in [v for v in self._last if v not in keep]:
+            del self._last[vid]
 
 
 @dataclass(frozen=True)

@@ -138,8 +138,10 @@ class ControlLoop:
         return env
 
     def forget(self, sysid: int) -> None:
-        """A vehicle left: its next telemetry maps its clock afresh."""
+        """A vehicle left: its next telemetry maps its clock afresh, and its
+        next command starts from hover (``CommandShaper.forget``)."""
         self._boot_ms.pop(sysid, None)
+        self.shaper.forget(sysid)
 
     def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:
         """The limited accelerations for ``ids`` at their mission-frame states:

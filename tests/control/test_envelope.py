@@ -57,10 +57,13 @@ def test_shaper_ramps_at_the_jerk_and_starts_new_vehicles_from_hover() -> None:
     assert np.linalg.norm(steps[..., :2], axis=-1).max() <= 5.0 * dt * (1 + 1e-12)
     assert np.abs(steps[..., 2]).max() <= 5.0 * dt * (1 + 1e-12)
     np.testing.assert_allclose(sent[-1], cap_accel(want, ARDUCOPTER), atol=1e-12)
-    # Vehicle 3 joins: its first command is one jerk step from zero.
+    # Vehicle 3 joins: its first command is one jerk step from zero; 2 is
+    # missing from a step but has not left: it keeps its last command.
     out = shaper.shape([1, 3], want)
     assert np.linalg.norm(out[1, :2]) == pytest.approx(5.0 * dt)
-    np.testing.assert_allclose(shaper.previous([2]), 0.0)  # 2 left: forgotten
+    np.testing.assert_allclose(shaper.previous([2]), sent[-1][1:])
+    shaper.forget(2)  # it left
+    np.testing.assert_allclose(shaper.previous([2]), 0.0)
 
 
 def test_time_scale_flies_the_same_solution_lambda_times_slower() -> None:
