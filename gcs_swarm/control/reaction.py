@@ -26,8 +26,9 @@ The filter asks, for the new command's closing part c+ = -n.a,
 
 with (d+, s+) the plan's own state after one step dt (the vehicle moves on
 what is in flight, not on the new command). S grows with c+, so (B2') is one
-half-space ``n.a >= u_min`` (found by bisection). (B0') is time consistent:
-the plan from (d+, s+, c - j dt) is the rest of the plan from (d, s, c), so
+half-space ``n.a >= u_min`` (a bracketed root, Illinois regula falsi, whose
+feasible end is kept: never less conservative than the root). (B0') is time
+consistent: the plan from (d+, s+, c - j dt) is the rest of the plan from (d, s, c), so
 the plan's own step keeps H' and (B2') never asks more than one jerk step,
 u_min <= n.a' + j dt; it is also capped at a_b, like (B2).
 """
@@ -39,26 +40,18 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["cap_rows", "radial_extent", "reaction_bound", "stop_distance", "support"]
+__all__ = [
+    "POLYGON_SIDES",
+    "cap_rows",
+    "radial_extent",
+    "reaction_bound",
+    "stop_distance",
+]
 
 FloatArray = NDArray[np.float64]
 
 _ROOT_STEPS = 12  # Illinois (regula falsi) steps on the bracket; then its feasible end
-_POLYGON_SIDES = 16  # horizontal acceleration disk as an inscribed 16-gon (98 % of the radius)
-
-
-def support(normal: FloatArray, r_ball: float, a_z: float) -> FloatArray:
-    """Largest n.a [m/s^2] over {|a| <= r_ball, |a_z| <= a_z} for unit rows
-    ``normal (..., 3)`` (the set is symmetric, so also the largest -n.a)."""
-    nz = np.abs(normal[..., 2])
-    nxy = np.sqrt(np.maximum(1.0 - nz * nz, 0.0))
-    if not math.isfinite(r_ball):
-        return np.where(nxy > 1e-12, math.inf, nz * a_z)
-    if not math.isfinite(a_z) or a_z >= r_ball:
-        return np.full(nz.shape, r_ball)
-    # The ball's point r n is inside the slab, or the optimum is on the rim |a_z| = a_z.
-    rim = a_z * nz + math.sqrt(r_ball * r_ball - a_z * a_z) * nxy
-    return np.where(r_ball * nz <= a_z, r_ball, rim)
+POLYGON_SIDES = 16  # horizontal acceleration disk as an inscribed 16-gon (98 % of the radius)
 
 
 def radial_extent(normal: FloatArray, r_ball: float, a_z: float) -> FloatArray:
@@ -70,13 +63,13 @@ def radial_extent(normal: FloatArray, r_ball: float, a_z: float) -> FloatArray:
 
 def cap_rows(r_xy: float, a_z: float) -> tuple[FloatArray, FloatArray]:
     """The acceleration caps as half-spaces ``n.a >= b``: an inscribed
-    ``_POLYGON_SIDES``-gon of the disk |a_xy| <= r_xy and -a_z <= a_z_acc <= a_z.
+    ``POLYGON_SIDES``-gon of the disk |a_xy| <= r_xy and -a_z <= a_z_acc <= a_z.
     Normals (m, 3), bounds (m,); infinite caps give no rows."""
     normals: list[FloatArray] = []
     bounds: list[float] = []
     if math.isfinite(r_xy):
-        ang = 2.0 * math.pi * np.arange(_POLYGON_SIDES) / _POLYGON_SIDES
-        inner = r_xy * math.cos(math.pi / _POLYGON_SIDES)
+        ang = 2.0 * math.pi * np.arange(POLYGON_SIDES) / POLYGON_SIDES
+        inner = r_xy * math.cos(math.pi / POLYGON_SIDES)
         for a in ang:
             normals.append(np.array([-math.cos(a), -math.sin(a), 0.0]))
             bounds.append(-inner)
@@ -168,7 +161,7 @@ def reaction_bound(
     [m/s^2] the last command's closing part -n.a', a_b and c_cap [m/s^2] the
     braking budget and the largest closing acceleration along n (arrays of one
     shape). Returns -inf where no command of closing part <= c_cap can break
-    (B2'); otherwise the bisected bound, capped at a_b and at one jerk step
+    (B2'); otherwise the bracketed bound, capped at a_b and at one jerk step
     n.a' + jerk dt (what the vehicle can reach)."""
     arrays = np.broadcast_arrays(
         *(np.asarray(x, dtype=np.float64) for x in (dist, closing, c_prev, a_b, c_cap))

@@ -84,7 +84,7 @@ from gcs_swarm.control.limits import (
     speed_rows,
 )
 from gcs_swarm.control.params import Box, Envelope, Limits, Safety
-from gcs_swarm.control.reaction import cap_rows, radial_extent, reaction_bound
+from gcs_swarm.control.reaction import POLYGON_SIDES, cap_rows, radial_extent, reaction_bound
 from gcs_swarm.control.safety_stats import SafetyReport, SafetyStats, SafetySummary
 from gcs_swarm.errors import InfeasibleError
 
@@ -217,13 +217,13 @@ class SafetyFilter:
         self._plan = _planning(env)
         self._jerk = min(env.jerk_xy, env.jerk_z)
         self._r_xy = min(a_max, env.accel_xy)  # horizontal radius of the set [m/s^2]
-        self._z_cap = env.accel_z
+        self._z_cap = env.accel_z  # vertical bound of the set [m/s^2]
         if self._plan and math.isfinite(self._jerk):
             # Jerk step ball around the last command; caps as half-spaces.
             self._ball = self._jerk * dt
-            self._cap_n, self._cap_b = cap_rows(self._r_xy, min(a_max, env.accel_z))
             self._z_cap = min(a_max, env.accel_z)
-            self._r_in = self._r_xy * math.cos(math.pi / 16)
+            self._cap_n, self._cap_b = cap_rows(self._r_xy, self._z_cap)
+            self._r_in = self._r_xy * math.cos(math.pi / POLYGON_SIDES)  # inscribed
         elif self._plan:
             self._ball = self._r_xy
             self._cap_n, self._cap_b = cap_rows(math.inf, env.accel_z)
