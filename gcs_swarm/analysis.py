@@ -226,15 +226,20 @@ def summarize(
     )
 
 
-def command_demand(times_s: F64, accel_mps2: F64, vel_mps: F64, *, t_form_s: float | None = None
-                   ) -> Demand:  # fmt: skip
+def command_demand(
+    times_s: F64, accel_mps2: F64, vel_mps: F64, *, t_form_s: float | None = None,
+    steps: NDArray[np.bool_] | None = None,
+) -> Demand:  # fmt: skip
     """Peaks of what a run asked of its vehicles (``control.envelope.Demand``):
     ``accel_mps2``/``vel_mps (T, N, 3)`` the commands and velocities (NaN =
     inactive), ``times_s (T,)``.
 
     Jerk is the difference of consecutive commands over their time step, so it
     is only as fine as the sampling; a vehicle's first command (from hover,
-    which the jerk limit ramps) and the sample after a gap are not counted.
+    which the jerk limit ramps) and the sample after a gap are not counted,
+    nor the differences flagged in ``steps (T - 1,)``: the law's own steps
+    (a behaviour switch, a vehicle joining or leaving), which no time scale
+    smooths and the jerk limit ramps.
     """
     with np.errstate(invalid="ignore"):
         a_xy = np.linalg.norm(accel_mps2[..., :2], axis=-1)
@@ -243,6 +248,9 @@ def command_demand(times_s: F64, accel_mps2: F64, vel_mps: F64, *, t_form_s: flo
         da = np.diff(accel_mps2, axis=0)
         j_xy = np.linalg.norm(da[..., :2], axis=-1) / step
         j_z = np.abs(da[..., 2]) / step
+    if steps is not None:
+        j_xy[steps] = np.nan
+        j_z[steps] = np.nan
 
     def peak(x: F64) -> float:
         x = x[~np.isnan(x)]

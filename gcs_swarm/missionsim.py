@@ -26,6 +26,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from gcs_swarm.analysis import command_demand
 from gcs_swarm.control.envelope import CommandShaper, Demand, demand_lines
 from gcs_swarm.control.params import Envelope, LawConfig
@@ -168,7 +170,13 @@ def envelope_demand(mission: Mission, *, dt_s: float = DEMAND_DT_S) -> Demand:
     law = replace(mission.law, safety=replace(mission.law.safety, enabled=False))
     out = simulate_mission(replace(mission, law=law), dt_s=dt_s, ideal=True)
     r = out.result
-    return command_demand(r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.summary().time_to_form_s)
+    # The law's own steps: a behaviour switch or a change of the active set.
+    steps = np.any(r.active[1:] != r.active[:-1], axis=1)
+    for t_switch, _ in r.switches:
+        steps |= np.isclose(r.times_s[1:], t_switch, rtol=0.0, atol=1e-9 + 1e-6 * dt_s)
+    return command_demand(
+        r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.summary().time_to_form_s, steps=steps
+    )
 
 
 def demand_report(
