@@ -449,8 +449,8 @@ class SafetyFilter:
         a_b = np.where(np.isfinite(a_b), a_b, self.tuning.brake_unbounded_mps2)
         nz = np.abs(normal[..., 2])
         nxy = np.sqrt(np.maximum(1.0 - nz * nz, 0.0))
-        cap = np.where(nxy > 0.0, self._r_xy * nxy, 0.0) + np.where(nz > 0.0, self._z_cap * nz, 0.0)
-        cap = np.minimum(cap, _BIG_MPS2)
+        r_xy, z_cap = min(self._r_xy, _BIG_MPS2), min(self._z_cap, _BIG_MPS2)  # no inf * 0
+        cap = np.minimum(r_xy * nxy + z_cap * nz, _BIG_MPS2)
         return reaction_bound(
             gap, closing, c_prev, a_b, cap, jerk=self._jerk, lag=self.envelope.lag_s,
             dt=self.dt, gamma=self.tuning.gamma_per_s,

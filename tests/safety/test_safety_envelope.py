@@ -127,3 +127,31 @@ def test_missions_without_envelope_simulate_the_point_mass(name: str) -> None:
     """No ``limits.envelope``: simulate stays the ideal point mass."""
     out = simulate_mission(load_mission(MISSIONS_DIR / f"{name}.yaml"), duration_s=1.0)
     assert out.envelope is None
+
+
+@pytest.mark.parametrize(
+    "env",
+    [
+        Envelope(jerk_xy=5.0, jerk_z=5.0),  # jerk only: unbounded accelerations
+        Envelope(accel_z=1.0),  # one cap, no jerk, no lag
+        Envelope(lag_s=0.2, accel_xy=2.0),  # lag without jerk
+        Envelope(lag_s=0.2),  # lag alone
+    ],
+)
+@pytest.mark.parametrize("limits", [Limits(), Limits(a_max=3.0, v_max=2.0, z_floor=0.0)])
+def test_partial_envelopes_give_finite_commands(env: Envelope, limits: Limits) -> None:
+    """Any mix of finite and infinite bounds: finite commands, no numpy warning
+    (warnings are errors here), the caps that are finite respected."""
+    from gcs_swarm.control.params import Box
+
+    rng = np.random.default_rng(5)
+    filt = SafetyFilter(
+        replace(limits, envelope=env), Safety(enabled=True), [Box((5, 5, 5), (1, 1, 1))], dt=0.02
+    )
+    for _ in range(5):
+        pos = rng.uniform(0.0, 8.0, (5, 3))
+        vel = rng.normal(size=(5, 3))
+        prev = rng.normal(size=(5, 3)) * 0.3
+        out, _ = filt.filter(pos, vel, rng.normal(size=(5, 3)) * 3.0, prev_accel_mps2=prev)
+        assert np.isfinite(out).all()
+        assert np.all(np.abs(out[:, 2]) <= min(env.accel_z, limits.a_max) + 1e-6)
