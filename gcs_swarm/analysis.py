@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from gcs_swarm.control.envelope import Demand
 from gcs_swarm.control.obstacles import Ellipsoids, box_signed_distance
 from gcs_swarm.control.params import Box
 
@@ -22,6 +23,7 @@ __all__ = [
     "Bipyramid",
     "SwarmSummary",
     "classify_bipyramid",
+    "command_demand",
     "group_values",
     "min_box_clearance",
     "min_separation",
@@ -221,4 +223,46 @@ def summarize(
         min_clearance_t_s=clear_t,
         episodes=episodes,
         time_to_form_s=ttf,
+    )
+
+
+def command_demand(
+    times_s: F64, accel_mps2: F64, vel_mps: F64, *, t_form_s: float | None = None,
+    steps: NDArray[np.bool_] | None = None,
+) -> Demand:  # fmt: skip
+    """Peaks of what a run asked of its vehicles (``control.envelope.Demand``):
+    ``accel_mps2``/``vel_mps (T, N, 3)`` the commands and velocities (NaN =
+    inactive), ``times_s (T,)``.
+
+    Jerk is the difference of consecutive commands over their time step, so it
+    is only as fine as the sampling; a vehicle's first command (from hover,
+    which the jerk limit ramps) and the sample after a gap are not counted,
+    nor the differences flagged in ``steps (T - 1,)``: the law's own steps
+    (a behaviour switch, a vehicle joining or leaving), which no time scale
+    smooths and the jerk limit ramps.
+    """
+    with np.errstate(invalid="ignore"):
+        a_xy = np.linalg.norm(accel_mps2[..., :2], axis=-1)
+        v_xy = np.linalg.norm(vel_mps[..., :2], axis=-1)
+        step = np.diff(times_s)[:, None]
+        da = np.diff(accel_mps2, axis=0)
+        j_xy = np.linalg.norm(da[..., :2], axis=-1) / step
+        j_z = np.abs(da[..., 2]) / step
+    if steps is not None:
+        j_xy[steps] = np.nan
+        j_z[steps] = np.nan
+
+    def peak(x: F64) -> float:
+        x = x[~np.isnan(x)]
+        return float(x.max()) if x.size else 0.0
+
+    return Demand(
+        accel_xy=peak(a_xy),
+        accel_z=peak(np.abs(accel_mps2[..., 2])),
+        jerk_xy=peak(j_xy),
+        jerk_z=peak(j_z),
+        speed_xy=peak(v_xy),
+        speed_up=max(peak(vel_mps[..., 2]), 0.0),
+        speed_down=max(peak(-vel_mps[..., 2]), 0.0),
+        t_form_s=t_form_s,
     )

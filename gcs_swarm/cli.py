@@ -29,7 +29,30 @@ __all__ = ["build_parser", "main"]
 def _cmd_check(args: argparse.Namespace) -> int:
     from gcs_swarm.mission import check_command
 
-    return check_command(args.mission)
+    code = check_command(args.mission)
+    if code == 0:
+        _check_envelope(args.mission)
+    return code
+
+
+def _check_envelope(path: str) -> None:
+    """``check``'s demand warning (docs/vehicle-envelope.md): when the mission
+    states ``limits.envelope``, simulate it on the ideal point mass (RK4 step
+    ``missionsim.DEMAND_DT_S``, coarse so check stays fast) and print one
+    warning line at the gains if the peaks exceed it, with the time scale
+    that fits. A warning, not an error: the exit code stays 0."""
+    from gcs_swarm.mission import load_mission
+    from gcs_swarm.mission.checks import key_line
+    from gcs_swarm.missionsim import demand_report
+
+    mission = load_mission(path)
+    envelope = mission.law.limits.envelope
+    if not envelope.bounded:
+        return
+    where = "gains.time_scale" if mission.law.gains.time_scale != 1.0 else "gains"
+    line = key_line(mission.text, where)
+    for text in demand_report(mission, envelope):
+        print(f"{path}:{line}: {where}: warning: {text}", file=sys.stderr)
 
 
 def _cmd_schema(args: argparse.Namespace) -> int:
@@ -47,9 +70,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.dt <= 0.0:
         raise SwarmError(f"--dt: expected a positive step in seconds, got {args.dt}")
     out = simulate_mission(mission, dt_s=args.dt, duration_s=args.duration)
-    print(
-        f"{mission.settings.name}: simulated {out.result.times_s[-1]:.2f} s (RK4, dt {args.dt} s)"
-    )
+    how = f"RK4, dt {args.dt} s"
+    if out.envelope is not None:
+        how = f"vehicle envelope, control period {1.0 / mission.settings.rate:g} s"
+    print(f"{mission.settings.name}: simulated {out.result.times_s[-1]:.2f} s ({how})")
     print(out.text())
     if args.out is not None:
         try:

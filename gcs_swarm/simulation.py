@@ -17,6 +17,16 @@ An optional ``accel_filter(t, ids, pos, vel, accel) -> accel`` (limits, safety
 filter) is applied to the law's output in every RK4 stage; the default is the
 identity, i.e. the paper's law exactly.
 
+Vehicle envelope (``vehicle=``, docs/vehicle-envelope.md): instead of the
+ideal point mass, each vehicle is the model of an ArduCopter position
+controller taking acceleration targets: the command is held over the step
+(the station's zero-order hold, one ``accel_filter`` call per step, so ``dt``
+is the control period), the vehicle moves its own acceleration target towards
+it at most by its jerk (``control.envelope.jerk_limit``, ArduCopter's
+shape_accel), and its acceleration follows that target with a first-order
+lag ``lag_s`` (``vehicle_step``, exact for a held input). The leader keeps
+its RK4. Without ``vehicle`` nothing changes.
+
 Pure computation apart from :meth:`SimResult.save` (CSV or NPZ).
 """
 
@@ -30,16 +40,24 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gcs_swarm.analysis import SwarmSummary, summarize
+from gcs_swarm.control.envelope import jerk_limit
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import eq1_acceleration
 from gcs_swarm.control.law import law_accelerations
-from gcs_swarm.control.leader import LeaderLaw
+from gcs_swarm.control.leader import LeaderLaw, LeaderState
 from gcs_swarm.control.lookahead import entry_senses
 from gcs_swarm.control.obstacles import Ellipsoids, rho
-from gcs_swarm.control.params import Avoidance, Box, Gains, LawConfig, Readings
+from gcs_swarm.control.params import Avoidance, Box, Envelope, Gains, LawConfig, Readings
 from gcs_swarm.control.supervisor import Mode, Supervisor
 
-__all__ = ["AccelFilter", "SimResult", "VehicleRun", "simulate", "simulate_vehicle"]
+__all__ = [
+    "AccelFilter",
+    "SimResult",
+    "VehicleRun",
+    "simulate",
+    "simulate_vehicle",
+    "vehicle_step",
+]
 
 F64 = NDArray[np.float64]
 #: ``(t_s, ids, pos_m (N,3), vel_mps (N,3), accel_mps2 (N,3)) -> accel_mps2 (N,3)``
@@ -141,13 +159,16 @@ def simulate(
     accel_filter: AccelFilter | None = None,
     t0: float = 0.0,
     start_vel_mps: ArrayLike | None = None,
+    vehicle: Envelope | None = None,
 ) -> SimResult:
     """Simulate the swarm under the law for ``duration`` [s] with step ``dt`` [s].
 
     ``starts (N, 3)`` [m] initial positions (at rest unless ``start_vel_mps``),
     ``charges (N,)`` (default ``config.gains.q_default``), ``active`` initial
     flags (default all), ``ids`` stable vehicle ids (default 1..N), ``events``
-    join/leave as described in the module docstring.
+    join/leave as described in the module docstring. ``vehicle``: simulate
+    that envelope's jerk-limited, lagged vehicle with the command held over
+    each step ``dt`` (module docstring) instead of the point mass.
     """
     p_all = np.array(starts, dtype=np.float64).reshape(-1, 3)
     m = p_all.shape[0]
@@ -191,6 +212,9 @@ def simulate(
     rec_ep = np.zeros(n_t, dtype=np.int64)
     switches: list[tuple[float, str]] = []
     ev = 0
+    model = vehicle
+    tgt_all = np.zeros((m, 3))  # the vehicle's own (jerk-limited) acceleration target
+    act_all = np.zeros((m, 3))  # its achieved (lagged) acceleration
 
     for k in range(n_t):
         t = float(times[k])
@@ -199,6 +223,7 @@ def simulate(
             j = index[int(who)]
             act[j] = kind == "join"
             v_all[j] = 0.0  # held at rest while out; rejoins from rest
+            tgt_all[j] = act_all[j] = 0.0
             ev += 1
         idx = np.flatnonzero(act)
         key = tuple(int(vid[j]) for j in idx)
@@ -217,6 +242,13 @@ def simulate(
         rec_beh[k], rec_ep[k] = mode.behaviour, mode.episode
         if k == steps:
             break
+        if model is not None:
+            p_all[idx], v_all[idx], tgt_all[idx], act_all[idx] = vehicle_step(
+                p, v, tgt_all[idx], act_all[idx], a1, model, dt
+            )
+            if mode.behaviour == "formation":
+                leader = _leader_rk4(rhs, t, dt, lp0, lv0, la1, law, leader)
+            continue
         h, hh = dt, 0.5 * dt
         p2, v2, lp2, lv2 = p + hh * v, v + hh * a1, lp0 + hh * lv0, lv0 + hh * la1
         a2, la2 = rhs(t + hh, p2, v2, lp2, lv2)
@@ -265,11 +297,66 @@ class _Rhs:
     def __call__(self, t: float, p: F64, v: F64, lp: F64, lv: F64) -> tuple[F64, F64]:
         a = law_accelerations(self.config, self.mode, p, v, self.charges, lp, self.obs)
         a = self.filt(t, self.key, p, v, a)
-        if self.mode.behaviour == "avoidance":  # the leader is the centroid (Eq. 30)
-            return a, np.zeros(3)
+        return a, self.leader(t, lp, lv)
+
+    def leader(self, t: float, lp: F64, lv: F64) -> F64:
+        """Eq. 13's acceleration [m/s^2] (zero in avoidance: the leader is the
+        centroid, Eq. 30)."""
+        if self.mode.behaviour == "avoidance":
+            return np.zeros(3)
         lpt = (float(lp[0]), float(lp[1]), float(lp[2]))
         lvt = (float(lv[0]), float(lv[1]), float(lv[2]))
-        return a, np.array(self.law.accel(t, lpt, lvt, self.wp_index))
+        return np.array(self.law.accel(t, lpt, lvt, self.wp_index))
+
+
+def _leader_rk4(
+    rhs: _Rhs, t: float, dt: float, lp0: F64, lv0: F64, la1: F64, law: LeaderLaw,
+    leader: LeaderState,
+) -> LeaderState:  # fmt: skip
+    """One RK4 step of Eq. 13 alone (the vehicle-model path), as in ``simulate``."""
+    hh = 0.5 * dt
+    lp2, lv2 = lp0 + hh * lv0, lv0 + hh * la1
+    la2 = rhs.leader(t + hh, lp2, lv2)
+    lp3, lv3 = lp0 + hh * lv2, lv0 + hh * la2
+    la3 = rhs.leader(t + hh, lp3, lv3)
+    lp4, lv4 = lp0 + dt * lv3, lv0 + dt * la3
+    la4 = rhs.leader(t + dt, lp4, lv4)
+    h6 = dt / 6.0
+    lp_new = lp0 + h6 * (lv0 + 2.0 * lv2 + 2.0 * lv3 + lv4)
+    lv_new = lv0 + h6 * (la1 + 2.0 * la2 + 2.0 * la3 + la4)
+    return law.restart(leader, lp_new, lv_new)
+
+
+def vehicle_step(
+    pos_m: F64,
+    vel_mps: F64,
+    target_mps2: F64,
+    accel_mps2: F64,
+    command_mps2: F64,
+    envelope: Envelope,
+    dt: float,
+) -> tuple[F64, F64, F64, F64]:
+    """One step ``dt`` [s] of the envelope's vehicle, all arrays (N, 3), mission frame.
+
+    The vehicle's acceleration target moves towards the held ``command`` by at
+    most its jerk (``jerk_limit``); the achieved acceleration ``a`` follows the
+    target ``u`` with the first-order lag tau = ``lag_s``, exactly for a held
+    input: a(t) = u + (a0 - u) e^(-t/tau), integrated twice in closed form
+    (tau = 0: a = u at once). Returns (pos, vel, target, accel) after the step.
+    """
+    u = jerk_limit(target_mps2, command_mps2, envelope, dt)
+    tau = envelope.lag_s
+    if tau > 0.0:
+        e = np.exp(-dt / tau)
+        da = accel_mps2 - u
+        vel = vel_mps + u * dt + da * tau * (1.0 - e)
+        pos = pos_m + vel_mps * dt + 0.5 * u * dt * dt + da * tau * (dt - tau * (1.0 - e))
+        acc = u + da * e
+    else:
+        vel = vel_mps + u * dt
+        pos = pos_m + vel_mps * dt + 0.5 * u * dt * dt
+        acc = u.copy()
+    return pos, vel, u, acc
 
 
 @dataclass(frozen=True)

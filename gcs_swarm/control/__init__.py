@@ -10,11 +10,15 @@ See ``shared/spec/formation-law.md`` for the equations and readings. Modules:
 - ``fields``: rotational and classic fields, Eqs. 19-28;
 - ``lookahead``: plane selection by look-ahead;
 - ``supervisor``: the behaviour switch, Eqs. 29-30;
-- ``law``: the continuous law and ``SwarmController``.
+- ``law``: the continuous law and ``SwarmController``;
+- ``limits``, ``safety``, ``safety_stats``: the safety filter and its reports;
+- ``envelope``, ``reaction``: the vehicle envelope (the command shaper, the
+  demand check, the braking barrier of a jerk-limited, lagged vehicle).
 """
 
 from __future__ import annotations
 
+from gcs_swarm.control.envelope import ARDUCOPTER, CommandShaper, Demand
 from gcs_swarm.control.expr import compile_expression, validate_expression
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import (
@@ -56,13 +60,16 @@ from gcs_swarm.control.params import (
 from gcs_swarm.control.supervisor import Behaviour, Mode, Supervisor
 
 __all__ = [
+    "ARDUCOPTER",
     "R_MIN_M",
     "AvoidMethod",
     "Avoidance",
     "Behaviour",
     "Box",
+    "CommandShaper",
     "ConstantForce",
     "ControlOutput",
+    "Demand",
     "Ellipsoids",
     "Envelope",
     "ExpressionForce",

@@ -45,8 +45,13 @@ _BLOCK_ROWS = 256
 
 def eq1_acceleration(force_n: F64, vel_mps: F64, gains: Gains) -> F64:
     """Eq. 1: ``a = (f - (D + k) v) / M`` [m/s^2] from force ``f`` [N] and
-    measured velocity ``v`` [m/s]; any shape ``(..., 3)``."""
-    out: F64 = (force_n - (gains.D + gains.k) * vel_mps) / gains.M
+    measured velocity ``v`` [m/s]; any shape ``(..., 3)``.
+
+    READING (time scale, ``Gains.time_scale`` = lambda): M and D + k are
+    flown as ``lambda^2 M`` and ``lambda (D + k)`` (``Gains.mass_scaled``,
+    ``damping_scaled``): the same solutions lambda times slower. lambda = 1
+    multiplies by 1.0, so the paper's law is unchanged bit for bit."""
+    out: F64 = (force_n - gains.damping_scaled * vel_mps) / gains.mass_scaled
     return out
 
 

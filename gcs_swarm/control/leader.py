@@ -17,6 +17,16 @@ Force laws (``params.LeaderForce``):
   closed loop ``M x'' + (D + k) x' + (D + k) x / T = 0`` is then critically
   damped, so the leader slows to a stop on the waypoint without overshoot.
 
+READING (time scale, ``Gains.time_scale`` = lambda, docs/vehicle-envelope.md):
+the leader is slowed like the vehicles, so the formation keeps its shape
+around it. If X_v(s) solves Eq. 13 with force f_v(s, X, X') then
+x_v(t) = X_v(t / lambda) solves
+``lambda^2 M x'' = f_v(t / lambda, x, lambda x') - lambda (D + k) x'``:
+the force law is read in the unscaled time and velocity, so a waypoint
+leader cruises at ``speed / lambda`` and an expression in ``t`` or ``vx``
+sees the paper's values. lambda = 1 multiplies and divides by 1.0: the
+paper's leader bit for bit.
+
 The leader's state is plain floats (it is one body, and numpy's per-call cost
 would dominate); :class:`LeaderState` is immutable.
 """
@@ -78,7 +88,9 @@ class LeaderLaw:
     def __init__(self, force: LeaderForce, gains: Gains) -> None:
         self._gains = gains
         self._c = gains.D + gains.k
-        self._inv_m = 1.0 / gains.M
+        self._lam = gains.time_scale
+        self._c_flown = gains.damping_scaled
+        self._inv_m = 1.0 / gains.mass_scaled
         self._spec = force
         if isinstance(force, ConstantForce):
             self._const: _V3 = _v3(force.force)
@@ -132,9 +144,17 @@ class LeaderLaw:
         return (g * dx, g * dy, g * dz)
 
     def accel(self, t: float, pos: _V3, vel: _V3, wp_index: int = 0) -> _V3:
-        """Eq. 13: ``a_v = (f_v - (D + k) v_v) / M`` [m/s^2]."""
-        fx, fy, fz = self.force(t, pos, vel, wp_index)
-        c, im = self._c, self._inv_m
+        """Eq. 13: ``a_v = (f_v - (D + k) v_v) / M`` [m/s^2], with the time
+        scale's READING (module docstring): ``f_v`` at ``(t / lambda, x,
+        lambda v)``, M and D + k as flown."""
+        lam = self._lam
+        if lam == 1.0:
+            fx, fy, fz = self.force(t, pos, vel, wp_index)
+        else:
+            fx, fy, fz = self.force(
+                t / lam, pos, (lam * vel[0], lam * vel[1], lam * vel[2]), wp_index
+            )
+        c, im = self._c_flown, self._inv_m
         return ((fx - c * vel[0]) * im, (fy - c * vel[1]) * im, (fz - c * vel[2]) * im)
 
     def next_waypoint(self, pos: _V3, wp_index: int) -> int:

@@ -111,7 +111,13 @@ def predict_plane_lengths(
 ) -> tuple[F64, F64]:
     """Predicted path lengths ``(L_xy, L_yz)`` [m], each ``(N,)``, of every
     vehicle to its target with the horizontal and the vertical field around the
-    single obstacle ``obs`` (K = 1). ``inf`` where the target is not reached."""
+    single obstacle ``obs`` (K = 1). ``inf`` where the target is not reached.
+
+    READING (time scale, ``Gains.time_scale`` = lambda): the paths are the
+    same lambda times slower, so the step and the horizon cap are lambda times
+    longer (the same RK4 iterates, the same cost); lambda = 1 is unchanged."""
+    lam = gains.time_scale
+    dt_s = dt_s * lam
     n = pos_m.shape[0]
     if n == 0:
         return np.zeros(0), np.zeros(0)
@@ -120,19 +126,19 @@ def predict_plane_lengths(
     tgt = np.concatenate([targets_m, targets_m])
     vertical = np.zeros((2 * n, 1), dtype=bool)
     vertical[n:] = True
-    v_term = avoidance.F_D / (gains.D + gains.k)
+    v_term = avoidance.F_D / gains.damping_scaled  # READING (time scale): Eq. 1 as flown
     if horizon_s is None:
         dist = float(np.max(np.linalg.norm(targets_m - pos_m, axis=1)))
         horizon_s = 20.0 + 4.0 * dist / max(v_term, 1e-6)
-    steps = max(1, math.ceil(min(horizon_s, MAX_HORIZON_S) / dt_s))
+    steps = max(1, math.ceil(min(horizon_s, MAX_HORIZON_S * lam) / dt_s))
     length = np.zeros(2 * n)
     arrived = np.linalg.norm(p - tgt, axis=1) <= ARRIVE_M
     latched = np.zeros((2 * n, 1), dtype=bool)
     sh = np.ones((2 * n, 1))
     sv = np.ones((2 * n, 1))
     r0 = avoidance.r0
-    inv_m = 1.0 / gains.M
-    c = gains.D + gains.k
+    inv_m = 1.0 / gains.mass_scaled
+    c = gains.damping_scaled
 
     def accel(pp: F64, vv: F64) -> F64:
         f_des = desired_force(pp, tgt, avoidance.F_D)

@@ -71,6 +71,15 @@ class Gains:
     M [kg] mass, D and k [N s/m] damping (total D + k), k_s [N/m^3] sphere
     spring (Eq. 7), k_r [N m^2/C^2] repulsion (Eq. 9), alpha [m] sphere
     parameter (Eq. 7), q_default [C] charge of a vehicle that names none.
+
+    time_scale (lambda >= 1, dimensionless) is a READING of Eqs. 1 and 13
+    (docs/vehicle-envelope.md, "time scale"): if X(s) solves
+    ``M X'' + (D + k) X' = f(X)`` then x(t) = X(t / lambda) solves
+    ``lambda^2 M x'' + lambda (D + k) x' = f(x)``, so the same equilibrium
+    shape is flown lambda times slower, with accelerations / lambda^2, jerk /
+    lambda^3 and speeds / lambda. The law uses ``mass_scaled`` and
+    ``damping_scaled``; lambda = 1 is the paper, bit for bit. The virtual
+    leader is slowed the same way (``gcs_swarm.control.leader``).
     """
 
     M: float = 1.0
@@ -80,6 +89,19 @@ class Gains:
     k_r: float = 0.2
     alpha: float = 2.0
     q_default: float = 10.0
+    time_scale: float = 1.0
+
+    @property
+    def mass_scaled(self) -> float:
+        """READING (time scale, docs/vehicle-envelope.md): the M of Eqs. 1/13
+        flown, ``lambda^2 M`` [kg] with lambda = ``time_scale``."""
+        return self.M * (self.time_scale * self.time_scale)
+
+    @property
+    def damping_scaled(self) -> float:
+        """READING (time scale): the total damping of Eqs. 1/13 flown,
+        ``lambda (D + k)`` [N s/m]."""
+        return (self.D + self.k) * self.time_scale
 
 
 @dataclass(frozen=True)
@@ -162,22 +184,6 @@ class Leader:
 
 
 @dataclass(frozen=True)
-class Limits:
-    """Hard limits applied to every commanded acceleration (formation-law.md s11).
-
-    a_max [m/s^2] bound on |a|; v_max [m/s] bound on |v| (the command is
-    limited so the speed does not grow past it); z_floor [m] altitude floor,
-    mission frame; geofence_min/max [m] corners of an axis-aligned fence, or None.
-    """
-
-    a_max: float = math.inf
-    v_max: float = math.inf
-    z_floor: float = -math.inf
-    geofence_min: Vec3 | None = None
-    geofence_max: Vec3 | None = None
-
-
-@dataclass(frozen=True)
 class Envelope:
     """What a vehicle's own position controller can deliver (mission frame, SI).
 
@@ -225,6 +231,27 @@ class Envelope:
             for v in (self.accel_xy, self.accel_z, self.jerk_xy, self.jerk_z,
                       self.speed_xy, self.speed_up, self.speed_down)
         ) or self.lag_s > 0.0  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Hard limits applied to every commanded acceleration (formation-law.md s11).
+
+    a_max [m/s^2] bound on |a|; v_max [m/s] bound on |v| (the command is
+    limited so the speed does not grow past it); z_floor [m] altitude floor,
+    mission frame; geofence_min/max [m] corners of an axis-aligned fence, or None;
+    envelope: what the vehicles' own position controllers can deliver (the
+    mission's ``limits.envelope``; unbounded by default, the paper's point
+    mass). The station may tighten it with what it reads from the vehicles
+    (``gcs_swarm.runtime.control.ControlLoop.set_envelope``).
+    """
+
+    a_max: float = math.inf
+    v_max: float = math.inf
+    z_floor: float = -math.inf
+    geofence_min: Vec3 | None = None
+    geofence_max: Vec3 | None = None
+    envelope: Envelope = field(default_factory=Envelope)
 
 
 @dataclass(frozen=True)

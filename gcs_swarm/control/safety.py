@@ -37,6 +37,26 @@ Pairs share the work: the relative barrier uses 2 a_b and each vehicle takes
 half of u_min (n_ij.a_i >= u_min/2, n_ji.a_j >= u_min/2). Coincident vehicles
 use the fixed direction +x (the lower index is pushed to -x).
 
+Vehicle envelope (``Limits.envelope``, docs/vehicle-envelope.md). When it is
+bounded the filter plans within what the vehicle can deliver:
+
+- the acceleration set is the envelope's: the ball |a| <= min(a_max,
+  accel_xy) and the two vertical half-spaces |a_z| <= accel_z; with a finite
+  jerk, the horizontal disk becomes an inscribed 16-gon of half-spaces, the
+  ball is the jerk step |a - a'| <= min(jerk_xy, jerk_z) dt around the last
+  command a' (the projection stays exact: it is solved for a - a'), and
+  |a| <= a_max is clamped after;
+- each barrier's braking budget is a_b = brake_fraction x the envelope's
+  extent along its normal (0.5 m/s^2 against a floor for ArduCopter's 1 m/s^2
+  vertical), and (B1)-(B2) become (B1')-(B2') of
+  ``gcs_swarm.control.reaction``: the stopping distance of a vehicle whose
+  acceleration is its command of lag_s ago and whose command ramps at the
+  jerk, so clearance and separation hold on that vehicle, not only on a
+  point mass. The unbounded envelope keeps (B1)-(B2), bit for bit.
+  Several barriers braking at once may need more than one jerk step
+  together: then the best effort's last resort is a full jerk step down the
+  environment rows' total violation (cheap; conflicts are common there).
+
 The per-vehicle projection is ``gcs_swarm.control.limits.project`` (exact).
 When the rows conflict the filter returns a best effort and flags the vehicle
 infeasible: it drops the speed row, then the separation rows, then relaxes the
@@ -59,10 +79,13 @@ from gcs_swarm.control.limits import (
     FloatArray,
     box_signed_distance,
     braking_bound,
+    clamp_norm,
     project,
     speed_rows,
 )
-from gcs_swarm.control.params import Box, Limits, Safety
+from gcs_swarm.control.params import Box, Envelope, Limits, Safety
+from gcs_swarm.control.reaction import POLYGON_SIDES, cap_rows, radial_extent, reaction_bound
+from gcs_swarm.control.safety_stats import SafetyReport, SafetyStats, SafetySummary
 from gcs_swarm.errors import InfeasibleError
 
 __all__ = [
@@ -86,7 +109,18 @@ def filter_acts(limits: Limits, safety: Safety) -> bool:
     )  # fmt: skip
 
 
-_ENV, _PAIR, _SPEED = 0, 1, 2  # row classes, in the order the best effort keeps them
+_CAP, _ENV, _PAIR, _SPEED = -1, 0, 1, 2  # row classes, in the order the best effort keeps them
+_BIG_MPS2 = 1e6  # stands in for an unbounded closing acceleration in (B0')
+
+
+def _planning(envelope: Envelope) -> bool:
+    """Whether the filter must plan within ``envelope`` (a finite acceleration
+    or jerk bound, or a lag); speeds alone are checked, not filtered."""
+    e = envelope
+    finite = any(math.isfinite(x) for x in (e.accel_xy, e.accel_z, e.jerk_xy, e.jerk_z))
+    return finite or e.lag_s > 0.0
+
+
 _RELAX_STEPS = 40  # bisection steps of the best-effort relaxation (2^-40 of the range)
 
 
@@ -112,97 +146,6 @@ class SafetyTuning:
             raise ValueError(f"brake_unbounded_mps2 must be > 0, got {self.brake_unbounded_mps2}")
         if not 0.0 < self.gamma_per_s < math.inf:
             raise ValueError(f"gamma_per_s must be > 0, got {self.gamma_per_s}")
-
-
-@dataclass(frozen=True, eq=False)
-class SafetyReport:
-    """What one ``SafetyFilter.filter`` call did, per vehicle (arrays of length N).
-
-    correction_mps2 |a - a_des|; active: constraints met with equality (the
-    |a| ball counts as one); infeasible: constraints conflicted and a best
-    effort was returned; violation_mps2: the worst residual b - n.a of any row
-    after the best effort (0 when feasible); min_clearance_m: signed distance
-    to the nearest box (inf without boxes); min_separation_m: distance to the
-    nearest other vehicle (inf when alone). Distances are at the input state.
-    """
-
-    correction_mps2: FloatArray
-    active: NDArray[np.int64]
-    infeasible: BoolArray
-    violation_mps2: FloatArray
-    min_clearance_m: FloatArray
-    min_separation_m: FloatArray
-
-    @property
-    def intervened(self) -> BoolArray:
-        """Vehicles whose command was changed."""
-        return np.asarray(self.correction_mps2 > 0.0)
-
-
-@dataclass(frozen=True)
-class SafetySummary:
-    """A run's totals (``SafetyStats.summary``), for the run summary and report."""
-
-    cycles: int
-    vehicle_cycles: int
-    interventions: int
-    infeasible: int
-    max_correction_mps2: float
-    mean_correction_mps2: float
-    min_clearance_m: float
-    min_separation_m: float
-
-    def __str__(self) -> str:
-        share = self.interventions / self.vehicle_cycles if self.vehicle_cycles else 0.0
-        return (
-            f"safety filter: intervened {self.interventions}/{self.vehicle_cycles} "
-            f"vehicle-cycles ({100.0 * share:.1f} %), max |a - a_des| "
-            f"{self.max_correction_mps2:.3g} m/s^2, mean when active "
-            f"{self.mean_correction_mps2:.3g} m/s^2, infeasible {self.infeasible}, "
-            f"min clearance {self.min_clearance_m:.3f} m, "
-            f"min separation {self.min_separation_m:.3f} m"
-        )
-
-
-@dataclass
-class SafetyStats:
-    """Accumulates ``SafetyReport``s over a run (mutable, owned by one caller)."""
-
-    cycles: int = 0
-    vehicle_cycles: int = 0
-    interventions: int = 0
-    infeasible: int = 0
-    max_correction_mps2: float = 0.0
-    sum_correction_mps2: float = 0.0
-    min_clearance_m: float = math.inf
-    min_separation_m: float = math.inf
-
-    def update(self, report: SafetyReport) -> None:
-        """Add one cycle."""
-        corr = report.correction_mps2
-        self.cycles += 1
-        self.vehicle_cycles += int(corr.size)
-        self.interventions += int(np.count_nonzero(corr > 0.0))
-        self.infeasible += int(np.count_nonzero(report.infeasible))
-        if corr.size:
-            self.max_correction_mps2 = max(self.max_correction_mps2, float(corr.max()))
-            self.sum_correction_mps2 += float(corr.sum())
-            self.min_clearance_m = min(self.min_clearance_m, float(report.min_clearance_m.min()))
-            self.min_separation_m = min(self.min_separation_m, float(report.min_separation_m.min()))
-
-    def summary(self) -> SafetySummary:
-        """The totals so far."""
-        mean = self.sum_correction_mps2 / self.interventions if self.interventions else 0.0
-        return SafetySummary(
-            cycles=self.cycles,
-            vehicle_cycles=self.vehicle_cycles,
-            interventions=self.interventions,
-            infeasible=self.infeasible,
-            max_correction_mps2=self.max_correction_mps2,
-            mean_correction_mps2=mean,
-            min_clearance_m=self.min_clearance_m,
-            min_separation_m=self.min_separation_m,
-        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,6 +212,30 @@ class SafetyFilter:
         self._plane_offset = np.array([p[2] for p in planes], dtype=np.float64)
         self._plane_n = np.zeros((len(planes), 3))
         self._plane_n[np.arange(len(planes)), self._plane_axis] = self._plane_sign
+        env = limits.envelope
+        self.envelope = env
+        self._plan = _planning(env)
+        self._jerk = min(env.jerk_xy, env.jerk_z)
+        self._r_xy = min(a_max, env.accel_xy)  # horizontal radius of the set [m/s^2]
+        self._z_cap = env.accel_z  # vertical bound of the set [m/s^2]
+        if self._plan and math.isfinite(self._jerk):
+            # Jerk step ball around the last command; caps as half-spaces.
+            self._ball = self._jerk * dt
+            self._z_cap = min(a_max, env.accel_z)
+            self._cap_n, self._cap_b = cap_rows(self._r_xy, self._z_cap)
+            self._r_in = self._r_xy * math.cos(math.pi / POLYGON_SIDES)  # inscribed
+        elif self._plan:
+            self._ball = self._r_xy
+            self._cap_n, self._cap_b = cap_rows(math.inf, env.accel_z)
+            self._r_in = self._r_xy
+        else:
+            self._ball = a_max
+            self._cap_n, self._cap_b = np.zeros((0, 3)), np.zeros(0)
+            self._r_in = a_max
+        if self._plan:
+            budget = min(self._r_in, self._z_cap)
+            if math.isfinite(budget):
+                self._a_b = self.tuning.brake_fraction * budget
 
     def filter(
         self,
@@ -277,6 +244,7 @@ class SafetyFilter:
         accel_des_mps2: FloatArray,
         *,
         ids: Sequence[object] | None = None,
+        prev_accel_mps2: FloatArray | None = None,
     ) -> tuple[FloatArray, SafetyReport]:
         """Filter one cycle. pos_m, vel_mps, accel_des_mps2: (N, 3), mission frame.
 
@@ -284,12 +252,18 @@ class SafetyFilter:
         Never returns NaN: a non-finite ``a_des`` row is treated as zero; a
         vehicle with a non-finite position or velocity gets a = 0 and is
         flagged infeasible. ``ids`` only names vehicles in ``InfeasibleError``.
+        ``prev_accel_mps2 (N, 3)``: the last command sent to each vehicle
+        (zero if None), used only when the envelope is bounded.
         """
         pos = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3)
         vel = np.asarray(vel_mps, dtype=np.float64).reshape(-1, 3)
         a_des = np.asarray(accel_des_mps2, dtype=np.float64).reshape(-1, 3)
         if not pos.shape == vel.shape == a_des.shape:
             raise ValueError(f"shape mismatch: {pos.shape}, {vel.shape}, {a_des.shape}")
+        prev = np.zeros_like(pos)
+        if self._plan and prev_accel_mps2 is not None:
+            prev = np.asarray(prev_accel_mps2, dtype=np.float64).reshape(pos.shape)
+            prev = np.where(np.isfinite(prev), prev, 0.0)
         state_ok: BoolArray = np.asarray(
             np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1)
         )
@@ -298,22 +272,42 @@ class SafetyFilter:
         pos = np.where(state_ok[:, None], pos, 0.0)
         vel = np.where(state_ok[:, None], vel, 0.0)
         geo = self._geometry(pos, state_ok)
-        normals, bounds, classes = self._rows(pos, vel, a0, geo, state_ok)
+        normals, bounds, classes = self._rows(pos, vel, a0, geo, state_ok, prev)
+        if self._cap_b.size:
+            nv = pos.shape[0]
+            normals = np.concatenate(
+                [normals, np.broadcast_to(self._cap_n, (nv, *self._cap_n.shape))], axis=1
+            )
+            bounds = np.concatenate(
+                [bounds, np.broadcast_to(self._cap_b, (nv, self._cap_b.size))], axis=1
+            )
+            classes = np.concatenate([classes, np.full(self._cap_b.size, _CAP)])
         rows = np.ones(bounds.shape, dtype=bool)
+        ball = self._ball
+        if self._plan and math.isfinite(self._jerk):
+            # The ball is the jerk step around the last command: solve for a - a'.
+            shift = bounds - np.einsum("nkj,nj->nk", normals, prev)
+            delta, feasible = project(a0 - prev, normals, shift, rows, ball)
+            if not feasible.all():
+                delta = self._best_effort(delta, feasible, a0 - prev, normals, shift, classes)
+            accel = prev + delta
+        else:
+            accel, feasible = project(a0, normals, bounds, rows, ball)
+            if not feasible.all():
+                accel = self._best_effort(accel, feasible, a0, normals, bounds, classes)
         a_max = self.limits.a_max
-        accel, feasible = project(a0, normals, bounds, rows, a_max)
-        if not feasible.all():
-            accel = self._best_effort(accel, feasible, a0, normals, bounds, classes)
+        if self._plan and math.isfinite(a_max) and ball != a_max:
+            accel = clamp_norm(accel, a_max)
         accel[~state_ok] = 0.0
         infeasible = ~feasible | ~state_ok
 
         scale = np.maximum(1.0, np.linalg.norm(a0, axis=-1))
-        if math.isfinite(a_max):
-            scale = np.maximum(scale, a_max)
+        if math.isfinite(ball):
+            scale = np.maximum(scale, ball)
         resid = bounds - np.einsum("nkj,nj->nk", normals, accel)
         active = np.count_nonzero(np.abs(resid) <= FEAS_TOL * scale[:, None], axis=1)
-        if math.isfinite(a_max):
-            active += np.abs(np.linalg.norm(accel, axis=-1) - a_max) <= FEAS_TOL * scale
+        if math.isfinite(ball):
+            active += np.abs(np.linalg.norm(accel - prev, axis=-1) - ball) <= FEAS_TOL * scale
         violation = np.where(infeasible, np.maximum(resid.max(axis=1, initial=0.0), 0.0), 0.0)
         report = SafetyReport(
             correction_mps2=np.linalg.norm(accel - a0, axis=-1),
@@ -360,26 +354,40 @@ class SafetyFilter:
         a0: FloatArray,
         geo: _Geometry,
         ok: BoolArray,
+        prev: FloatArray,
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """All half-space rows n.a >= b: normals (N, m, 3), bounds (N, m), class (m,)."""
         nv = pos.shape[0]
-        dt, a_b, gamma = self.dt, self._a_b, self.tuning.gamma_per_s
+        dt, a_b = self.dt, self._a_b
         normals: list[FloatArray] = []
         bounds: list[FloatArray] = []
         classes: list[int] = []
+        # Barrier families (normals, gap, closing, c_prev); a pair's is halved:
+        # (B1')-(B2') are homogeneous in lengths, so half the relative problem
+        # with one vehicle's budget, caps and jerk is each vehicle's half share.
+        fams: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
         if self.safety.enabled and self._centres.shape[0]:
             # (a) boxes: (B1)-(B2) on the signed distance, supporting-plane normal.
             closing = -np.einsum("nkj,nj->nk", geo.box_n, vel)
-            u = braking_bound(geo.clearance - self.safety.clearance, closing, a_b, dt, gamma)
+            gap = geo.clearance - self.safety.clearance
             normals.append(geo.box_n)
-            bounds.append(u)
+            if self._plan:
+                fams.append((geo.box_n, gap, closing, -np.einsum("nkj,nj->nk", geo.box_n, prev)))
+                bounds.append(gap)  # placeholder, replaced below
+            else:
+                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
             classes += [_ENV] * geo.box_n.shape[1]
         if self._plane_axis.size:
             # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
             gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset
             closing = -self._plane_sign * vel[:, self._plane_axis]
-            normals.append(np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape)))
-            bounds.append(braking_bound(gap, closing, a_b, dt, gamma))
+            plane_n = np.broadcast_to(self._plane_n, (nv, *self._plane_n.shape))
+            normals.append(plane_n)
+            if self._plan:
+                fams.append((plane_n, gap, closing, -self._plane_sign * prev[:, self._plane_axis]))
+                bounds.append(gap)
+            else:
+                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
             classes += [_ENV] * self._plane_axis.size
         if self.safety.enabled and nv > 1:
             # (b) pairs: relative barrier with 2 a_b, each vehicle takes half.
@@ -388,13 +396,38 @@ class SafetyFilter:
             closing = -np.einsum("ijk,ijk->ij", geo.pair_n, rel_v)
             real = np.isfinite(geo.pair_d)
             gap = np.where(real, geo.pair_d, 0.0) - self.safety.separation
-            u = np.where(real, 0.5 * braking_bound(gap, closing, 2.0 * a_b, dt, gamma), -math.inf)
-            normals.append(geo.pair_n[off].reshape(nv, nv - 1, 3))
-            bounds.append(u[off].reshape(nv, nv - 1))
+            pair_n = geo.pair_n[off].reshape(nv, nv - 1, 3)
+            normals.append(pair_n)
+            if self._plan:
+                c_prev = -np.einsum("ijk,ijk->ij", geo.pair_n, prev[:, None, :] - prev[None, :, :])
+
+                def half(x: FloatArray) -> FloatArray:
+                    out: FloatArray = 0.5 * x[off].reshape(nv, nv - 1)
+                    return out
+
+                fams.append((pair_n, half(gap), half(closing), half(c_prev)))
+                bounds.append(np.where(real[off].reshape(nv, nv - 1), 0.0, -math.inf))
+            else:
+                u = braking_bound(gap, closing, 2.0 * a_b, dt, self.tuning.gamma_per_s)
+                u = np.where(real, 0.5 * u, -math.inf)
+                bounds.append(u[off].reshape(nv, nv - 1))
             classes += [_PAIR] * (nv - 1)
+        if fams:
+            flat = [np.concatenate([f[i].reshape(nv, -1) for f in fams], axis=1) for i in (1, 2, 3)]
+            normal = np.concatenate([f[0].reshape(nv, -1, 3) for f in fams], axis=1)
+            u_all = self._reaction(normal, *flat)
+            col = 0
+            for slot, b in enumerate(bounds):
+                width = b.shape[1]
+                # Pairs' placeholder is 0 (real) or -inf (unusable): -inf stays.
+                bounds[slot] = np.where(np.isneginf(b), -math.inf, u_all[:, col : col + width])
+                col += width
         if math.isfinite(self.limits.v_max):
             # (d) speed: tangent planes of |v_next| = v_max (limits.speed_rows).
             n, b = speed_rows(vel, a0, self.limits.v_max, dt, a_b)
+            if self._plan and math.isfinite(self._jerk):
+                # No more than one jerk step from the last command (else it only conflicts).
+                b = np.minimum(b, np.einsum("nkj,nj->nk", n, prev) + 0.999 * self._ball)
             normals.append(n)
             bounds.append(b)
             classes += [_SPEED, _SPEED]
@@ -403,6 +436,25 @@ class SafetyFilter:
         bnd = np.concatenate(bounds, axis=1)
         bnd[~ok] = -math.inf
         return np.concatenate(normals, axis=1), bnd, np.array(classes, dtype=np.int64)
+
+    def _reaction(
+        self, normal: FloatArray, gap: FloatArray, closing: FloatArray, c_prev: FloatArray
+    ) -> FloatArray:
+        """u_min of (B1')-(B2') (``reaction.reaction_bound``) within the bounded
+        envelope, for rows with unit normals ``normal (N, m, 3)``: the budget is
+        brake_fraction x the envelope's extent along n, the closing cap its
+        support along n."""
+        frac = self.tuning.brake_fraction
+        a_b = frac * radial_extent(normal, self._r_in, self._z_cap)
+        a_b = np.where(np.isfinite(a_b), a_b, self.tuning.brake_unbounded_mps2)
+        nz = np.abs(normal[..., 2])
+        nxy = np.sqrt(np.maximum(1.0 - nz * nz, 0.0))
+        r_xy, z_cap = min(self._r_xy, _BIG_MPS2), min(self._z_cap, _BIG_MPS2)  # no inf * 0
+        cap = np.minimum(r_xy * nxy + z_cap * nz, _BIG_MPS2)
+        return reaction_bound(
+            gap, closing, c_prev, a_b, cap, jerk=self._jerk, lag=self.envelope.lag_s,
+            dt=self.dt, gamma=self.tuning.gamma_per_s,
+        )  # fmt: skip
 
     def _best_effort(
         self,
@@ -414,8 +466,10 @@ class SafetyFilter:
         classes: NDArray[np.int64],
     ) -> FloatArray:
         """Best command for infeasible vehicles: drop speed, then pairs, then
-        relax the environment rows by the least uniform amount t >= 0."""
-        a_max = self.limits.a_max
+        relax the environment rows by the least uniform amount t >= 0 (the
+        acceleration caps are never dropped nor relaxed); within a finite
+        jerk, a full jerk step down the environment rows' violation instead."""
+        a_max = self._ball
         out = accel.copy()
         bad = np.flatnonzero(~feasible)
         for keep in (_PAIR, _ENV):
@@ -425,16 +479,28 @@ class SafetyFilter:
             bad = bad[~ok]
             if bad.size == 0:
                 return out
-        rows = np.broadcast_to(classes == _ENV, bounds[bad].shape)
+        if self._plan and math.isfinite(self._jerk):
+            # Within a jerk step (a - a' here): the whole step down the environment
+            # rows' total violation, one cheap answer (a bisection of projections
+            # would cost tens of ms in the conflicts that are common there).
+            env = np.broadcast_to(classes == _ENV, bounds[bad].shape)
+            viol = np.where(env, np.maximum(bounds[bad], 0.0), 0.0)
+            g = np.einsum("nk,nkj->nj", viol, normals[bad])
+            size = np.linalg.norm(g, axis=1, keepdims=True)
+            out[bad] = np.where(size > 0.0, a_max * g / np.where(size > 0.0, size, 1.0), 0.0)
+            return out
+        rows = np.broadcast_to(classes <= _ENV, bounds[bad].shape)
         env_b = np.where(rows, bounds[bad], -math.inf)
+        relax = np.broadcast_to(classes == _ENV, env_b.shape)
         lo = np.zeros(bad.size)
-        hi = np.maximum(env_b.max(axis=1), 0.0) * (1.0 + 1e-12) + 1e-12  # a = 0 meets b - hi
+        hi = np.maximum(np.where(relax, env_b, -math.inf).max(axis=1), 0.0)
+        hi = hi * (1.0 + 1e-12) + 1e-12  # a = 0 meets b - hi
         for _ in range(_RELAX_STEPS):
             mid = 0.5 * (lo + hi)
-            _, ok = project(a0[bad], normals[bad], env_b - mid[:, None], rows, a_max)
+            _, ok = project(a0[bad], normals[bad], env_b - relax * mid[:, None], rows, a_max)
             hi = np.where(ok, mid, hi)
             lo = np.where(ok, lo, mid)
-        x, _ = project(a0[bad], normals[bad], env_b - hi[:, None], rows, a_max)
+        x, _ = project(a0[bad], normals[bad], env_b - relax * hi[:, None], rows, a_max)
         out[bad] = x
         return out
 

@@ -298,8 +298,11 @@ class Supervisor:
         state, tt = leader, t
         prev = rho(np.asarray([state.pos_m], dtype=np.float64), self._obs)[0, trigger]
         n_chunks = max(1, math.ceil(TARGET_HORIZON_S / (TARGET_DT_S * _CHUNK_STEPS)))
+        # READING (time scale): the leader's path is lambda times slower, so its
+        # prediction's step and horizon are lambda times longer (same points).
+        step = TARGET_DT_S * self._cfg.gains.time_scale
         for _ in range(n_chunks):
-            times, pts, state = self._law.predict(tt, state, TARGET_DT_S, _CHUNK_STEPS)
+            times, pts, state = self._law.predict(tt, state, step, _CHUNK_STEPS)
             cand = pts[1:]
             rl = rho(cand, self._obs)
             rt = rl[:, trigger]

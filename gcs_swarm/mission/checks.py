@@ -12,11 +12,13 @@ import math
 from collections import defaultdict
 from collections.abc import Sequence
 
+import yaml
+
 from gcs_swarm.control.params import Box, LawConfig, Vec3, WaypointForce
 from gcs_swarm.mission.context import Context
 from gcs_swarm.mission.model import Emulator, Event, GeoPoint, Settings, Vehicle
 
-__all__ = ["run_checks"]
+__all__ = ["key_line", "run_checks"]
 
 #: Two starts closer than this [m] count as the same point (Eq. 9 is singular there).
 SAME_POINT_M = 1e-6
@@ -230,13 +232,15 @@ def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | Non
                 ctx.add(ctx.line_of(vpath), vpath, f"{_fmt(v.start)} is inside {path}")
     force = law.leader.force
     if isinstance(force, WaypointForce):
-        if force.cruise_speed > law.limits.v_max:
+        lam = law.gains.time_scale  # the leader cruises at speed / lambda (leader.py)
+        if force.cruise_speed / lam > law.limits.v_max:
             path = "leader.force.speed"
+            scaled = f" / gains.time_scale {lam:g}" if lam != 1.0 else ""
             ctx.add(
                 ctx.line_of(path),
                 path,
                 f"expected at most limits.v_max = {law.limits.v_max:g} m/s,"
-                f" got {force.cruise_speed:g}",
+                f" got {force.cruise_speed:g}{scaled}",
             )
         for w, point in enumerate(force.waypoints):
             for b, box in enumerate(law.obstacles):
@@ -277,3 +281,22 @@ def _check_fence(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | N
                     path,
                     f"{_fmt(p)} is outside limits.geofence {_fmt(lo)}..{_fmt(hi)}",
                 )
+
+
+def key_line(text: str, path: str) -> int:
+    """1-based line of the dotted key ``path`` (e.g. ``gains.time_scale``) in
+    the mission ``text``, or of its nearest present ancestor; 1 if none."""
+    try:
+        node: yaml.Node | None = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return 1
+    line = 1
+    for part in path.split("."):
+        if not isinstance(node, yaml.MappingNode):
+            break
+        hit = next((kv for kv in node.value if getattr(kv[0], "value", None) == part), None)
+        if hit is None:
+            break
+        line = hit[0].start_mark.line + 1
+        node = hit[1]
+    return line

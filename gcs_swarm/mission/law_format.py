@@ -13,11 +13,13 @@ from typing import Any
 
 import yaml
 
+from gcs_swarm.control.envelope import ARDUCOPTER
 from gcs_swarm.control.expr import validate_expression
 from gcs_swarm.control.params import (
     Avoidance,
     Box,
     ConstantForce,
+    Envelope,
     ExpressionForce,
     Gains,
     Leader,
@@ -33,6 +35,7 @@ from gcs_swarm.mission.fields import (
     REQUIRED,
     Bool,
     ByKind,
+    Const,
     Enum,
     Field,
     Key,
@@ -66,7 +69,8 @@ def _build_gains(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) ->
             f"expected D + k > 0 (the damping of Eq. 1), got D = {v['D']:g}, k = {v['k']:g}",
         )
         return INVALID
-    return Gains(**{k: v[k] for k in ("M", "D", "k", "k_s", "k_r", "alpha")}, q_default=v["q"])
+    names = ("M", "D", "k", "k_s", "k_r", "alpha", "time_scale")
+    return Gains(**{k: v[k] for k in names}, q_default=v["q"])
 
 
 GAINS = Obj(
@@ -81,6 +85,13 @@ GAINS = Obj(
         Key("k_r", Pos(), _G.k_r, "repulsion gain of Eq. 9 [N m^2/C^2]"),
         Key("alpha", Pos(), _G.alpha, "sphere parameter of Eq. 7 [m]"),
         Key("q", Pos(), _G.q_default, "charge of a vehicle naming none [C]", target="q_default"),
+        Key(
+            "time_scale",
+            Num(lo=1.0, hi=100.0),
+            _G.time_scale,
+            "fly the law this many times slower, same shape: M -> lambda^2 M, D, k -> lambda D,"
+            " lambda k, and the leader slowed alike (docs/vehicle-envelope.md)",
+        ),
     ),
 )
 
@@ -292,6 +303,50 @@ SAFETY = Obj(
 )
 
 
+_ENV_KEYS = (
+    ("accel_xy", "accel_xy", "horizontal acceleration bound |a_xy| [m/s^2] (WPNAV_ACCEL)"),
+    ("accel_z", "accel_z", "vertical acceleration bound |a_z| [m/s^2] (WPNAV_ACCEL_Z)"),
+    ("jerk_xy", "jerk_xy", "horizontal jerk bound [m/s^3] (PSC_JERK_XY)"),
+    ("jerk_z", "jerk_z", "vertical jerk bound [m/s^3] (PSC_JERK_Z)"),
+    ("speed_xy", "speed_xy", "horizontal speed [m/s] (WPNAV_SPEED)"),
+    ("speed_up", "speed_up", "climb rate [m/s] (WPNAV_SPEED_UP)"),
+    ("speed_down", "speed_down", "descent rate [m/s] (WPNAV_SPEED_DN)"),
+)
+
+
+def _build_envelope(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
+    bounds = {name: math.inf if v[name] is None else v[name] for name, _, _ in _ENV_KEYS}
+    return Envelope(**bounds, lag_s=v["lag"])
+
+
+ENVELOPE_MAP = Obj(
+    name="envelope",
+    cls=Envelope,
+    build=_build_envelope,
+    extra_fields=("lag_s",),
+    keys=(
+        *(Key(n, Pos(nullable=True), None, f"{doc}; null: unbounded") for n, _, doc in _ENV_KEYS),
+        Key("lag", Num(lo=0.0, hi=5.0), 0.0, "lag of the achieved acceleration [s]", target=None),
+    ),
+)
+
+
+class _Named(Const):
+    """``arducopter``: ArduCopter 4.5's default envelope (``control.envelope``)."""
+
+    def _parse(self, node: yaml.Node, path: str, ctx: Context) -> Any:
+        value = super()._parse(node, path, ctx)
+        return ARDUCOPTER if value is not INVALID else INVALID
+
+
+ENVELOPE = ByKind(
+    scalar=_Named(value="arducopter"),
+    mapping=ENVELOPE_MAP,
+    what='"arducopter" or a mapping {accel_xy, accel_z, jerk_xy, jerk_z, speed_xy,'
+    " speed_up, speed_down, lag}",
+)
+
+
 def _build_limits(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
     fence = v["geofence"]
     limits = Limits(
@@ -300,6 +355,7 @@ def _build_limits(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -
         z_floor=-math.inf if v["z_floor"] is None else v["z_floor"],
         geofence_min=None if fence is None else fence[0],
         geofence_max=None if fence is None else fence[1],
+        envelope=Envelope() if v["envelope"] is None else v["envelope"],
     )
     return (limits, v["safety"])
 
@@ -308,13 +364,21 @@ LIMITS = Obj(
     name="limits",
     cls=Limits,
     build=_build_limits,
-    extra_fields=("geofence_min", "geofence_max"),
+    extra_fields=("geofence_min", "geofence_max", "envelope"),
     keys=(
         Key("a_max", Pos(nullable=True), None, "largest commanded acceleration [m/s^2]"),
         Key("v_max", Pos(nullable=True), None, "speed the commands may not push past [m/s]"),
         Key("z_floor", Num(nullable=True), None, "altitude floor, mission-frame z [m]"),
         Key("geofence", GEOFENCE, None, "box {min, max}, mission frame [m]", target=None),
         Key("safety", SAFETY, Safety, "safety filter settings", target=None),
+        Key(
+            "envelope",
+            ENVELOPE,
+            None,
+            "what the vehicles' position controllers deliver: arducopter (4.5 defaults) or"
+            " the bounds; simulate models it, check compares the gains' demand with it",
+            target=None,
+        ),
     ),
 )
 

@@ -9,6 +9,13 @@ time the telemetry carries, so lockstep and speed-up fly like real time).
 Positions and velocities come in and accelerations go out in the mission
 frame; the NED edge is ``gcs_swarm.mavlink``. No asyncio here; the look-ahead
 job is handed to the caller to run in a worker thread.
+
+Vehicle envelope (docs/vehicle-envelope.md): the command path is law ->
+safety filter (planning within the envelope from each vehicle's last
+command) -> ``CommandShaper`` (|a_xy| <= accel_xy, |a_z| <= accel_z, and the
+jerk per step), so what is sent is what the vehicle will do. The envelope
+is the mission's ``limits.envelope`` until ``set_envelope`` (the station,
+after reading the vehicles' parameters at start-up) tightens it.
 """
 
 from __future__ import annotations
@@ -16,15 +23,16 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 
+from gcs_swarm.control.envelope import CommandShaper
 from gcs_swarm.control.law import ControlOutput, SwarmController
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.obstacles import box_signed_distance
-from gcs_swarm.control.params import LawConfig
+from gcs_swarm.control.params import Envelope, LawConfig
 from gcs_swarm.control.safety import SafetyFilter, SafetyReport, SafetyStats, filter_acts
 
 __all__ = ["ControlLoop", "StepResult"]
@@ -62,7 +70,11 @@ class ControlLoop:
         self.config = law
         self.charges = dict(charges)
         self.controller = SwarmController(law, t0=0.0, defer_lookahead=defer)
+        self.rate_hz = rate_hz
+        self.envelope: Envelope = law.limits.envelope
+        """The vehicle envelope the commands are planned and shaped within."""
         self.safety = SafetyFilter(law.limits, law.safety, law.obstacles, dt=1.0 / rate_hz)
+        self.shaper = CommandShaper(self.envelope, 1.0 / rate_hz)
         self.safety_stats = SafetyStats()
         # A disabled filter with no finite limit is the identity (safety.py): skip it.
         self.filtering: bool = filter_acts(law.limits, law.safety)
@@ -111,9 +123,25 @@ class ControlLoop:
             self.t_s = self._t_ms * 1e-3
         return self.t_s
 
+    def set_envelope(self, envelope: Envelope) -> Envelope:
+        """Plan and shape within ``envelope`` from now on: the tightest over
+        the vehicles, as read from their parameters at start-up; it is
+        tightened with the mission's ``limits.envelope`` (``Envelope.tighter``).
+        Call before the formation starts (the filter and shaper restart).
+        Returns the envelope in force."""
+        env = envelope.tighter(self.config.limits.envelope)
+        self.envelope = env
+        limits = replace(self.config.limits, envelope=env)
+        law = self.config
+        self.safety = SafetyFilter(limits, law.safety, law.obstacles, dt=1.0 / self.rate_hz)
+        self.shaper = CommandShaper(env, 1.0 / self.rate_hz)
+        return env
+
     def forget(self, sysid: int) -> None:
-        """A vehicle left: its next telemetry maps its clock afresh."""
+        """A vehicle left: its next telemetry maps its clock afresh, and its
+        next command starts from hover (``CommandShaper.forget``)."""
         self._boot_ms.pop(sysid, None)
+        self.shaper.forget(sysid)
 
     def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:
         """The limited accelerations for ``ids`` at their mission-frame states:
@@ -131,9 +159,12 @@ class ControlLoop:
         out = self.controller.step(self.t_s, ids, pos_m, vel_mps, q)
         accel, report = out.accel_mps2, None
         if self.filtering:
-            accel, report = self.safety.filter(pos_m, vel_mps, out.accel_mps2, ids=ids)
+            prev = self.shaper.previous(ids) if self.shaper.active else None
+            accel, report = self.safety.filter(
+                pos_m, vel_mps, out.accel_mps2, ids=ids, prev_accel_mps2=prev
+            )
             self.safety_stats.update(report)
-        return out, accel, report
+        return out, self.shaper.shape(ids, accel), report
 
     def account(
         self,
