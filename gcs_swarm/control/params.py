@@ -223,6 +223,14 @@ class Envelope:
             lag_s=max(self.lag_s, other.lag_s),
         )
 
+    def describe(self) -> str:
+        """One line for logs: the bounds with their units."""
+        return (
+            f"accel {self.accel_xy:.2f} xy {self.accel_z:.2f} z m/s^2, jerk {self.jerk_xy:g} xy "
+            f"{self.jerk_z:g} z m/s^3, speed {self.speed_xy:g} xy {self.speed_up:g} up "
+            f"{self.speed_down:g} down m/s, lag {self.lag_s:g} s"
+        )
+
     @property
     def bounded(self) -> bool:
         """True when any bound is finite (the ideal point mass has none)."""

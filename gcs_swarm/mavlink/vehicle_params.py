@@ -420,9 +420,7 @@ class VehicleParams:
             source += f"; {', '.join(self.envelope_missing)} unanswered: the mission's bound"
         self._emit(
             "info",
-            f"vehicle {self.sysid}: envelope accel {e.accel_xy:.2f} xy {e.accel_z:.2f} z m/s^2,"
-            f" jerk {e.jerk_xy:g} xy {e.jerk_z:g} z m/s^3, speed {e.speed_xy:g} xy"
-            f" {e.speed_up:g} up {e.speed_down:g} down m/s, lag {e.lag_s:g} s ({source})",
+            f"vehicle {self.sysid}: envelope {e.describe()} ({source})",
         )
 
     def _change(self, name: str, value: float, why: str) -> ParamChange:

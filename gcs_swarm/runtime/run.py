@@ -24,7 +24,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
@@ -32,6 +31,7 @@ from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, Vehicle, load_mission
+from gcs_swarm.missionsim import demand_report
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
@@ -132,9 +132,9 @@ def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
         geofence_min=limits.geofence_min,
         geofence_max=limits.geofence_max,
         station_sysid=STATION_SYSID,
-        # The envelope of a vehicle that does not answer a read: unbounded until
-        # the mission names one (limits.envelope, issue 14 item 2).
-        fallback=Envelope(),
+        # The envelope of a vehicle that does not answer a read: the mission's
+        # (limits.envelope; unbounded when it names none).
+        fallback=limits.envelope,
     )
 
 
@@ -327,6 +327,9 @@ async def run_mission(
             end_mode: int | None = None
             try:
                 await station.ready()
+                envelope = station.apply_envelope()
+                for line in demand_report(mission, envelope):
+                    station.warn(line)
                 await station.fly()
                 outcome = "completed"
             except StartupError:

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
+from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.batch import accel_ned, mission_states
@@ -200,6 +201,24 @@ class Station:
             late = [vp for vp in everyone if vp.phase is not Phase.READY]
             what = f"not ready after {self.config.ready_timeout_s:g} s"
             raise StartupError(self._not_ready(what, late)) from None
+
+    def apply_envelope(self) -> Envelope:
+        """Plan and shape every command within the tightest envelope of the
+        readied vehicles (each read from its parameters, or the mission's
+        where it was not read: docs/vehicle-envelope.md); call between
+        ``ready()`` and ``fly()``. Returns the envelope in force."""
+        env = Envelope()
+        for vp in self.vehicles.values():
+            if vp.phase is Phase.READY:
+                env = env.tighter(vp.envelope)
+        inforce = self.control.set_envelope(env)
+        if inforce.bounded:
+            self._note(f"envelope in force: {inforce.describe()}")
+        return inforce
+
+    def warn(self, text: str) -> None:
+        """A line for the log and the summary, at warning level."""
+        self._note(text, level=logging.WARNING)
 
     async def fly(self) -> None:
         """Start the formation and return when the mission time is over (or
