@@ -156,6 +156,8 @@ class VehicleProtocol:
         )
         self._timers: dict[str, float] = {}
         self._arm_tries = 0
+        self._takeoff_refused: tuple[int, str] | None = None
+        """(MAV_RESULT, reason) of a refused take-off, decided on the next HEARTBEAT."""
         self._takeoff_up_m = 0.0
         self._end_mode = config.end_mode
         self.vehicle_params = VehicleParams(
@@ -427,8 +429,11 @@ class VehicleProtocol:
                 del self._timers["mode_confirm"]
                 self._guided_lost(now, f"in {self.mode_name} after GUIDED was accepted")
         elif phase in READYING_PHASES:
+            refused, self._takeoff_refused = self._takeoff_refused, None
             if hb.custom_mode != GUIDED:
-                self._guided_lost(now)
+                self._guided_lost(now)  # then take off again, armed or not
+            elif refused is not None and phase is Phase.TAKING_OFF:
+                self._after_takeoff_refusal(*refused, now)
         elif phase in (Phase.READY, Phase.FLYING):
             if hb.custom_mode != GUIDED:
                 self._yield(now, f"left GUIDED (now {self.mode_name}): someone else has it")
@@ -683,10 +688,16 @@ class VehicleProtocol:
     def _takeoff_acked(self, result: int, now: float) -> None:
         if result == 0 or self.phase is not Phase.TAKING_OFF:
             return
-        why = self._refused(now, "take-off", result)
-        if not self._guided():
-            self._guided_lost(now)  # then take off again, armed or not
-        elif not self.armed and self.on_ground and self._arm_tries < self.config.arm_attempts:
+        # Decide on the next HEARTBEAT, not on the one we have: it can be up to
+        # a second old, and ArduCopter's end of boot (back to STABILIZE) or its
+        # DISARM_DELAY may have come since (seen in the emulator: an arm sent
+        # 20 ms after the boot's end, a stale GUIDED, and every retry refused).
+        self._takeoff_refused = (result, self._refused(now, "take-off", result))
+
+    def _after_takeoff_refusal(self, result: int, why: str, now: float) -> None:
+        """The first HEARTBEAT after a refused take-off says GUIDED: re-arm a
+        vehicle that disarmed itself, or fail with the autopilot's words."""
+        if not self.armed and self.on_ground and self._arm_tries < self.config.arm_attempts:
             # It disarmed itself (DISARM_DELAY) before the take-off came.
             self._timers.pop("takeoff", None)
             self._set_phase(Phase.WAITING_ARMABLE, now)

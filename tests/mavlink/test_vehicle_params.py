@@ -307,6 +307,9 @@ def test_off_by_default_the_traffic_is_as_before() -> None:
 def _fly_and_end(vp: VehicleProtocol, copter: Copter, t: float, mode: int) -> float:
     to_armable(vp, copter, t)
     vp.handle_message(hb(GUIDED, armed=True), t + 2)
+    # airborne (5 m up) when the run ends: a vehicle still on the ground would
+    # be disarmed instead of given the end mode (VehicleProtocol.finish)
+    vp.handle_message(LocalPositionNed(SYS, 1, 2000, 0.0, 0.0, -5.0, 0.0, 0.0, 0.0), t + 2.5)
     vp.take_outbound()
     texts(vp)
     vp.finish(t + 3, mode=mode)

@@ -301,6 +301,8 @@ def test_take_off_refusal_quotes_its_own_statustext_not_the_arming_chatter() -> 
     vp.handle_message(hb(GUIDED, armed=True), 1.03)
     vp.handle_message(StatusText(SYS, 1, INFO, "EKF3 IMU0 is using GPS"), 1.05)
     vp.handle_message(CommandAck(SYS, 1, TAKEOFF, 4), 1.06)
+    assert vp.phase is Phase.TAKING_OFF  # decided on the next HEARTBEAT, not a stale one
+    vp.handle_message(hb(GUIDED, armed=True), 1.5)
     assert vp.phase is Phase.FAILED
     assert vp.failure == "take-off refused (failed) in GUIDED, armed: no reason given"
     refused = [e.text for e in vp.take_events() if e.kind == "refused"]
@@ -388,6 +390,7 @@ def test_vehicle_failed_armed_on_the_ground_is_disarmed_at_the_end() -> None:
     _armed_and_taking_off(vp, 0.0)
     vp.handle_message(hb(GUIDED, armed=True), 1.03)
     vp.handle_message(CommandAck(SYS, 1, TAKEOFF, 4), 1.06)
+    vp.handle_message(hb(GUIDED, armed=True), 1.4)
     assert vp.phase is Phase.FAILED
     vp.finish(1.5, mode=LAND)
     out = vp.take_outbound()
@@ -435,3 +438,18 @@ def test_vehicle_never_armed_on_the_ground_just_stops() -> None:
     vp.take_outbound()
     vp.finish(1.0, mode=LAND)
     assert vp.phase is Phase.ENDED and vp.take_outbound() == []
+
+
+def test_a_refused_take_off_is_judged_on_a_fresh_heartbeat_not_a_stale_one() -> None:
+    # Seen in the emulator: the boot's end (back to STABILIZE) came 20 ms before
+    # the arm; the last HEARTBEAT still said GUIDED and disarmed, so each refusal
+    # read as "disarmed itself" and the vehicle was re-armed until the tries ran out.
+    vp = make(heartbeat_timeout_s=100.0)
+    _armed_and_taking_off(vp, 0.0)
+    vp.handle_message(CommandAck(SYS, 1, TAKEOFF, 4), 1.06)
+    assert vp.phase is Phase.TAKING_OFF
+    assert not arms(vp.take_outbound())  # nothing decided on the stale HEARTBEAT
+    vp.handle_message(hb(STABILIZE, armed=True), 1.5)  # what really happened
+    out = vp.take_outbound()
+    assert commands(out, MAV_CMD_DO_SET_MODE) and not arms(out)  # GUIDED again, no re-arm
+    assert vp.phase is not Phase.FAILED
