@@ -418,7 +418,7 @@ EMULATOR = Obj(
             "lag",
             Num(lo=0.0, hi=5.0, nullable=True),
             _EMU.lag,
-            "first-order acceleration lag [s]; default 0.2 for ardupilot-like",
+            "first-order acceleration lag [s]; default 0.1 for ardupilot-like",
         ),
         Key("accel_max", Pos(nullable=True), None, "clamp on |acceleration| [m/s^2]; null: 5"),
         Key("ekf_ready_delay", NonNeg(), _EMU.ekf_ready_delay, "arming refused this long [s]"),

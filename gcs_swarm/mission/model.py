@@ -221,7 +221,7 @@ class Emulator:
 
     mode: ``lockstep`` (one step per answered telemetry) or ``realtime``
     (times ``speedup``); dynamics ``ideal`` or ``ardupilot-like``; lag [s]
-    first-order acceleration lag (``None``: 0 for ideal, 0.2 for
+    first-order acceleration lag (``None``: 0 for ideal, 0.1 for
     ardupilot-like); ekf_ready_delay [s] before arming is accepted;
     ground [m] mission-frame z of the sim vehicles' homes (their EKF origins)
     unless a vehicle names its own origin; origin_spread [m] east spacing of
@@ -257,7 +257,9 @@ class Emulator:
         """The first-order lag actually used [s]."""
         if self.lag is not None:
             return self.lag
-        return 0.0 if self.dynamics == "ideal" else 0.2
+        # 0.1 s: ArduCopter 4.5.6 SITL's step responses, fitted with its jerk
+        # limit modelled (the emulator's ardupilot preset; docs/emulator.md)
+        return 0.0 if self.dynamics == "ideal" else 0.1
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,10 @@ from sv_client import connect
 from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
 from sim_vehicle.params import PARAM_TABLE
 
-FAST = {"speedup": 20.0, "ekf_ready_s": 4.0}
+# boot_s 0: this walks the sheet's steps one by one; the end-of-boot return to
+# STABILIZE that makes a station set GUIDED again is tested on its own
+# (test_sv_vehicle_life.test_boot_ends_in_stabilize_after_guided_was_accepted).
+FAST = {"speedup": 20.0, "ekf_ready_s": 4.0, "boot_s": 0.0}
 
 
 def test_startup_sequence_of_the_protocol_sheet() -> None:

@@ -157,7 +157,8 @@ def test_guid_timeout_braking_is_jerk_limited() -> None:
 def test_config_shaping_presets() -> None:
     from sim_vehicle import EmulatorConfig
 
-    assert EmulatorConfig().shaping is False  # off by default for now (the station's tests)
+    assert EmulatorConfig().shaping is True  # the ardupilot preset's, by default
+    assert EmulatorConfig().tau_s == 0.1  # the lag fitted on SITL with the ramp modelled
     assert EmulatorConfig(accel_shaping=None).shaping is True  # the ardupilot preset's
     assert EmulatorConfig(dynamics="ideal", accel_shaping=None).shaping is False
     assert EmulatorConfig(dynamics="ideal", accel_shaping=True).shaping is True

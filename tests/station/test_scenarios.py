@@ -45,7 +45,12 @@ def test_ardupilot_like_lag_in_real_time_settles_within_2_percent() -> None:
     # ArduCopter-like 0.2 s first-order acceleration lag, paced by the wall
     # clock (5 x real time, so the run takes ~6 s): no lockstep, the station
     # steps on telemetry as it would with SITL.
-    cfg = lockstep_config(mission, clock="realtime", speedup=5.0, dynamics="ardupilot")
+    # The lag alone (accel_shaping off): the paper's gains ask for more than the
+    # jerk-limited ArduCopter model can do, as on SITL (example1_arducopter.yaml
+    # and docs/vehicle-envelope.md fly Example 1 within it).
+    cfg = lockstep_config(
+        mission, clock="realtime", speedup=5.0, dynamics="ardupilot", accel_shaping=False
+    )
     assert cfg.tau_s == pytest.approx(0.2)
     flown = asyncio.run(fly(mission, cfg, lockstep=False))
     s = flown.ok

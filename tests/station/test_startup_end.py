@@ -56,7 +56,8 @@ def test_mode_switched_before_arming_is_set_back_to_guided_and_never_armed_in_la
         await emu.wait_until(lambda: emu.vehicle_state(1).mode_name == "LAND")
         assert emu.sim_time_s < 9.0 and not emu.vehicle_state(1).armed
 
-    cfg = lockstep_config(mission, airborne=False, ekf_ready_s=10.0)
+    # boot_s 0: no end-of-boot STABILIZE here, the pilot's switch is the test
+    cfg = lockstep_config(mission, airborne=False, ekf_ready_s=10.0, boot_s=0.0)
     flown = asyncio.run(fly(mission, cfg, during=pilot_lands_vehicle_1))
     s = flown.ok
     # Seen in the HEARTBEAT: GUIDED asked again at once, no arm sent in LAND.
