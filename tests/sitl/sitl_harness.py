@@ -76,13 +76,19 @@ class SitlSwarm:
     procs: dict[int, subprocess.Popen[bytes]] = field(default_factory=dict)
 
     def sysid(self, k: int) -> int:
-        return self.first + k + 1
+        """System id of the k-th instance: k + 1 whatever ``first`` is, as the
+        missions number their vehicles."""
+        return k + 1
 
     def link(self, k: int) -> str:
         return f"tcp:127.0.0.1:{tcp_port(self.first + k)}"
 
     def links(self) -> dict[int, str]:
         return {self.sysid(k): self.link(k) for k in range(self.count)}
+
+    def links_from_one(self) -> dict[int, str]:
+        """The k-th vehicle of a mission (system id k + 1) on the k-th instance."""
+        return {k + 1: self.link(k) for k in range(self.count)}
 
     def start(self) -> None:
         parm = defaults_file(self.binary)
@@ -100,7 +106,7 @@ class SitlSwarm:
                 self.procs[k] = subprocess.Popen(
                     [str(self.binary), f"-I{inst}", "--model", "+", "--speedup", "1",
                      "--defaults", str(parm), "--sim-address=127.0.0.1", "--home", home,
-                     "--sysid", str(self.sysid(k))],
+                     "--sysid", str(k + 1)],
                     cwd=d, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                     start_new_session=True,
                 )  # fmt: skip
