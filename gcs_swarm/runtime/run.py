@@ -31,7 +31,7 @@ from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, Vehicle, load_mission
-from gcs_swarm.missionsim import demand_report
+from gcs_swarm.missionsim import demand_report, envelope_demand
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
@@ -41,6 +41,7 @@ from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
 if TYPE_CHECKING:
     # gcs_swarm.report reads logs with gcs_swarm.runtime.tlog: imported lazily
     # below so that importing either package first works.
+    from gcs_swarm.control.envelope import Demand
     from gcs_swarm.report.artefacts import RunFolder
 
 __all__ = [
@@ -325,17 +326,28 @@ async def run_mission(
                 )
             )
             end_mode: int | None = None
+            # What the gains ask of the vehicle: a whole-mission simulation (seconds),
+            # so off the event loop, while the swarm is readied (heartbeats and the
+            # vehicles' hold must not stall: their GCS failsafe waits only 5 s).
+            demand: asyncio.Future[Demand] | None = None
+            if mission.law.limits.envelope.bounded or any(
+                p.params.read_envelope for p in station_cfg.vehicles
+            ):
+                demand = asyncio.ensure_future(asyncio.to_thread(envelope_demand, mission))
             try:
                 await station.ready()
                 envelope = station.apply_envelope()
-                for line in demand_report(mission, envelope):
-                    station.warn(line)
+                if demand is not None and envelope.bounded:
+                    for line in demand_report(mission, envelope, demand=await demand):
+                        station.warn(line)
                 await station.fly()
                 outcome = "completed"
             except StartupError:
                 outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
                 raise
             finally:
+                if demand is not None:
+                    demand.cancel()  # not needed any more (its thread finishes alone)
                 await station.end(end_mode)
     finally:
         # After the station, the emulator and the log have closed: the summary's
