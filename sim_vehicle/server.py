@@ -497,16 +497,10 @@ class Emulator:
                 item = (self.sim_time_s + d, next(self._tie), ep, msgs)
                 heapq.heappush(self._delayed_in, item)
 
-    def _set_wall(self) -> None:
-        """Lockstep: tell every autopilot the wall clock (``Autopilot.wall_s``)."""
-        wall = time.monotonic()
-        for v in self._rows:
-            v.ap.wall_s = wall
-
     def _deliver(self, ep: Endpoint, msgs: list[Any]) -> None:
         now = self.sim_time_s
-        if self._lockstep:
-            self._set_wall()
+        # lockstep: the autopilot handling it is told the wall clock (Autopilot.wall_s)
+        wall = time.monotonic() if self._lockstep else None
         for m in msgs:
             ts = getattr(m, "target_system", 0)
             if ts == 0:
@@ -517,6 +511,8 @@ class Emulator:
                 continue
             for key in targets:
                 v = self._vehicles[key]
+                if wall is not None:
+                    v.ap.wall_s = wall
                 replies = v.ap.handle(m, now, self._kin(v))
                 if replies:
                     self._transmit(ep, [(self._pack(v, r), 0) for r in replies])
@@ -641,8 +637,6 @@ class Emulator:
         self.step_count += 1
         self.stats.steps = self.step_count
         self.sim_time_s = now = self.step_count * self.dt
-        if self._lockstep:
-            self._set_wall()
         self._emit(now)
         self._notify()
 
@@ -666,8 +660,11 @@ class Emulator:
         if f.changed:  # touched down or lifted off: the land detector looks (autopilot)
             polled = sorted(set(polled).union(f.changed))
             f.changed = []
+        wall = time.monotonic() if self._lockstep and polled else None
         for row in polled:
             v = self._rows[row]
+            if wall is not None:
+                v.ap.wall_s = wall  # Autopilot.wall_s: lockstep's GCS failsafe clock
             out = v.ap.poll(now, self._kin(v))
             self._sync(v, now)
             if out and v.ep.peers:
