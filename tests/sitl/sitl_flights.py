@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from gcs_swarm.mission import Mission, load_mission
-from gcs_swarm.mission.model import Emulator
 from gcs_swarm.report.replay import record_from_tlog
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -82,7 +81,7 @@ def emulator_twin(mission: Mission, *, spacing_m: float = 5.0) -> Mission:
         for k, v in enumerate(mission.vehicles)
     )
     emu = dataclasses.replace(
-        mission.emulator if mission.emulator is not None else Emulator(),
+        mission.emulator,
         mode="lockstep", dynamics="ardupilot-like", ground=0.0, origin_spread=spacing_m,
         spawn="ground",
     )  # fmt: skip

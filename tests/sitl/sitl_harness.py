@@ -22,7 +22,7 @@ import signal
 import socket
 import subprocess
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -139,11 +139,9 @@ class SitlSwarm:
 
 
 @contextlib.contextmanager
-def sitl_swarm(
-    count: int, workdir: Path, *, first: int = 0, params: Mapping[str, float] | None = None
-) -> Iterator[SitlSwarm]:
-    """Fresh instances for one test; always stopped afterwards."""
-    assert not params, "start-up parameters are set by the station, not by the harness"
+def sitl_swarm(count: int, workdir: Path, *, first: int = 0) -> Iterator[SitlSwarm]:
+    """Fresh instances (default parameters: the station sets what it needs) for
+    one test; always stopped afterwards."""
     swarm = SitlSwarm(binary_or_skip(), count, workdir, first=first)
     try:
         swarm.start()
