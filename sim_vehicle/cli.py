@@ -109,6 +109,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="no jerk / lean-angle limits on the command (kept lag)")  # fmt: skip
     p.add_argument("--noise-pos", type=float, default=0.0, help="LOCAL_POSITION_NED noise, m")
     p.add_argument("--noise-vel", type=float, default=0.0, help="LOCAL_POSITION_NED noise, m/s")
+    p.add_argument("--velocity-bias", type=_vec3, default=None, metavar="N,E,D",
+                   help="m/s added to every reported velocity (default: the preset's, "
+                        "-0.015,0.013,0 for ardupilot as SITL's EKF; 0,0,0 ideal)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--loss", type=float, default=0.0, help="datagram loss, both directions")
     p.add_argument("--delay", type=float, default=0.0, help="one-way delay, s")
@@ -182,6 +185,7 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         tcp_base_port=tcp_base,
         noise_pos_m=args.noise_pos,
         noise_vel_m_s=args.noise_vel,
+        vel_bias_ned_m_s=args.velocity_bias,
         seed=args.seed,
         uplink=imp,
         downlink=imp,
@@ -189,6 +193,17 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         params=dict(args.param),
         signing_key=key,
     )
+
+
+def _vec3(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected N,E,D (three numbers), got {text!r}")
+    return values[0], values[1], values[2]
 
 
 def _describe(emu: Emulator, sysid: int) -> str:

@@ -130,6 +130,10 @@ class EmulatorConfig:
     as SITL serves ``tcp:127.0.0.1:5760``; not with ``shared_port``.
     ``shared_port``: not ``None`` -> every vehicle is multiplexed on that one
     endpoint (0 = ephemeral), told apart by system id.
+    ``vel_bias_ned_m_s``: a constant added to every reported velocity
+    (LOCAL_POSITION_NED), as ArduCopter SITL's EKF reports hovering still
+    (docs/velocity-bias.md); None: the preset's (``ARDUPILOT_VEL_BIAS_NED_M_S``
+    for ``ardupilot``, none for ``ideal``).
     ``streams``: message id -> Hz streamed from the start (default: none but
     HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
     vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
@@ -156,12 +160,19 @@ class EmulatorConfig:
     tcp_base_port: int | None = None
     noise_pos_m: float = 0.0
     noise_vel_m_s: float = 0.0
+    vel_bias_ned_m_s: tuple[float, float, float] | None = None
     seed: int = 0
     uplink: Impairment = field(default_factory=Impairment)
     downlink: Impairment = field(default_factory=Impairment)
     streams: Mapping[int, float] = field(default_factory=dict)
     params: Mapping[str, float] = field(default_factory=dict)
     signing_key: bytes | None = field(default=None, repr=False)
+
+    #: The reported velocity's bias [m/s] NED of the ``ardupilot`` preset: what
+    #: ArduCopter 4.5.6 SITL's EKF reported hovering still at CMAC (30 s
+    #: windows, six vehicles, docs/velocity-bias.md); it changed sign once in
+    #: a 300 s flight, so it is a typical size, not a constant of SITL.
+    ARDUPILOT_VEL_BIAS_NED_M_S = (-0.015, 0.013, 0.0)
 
     def __post_init__(self) -> None:
         if self.signing_key is not None:
@@ -177,6 +188,12 @@ class EmulatorConfig:
             _check(0 <= self.tcp_base_port <= 65535, "tcp_base_port: expected 0..65535")
             _check(self.shared_port is None, "tcp_base_port: not with shared_port")
         _check(self.noise_pos_m >= 0.0 and self.noise_vel_m_s >= 0.0, "noise: expected >= 0")
+        if self.vel_bias_ned_m_s is not None:
+            _check(
+                len(self.vel_bias_ned_m_s) == 3
+                and all(math.isfinite(c) and abs(c) <= 10.0 for c in self.vel_bias_ned_m_s),
+                f"vel_bias_ned_m_s: expected 3 finite m/s within 10, got {self.vel_bias_ned_m_s}",
+            )
         if self.accel_tau_s is not None:
             _check(self.accel_tau_s >= 0.0, "accel_tau_s: expected >= 0")
         _check(0 <= self.base_port <= 65535, f"base_port: expected 0..65535, got {self.base_port}")
@@ -187,6 +204,14 @@ class EmulatorConfig:
             _check(len(set(sysids)) == len(sysids), "vehicles: duplicate sysids on one endpoint")
         for msgid, hz in self.streams.items():
             _check(hz >= 0.0, f"streams[{msgid}]: expected Hz >= 0, got {hz}")
+
+    @property
+    def vel_bias(self) -> tuple[float, float, float]:
+        """Bias [m/s] NED added to every reported velocity (preset unless overridden):
+        the ``ardupilot`` preset's SITL figure, none for ``ideal``."""
+        if self.vel_bias_ned_m_s is not None:
+            return self.vel_bias_ned_m_s
+        return self.ARDUPILOT_VEL_BIAS_NED_M_S if self.dynamics == "ardupilot" else (0.0, 0.0, 0.0)
 
     @property
     def tau_s(self) -> float:

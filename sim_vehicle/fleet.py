@@ -24,7 +24,7 @@ __all__ = ["KP_1_S", "KV_1_S", "Fleet"]
 #: Gains of Eq. D3 (ArduCopter PSC_POSXY_P = 1, PSC_VELXY_P = 2).
 KP_1_S = 1.0
 KV_1_S = 2.0
-_V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp")
+_V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp", "vbias")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
@@ -63,6 +63,7 @@ class Fleet:
     lpn_next: NDArray[np.float64]
     noise_pos: NDArray[np.float64]
     noise_vel: NDArray[np.float64]
+    vbias: NDArray[np.float64]  # constant bias of the reported velocity (NED m/s)
     seq: NDArray[np.int64]
     sysid: NDArray[np.int64]
     compid: NDArray[np.int64]

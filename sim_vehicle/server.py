@@ -92,7 +92,8 @@ class _Vehicle:
     row_deadline: float | None = None
     row_holding: bool | None = None
     row_target: ControlTarget | None = None
-    row_dyn: tuple[float, float, float] | None = None  # noise_pos, noise_vel, lpn_interval
+    # noise_pos, noise_vel, lpn_interval, velocity bias (N, E, D)
+    row_dyn: tuple[float, float, float, tuple[float, float, float]] | None = None
 
 
 class Emulator:
@@ -246,6 +247,9 @@ class Emulator:
             "SIM_ACC_SHAPE": 1.0 if cfg.shaping else 0.0,
             "SIM_NOISE_POS": cfg.noise_pos_m,
             "SIM_NOISE_VEL": cfg.noise_vel_m_s,
+            "SIM_VBIAS_N": cfg.vel_bias[0],
+            "SIM_VBIAS_E": cfg.vel_bias[1],
+            "SIM_VBIAS_D": cfg.vel_bias[2],
             **cfg.params,
         }
         now = self.sim_time_s
@@ -581,13 +585,16 @@ class Emulator:
         f.set_target(row, ap.target, v.row_target)
         v.row_target = ap.target
         iv = ap.lpn_interval_s
+        prm = ap.params
         dyn = (
-            ap.params["SIM_NOISE_POS"],
-            ap.params["SIM_NOISE_VEL"],
+            prm["SIM_NOISE_POS"],
+            prm["SIM_NOISE_VEL"],
             iv if iv is not None else np.inf,
+            (prm["SIM_VBIAS_N"], prm["SIM_VBIAS_E"], prm["SIM_VBIAS_D"]),
         )
         if dyn != v.row_dyn:
-            f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row] = v.row_dyn = dyn
+            f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row] = dyn
+            v.row_dyn = dyn
         if iv is None:
             f.lpn_next[row] = np.inf
         elif ap.lpn_kick:  # rule 1: a newly enabled stream sends its first message at once
@@ -601,17 +608,17 @@ class Emulator:
         f = self.fleet
         if len(rows) < _SMALL and self.config.signing_key is None:
             rl: list[int] = rows.tolist()
-            npos, nvel = f.noise_pos.tolist(), f.noise_vel.tolist()
-            if not any(npos[r] > 0 or nvel[r] > 0 for r in rl):
+            npos, nvel, vb = f.noise_pos.tolist(), f.noise_vel.tolist(), f.vbias.tolist()
+            if not any(npos[r] > 0 or nvel[r] > 0 or any(vb[r]) for r in rl):
                 boot = f.boot.tolist()  # round() is np.rint's half-to-even
                 frames = f.lpn_frames_rows(rl, [round((now - boot[r]) * 1000.0) for r in rl])
                 if frames is not None:
                     return [(fr, self._rows[r].spec.key) for fr, r in zip(frames, rl, strict=True)]
         t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)
-        pos, vel = f.pos[rows], f.vel[rows]
+        pos, vel = f.pos[rows], f.vel[rows] + f.vbias[rows]  # a copy: the reported velocity
         noisy = (f.noise_pos[rows] > 0) | (f.noise_vel[rows] > 0)
         if noisy.any():
-            pos, vel = pos.copy(), vel.copy()
+            pos = pos.copy()
             for i in np.flatnonzero(noisy):
                 v = self._rows[rows[i]]
                 z = v.noise_rng.standard_normal(6)

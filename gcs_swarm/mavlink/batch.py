@@ -25,7 +25,8 @@ FloatArray = npt.NDArray[np.float64]
 def mission_states(vps: Sequence[VehicleProtocol]) -> tuple[FloatArray, FloatArray]:
     """Positions [m] and velocities [m/s] ``(N, 3)`` in the mission frame:
     row k is ``vps[k].state_mission()`` (p = (e, n, -d) + offset, v = (v_e,
-    v_n, -v_d), formation-law.md s1). ``RuntimeError`` if one has no position
+    v_n, -v_d) less the velocity bias, formation-law.md s1 and
+    docs/velocity-bias.md). ``RuntimeError`` if one has no position
     or origin yet."""
     n = len(vps)
     if n == 0:
@@ -36,14 +37,15 @@ def mission_states(vps: Sequence[VehicleProtocol]) -> tuple[FloatArray, FloatArr
     # (time_boot_ms, x, y, z, vx, vy, vz) per vehicle: LocalPositionNed[2:].
     ned = np.array([vp.position[2:] for vp in vps], dtype=np.float64)  # type: ignore[index]
     offset = np.array([vp.offset_m for vp in vps], dtype=np.float64)
+    bias = np.array([vp.vel_correction_ned for vp in vps], dtype=np.float64)
     pos = np.empty((n, 3))
     pos[:, 0] = ned[:, 2] + offset[:, 0]
     pos[:, 1] = ned[:, 1] + offset[:, 1]
     pos[:, 2] = -ned[:, 3] + offset[:, 2]
     vel = np.empty((n, 3))
-    vel[:, 0] = ned[:, 5]
-    vel[:, 1] = ned[:, 4]
-    vel[:, 2] = -ned[:, 6]
+    vel[:, 0] = ned[:, 5] - bias[:, 1]
+    vel[:, 1] = ned[:, 4] - bias[:, 0]
+    vel[:, 2] = bias[:, 2] - ned[:, 6]
     return pos, vel
 
 

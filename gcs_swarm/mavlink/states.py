@@ -8,8 +8,9 @@ is what the station logs.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.frames import GeoPoint
 
@@ -103,6 +104,9 @@ class ProtocolConfig:
     - ``end_mode``: Copter mode of the ending (BRAKE, LAND or RTL).
     - ``mission_origin``: the mission frame's geodetic origin, or None until
       the station learns it (``VehicleProtocol.set_reference``).
+    - ``velocity_bias``: the estimate of a constant bias in the reported
+      velocity and whether the law's velocity is corrected by it
+      (``gcs_swarm.control.velocity_bias``, docs/velocity-bias.md).
     """
 
     control_rate_hz: float = 50.0
@@ -125,6 +129,7 @@ class ProtocolConfig:
     end_mode: int = b.COPTER_MODES["BRAKE"]
     end_confirm_timeout_s: float = 3.0
     mission_origin: GeoPoint | None = None
+    velocity_bias: BiasSettings = field(default_factory=BiasSettings)
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.control.params import Envelope
+from gcs_swarm.control.velocity_bias import VelocityBiasObserver
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
@@ -134,6 +135,10 @@ class VehicleProtocol:
         """Messages refused for implausible numbers (NaN, 1e30 m, ...)."""
         self.stale_telemetry = 0
         """LOCAL_POSITION_NED not newer than the last one (duplicated or reordered)."""
+        self.velocity_bias = VelocityBiasObserver(config.velocity_bias)
+        """The bias of the reported velocity (NED), from every accepted report."""
+        self.vel_correction_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        """Subtracted from the reported velocity before the law sees it."""
         self.params: dict[str, float] = {}
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
         self._hb_at = -math.inf
@@ -203,12 +208,13 @@ class VehicleProtocol:
         """Latest (position [m], velocity [m/s]) in the mission frame."""
         if self.position is None or self.offset_m is None:
             raise RuntimeError(f"vehicle {self.sysid} has no position or origin yet")
-        p, o = self.position, self.offset_m
-        # p = (e, n, -d) + o_i; v = (v_e, v_n, -v_d) (formation-law.md s1), written
-        # out because it runs for every vehicle at every step.
+        p, o, c = self.position, self.offset_m, self.vel_correction_ned
+        # p = (e, n, -d) + o_i; v = (v_e, v_n, -v_d) (formation-law.md s1) less
+        # the velocity bias (docs/velocity-bias.md), written out because it runs
+        # for every vehicle at every step.
         return (
             np.array((p.y + o[0], p.x + o[1], -p.z + o[2])),
-            np.array((p.vy, p.vx, -p.vz)),
+            np.array((p.vy - c[1], p.vx - c[0], -(p.vz - c[2]))),
         )
 
     def _silent_since(self) -> float:
@@ -372,7 +378,13 @@ class VehicleProtocol:
             return False
         self.position = pos
         self.position_at = now
+        self._observe(pos)
         return True
+
+    def _observe(self, pos: LocalPositionNed) -> None:
+        obs = self.velocity_bias
+        obs.update(pos.time_boot_ms * 1e-3, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
+        self.vel_correction_ned = obs.correction
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""
@@ -458,6 +470,7 @@ class VehicleProtocol:
             return
         self.position = pos
         self.position_at = now
+        self._observe(pos)
         phase = self.phase
         if phase is Phase.TAKING_OFF:
             # Done within 5 % (at least 0.5 m): measured, 9.5 m of 10 m after 9.4 s.

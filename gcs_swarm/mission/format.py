@@ -47,6 +47,7 @@ from gcs_swarm.mission.model import (
     Signing,
     Startup,
     Vehicle,
+    VelocityBias,
 )
 
 __all__ = ["LAW_SOURCES", "LINK_SCHEMES", "MISSION", "check_link"]
@@ -55,6 +56,7 @@ _EMU = Emulator()
 _IMP = Impairments()
 _ST = Startup()
 _FS = Failsafe()
+_VB = VelocityBias()
 _SET = Settings(name="")
 
 LINK_SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
@@ -286,6 +288,36 @@ SETTINGS = Obj(
             "MAVLink 2 message signing, both ways: where the key is (never the key itself)",
         ),
         Key("failsafe", FAILSAFE, Failsafe, "what the station sets on each vehicle itself"),
+        Key(
+            "velocity_bias",
+            Obj(
+                name="velocity_bias",
+                cls=VelocityBias,
+                keys=(
+                    Key(
+                        "correct",
+                        Bool(),
+                        _VB.correct,
+                        "take the estimated bias out of the velocity the law damps (Eq. 1)",
+                    ),
+                    Key(
+                        "window",
+                        Num(lo=1.0, hi=600.0),
+                        _VB.window,
+                        "seconds of each vehicle's telemetry per estimate [s]",
+                    ),
+                    Key(
+                        "max",
+                        Num(lo=0.0, hi=5.0),
+                        _VB.max,
+                        "largest bias applied; a longer estimate is held here and reported [m/s]",
+                    ),
+                ),
+            ),
+            VelocityBias,
+            "a constant bias in the reported velocity, estimated from the positions "
+            "(docs/velocity-bias.md)",
+        ),
     ),
 )
 
@@ -424,6 +456,13 @@ EMULATOR = Obj(
         Key("ekf_ready_delay", NonNeg(), _EMU.ekf_ready_delay, "arming refused this long [s]"),
         Key("noise_pos", NonNeg(), _EMU.noise_pos, "std of position noise on telemetry [m]"),
         Key("noise_vel", NonNeg(), _EMU.noise_vel, "std of velocity noise on telemetry [m/s]"),
+        Key(
+            "velocity_bias_ned",
+            Vec3("[north, east, down] m/s"),
+            None,
+            "constant added to every reported velocity; absent: ArduCopter SITL's figure "
+            "for ardupilot-like, none for ideal",
+        ),
         Key("ground", Num(), _EMU.ground, "mission-frame z of the sim vehicles' homes [m]"),
         Key("origin_spread", NonNeg(), _EMU.origin_spread, "east spacing of default homes [m]"),
         Key(

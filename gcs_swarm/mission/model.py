@@ -37,6 +37,7 @@ __all__ = [
     "Spawn",
     "Startup",
     "Vehicle",
+    "VelocityBias",
     "enu_offset_m",
     "geodetic_at",
 ]
@@ -111,6 +112,19 @@ class Startup:
 
 
 @dataclass(frozen=True)
+class VelocityBias:
+    """The ``mission.velocity_bias`` block (docs/velocity-bias.md): estimate a
+    constant bias in each vehicle's reported velocity from its own positions
+    over ``window`` [s] of telemetry and, with ``correct``, take it out of the
+    velocity the law damps (Eq. 1); estimates longer than ``max`` [m/s] are
+    held at ``max`` and reported."""
+
+    correct: bool = True
+    window: float = 10.0
+    max: float = 0.3
+
+
+@dataclass(frozen=True)
 class Failsafe:
     """The ``mission.failsafe`` block: what the station sets on each vehicle
     itself, so that a vehicle that loses the station comes down on its own
@@ -158,7 +172,8 @@ class Settings:
     delay_compensation: predict each vehicle's state to the time its setpoint
     will land, from TIMESYNC round trips (for real-time radio links);
     signing: where the MAVLink 2 signing key is (None: no signing);
-    failsafe: what the station sets on the vehicles themselves.
+    failsafe: what the station sets on the vehicles themselves;
+    velocity_bias: the reported velocity's bias, estimated and corrected.
     """
 
     name: str
@@ -172,6 +187,7 @@ class Settings:
     startup: Startup = field(default_factory=Startup)
     signing: Signing | None = None
     failsafe: Failsafe = field(default_factory=Failsafe)
+    velocity_bias: VelocityBias = field(default_factory=VelocityBias)
 
 
 @dataclass(frozen=True)
@@ -228,7 +244,10 @@ class Emulator:
     the default homes (like SITL instances 5 m apart); accel_max [m/s^2]
     the emulator's clamp on the commanded acceleration (``None``: the
     emulator's own default, SIM_ACC_MAX); noise_pos [m] and noise_vel [m/s]
-    standard deviations of seeded noise on LOCAL_POSITION_NED; spawn:
+    standard deviations of seeded noise on LOCAL_POSITION_NED;
+    velocity_bias_ned [m/s] a constant added to every reported velocity
+    (``None``: the preset's, ArduCopter SITL's figure for ardupilot-like,
+    none for ideal; docs/velocity-bias.md); spawn:
     ``ground`` (landed at home, full start-up) or ``air`` (armed, GUIDED,
     hovering at the start position); host and base_port: where the
     endpoints bind (port ``base_port + 10 k`` for the k-th sim vehicle, like
@@ -244,6 +263,7 @@ class Emulator:
     ekf_ready_delay: float = 2.0
     noise_pos: float = 0.0
     noise_vel: float = 0.0
+    velocity_bias_ned: tuple[float, float, float] | None = None
     ground: float = -20.0
     origin_spread: float = 5.0
     spawn: Spawn = "ground"

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from gcs_swarm.control.params import LawConfig, Vec3
+from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.states import ProtocolConfig
@@ -56,6 +57,8 @@ class StationConfig:
     over the commands in flight (the emulator's SIM_ACC_MAX default)."""
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
+    velocity_bias: BiasSettings = field(default_factory=BiasSettings)
+    """The reported velocity's bias: estimated, and corrected (docs/velocity-bias.md)."""
 
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(
@@ -67,4 +70,5 @@ class StationConfig:
             stale_timeout_s=self.stale_timeout_s,
             end_mode=self.end_mode,
             mission_origin=self.mission_origin,
+            velocity_bias=self.velocity_bias,
         )

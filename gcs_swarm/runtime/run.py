@@ -24,6 +24,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
@@ -170,6 +171,11 @@ def station_config(
         events=tuple((e.t, e.action, e.sysid) for e in mission.events),
         lockstep=lockstep,
         delay_compensation=s.delay_compensation,
+        velocity_bias=BiasSettings(
+            correct=s.velocity_bias.correct,
+            window_s=s.velocity_bias.window,
+            max_mps=s.velocity_bias.max,
+        ),
         signing_key=signing_key(mission),
     )
 
@@ -231,6 +237,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
         ekf_ready_s=em.ekf_ready_delay,
         noise_pos_m=em.noise_pos,
         noise_vel_m_s=em.noise_vel,
+        vel_bias_ned_m_s=em.velocity_bias_ned,
         base_port=0 if em.shared else em.base_port,
         shared_port=em.base_port if em.shared else None,
         params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},
@@ -411,6 +418,14 @@ async def _write_run_report(
             "unknown_sysid_messages": summary.unknown_sysid_messages,
             "spoofed": summary.spoofed,
             "signature_rejected": summary.signature_rejected,
+        },
+        "velocity_bias": {
+            str(v.sysid): {
+                "estimate_ned_mps": list(v.velocity_bias_ned_mps),
+                "corrected": v.velocity_bias_corrected,
+                "at_cap": v.velocity_bias_saturated,
+            }
+            for v in summary.vehicles
         },
     }
     from gcs_swarm.report.artefacts import write_report

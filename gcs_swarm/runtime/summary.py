@@ -24,7 +24,9 @@ class VehicleSummary:
     """One vehicle at the end: its phase and Copter mode, position [m] and
     radius to the leader [m] at the last control step (None if it was not
     flying then), the last acceleration the station commanded [m/s^2, NED]
-    (zero after a clean ending), and why it failed or was lost, if it did."""
+    (zero after a clean ending), and why it failed or was lost, if it did;
+    the bias estimated in its reported velocity [m/s, NED] (docs/velocity-bias.md),
+    whether it was corrected, and whether the estimate hit ``velocity_bias.max``."""
 
     sysid: int
     phase: str
@@ -33,6 +35,9 @@ class VehicleSummary:
     radius_m: float | None
     last_accel_ned_mps2: Vec3
     failure: str | None
+    velocity_bias_ned_mps: Vec3 = (0.0, 0.0, 0.0)
+    velocity_bias_corrected: bool = False
+    velocity_bias_saturated: bool = False
 
 
 @dataclass(frozen=True)
@@ -85,6 +90,9 @@ class RunSummary:
                     float(vp.last_accel_ned[2]),
                 ),
                 failure=vp.failure,
+                velocity_bias_ned_mps=vp.velocity_bias.bias,
+                velocity_bias_corrected=vp.velocity_bias.settings.correct,
+                velocity_bias_saturated=vp.velocity_bias.saturated,
             )
             for s, vp in sorted(station.vehicles.items())
         )
@@ -146,7 +154,13 @@ class RunSummary:
                 xyz = ", ".join(f"{c:.3f}" for c in v.position_m)
                 where = f"at ({xyz}) m, radius {v.radius_m:.4f} m"
             why = f" [{v.failure}]" if v.failure else ""
-            lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{why}")
+            b = v.velocity_bias_ned_mps
+            bias = ""
+            if any(b):
+                how = "corrected" if v.velocity_bias_corrected else "not corrected"
+                cap = ", at its cap" if v.velocity_bias_saturated else ""
+                bias = f", velocity bias ({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f}) m/s {how}{cap}"
+            lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{bias}{why}")
         lines.append(
             f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
             f"and {self.messages_dropped} messages dropped, {self.bad_packets} bad packets, "
