@@ -139,9 +139,11 @@ class Emulator:
             for spec in cfg.vehicles:
                 await self._add(spec, initial=True)
             self._clock_task = self._tg.create_task(self._clock())
-        except BaseException as exc:
+        except BaseException:
+            # No task runs yet (the clock starts last): close what was opened
+            # and let the error out as it is (an OSError, not an ExceptionGroup).
             self._close_all()
-            await self._tg.__aexit__(type(exc), exc, exc.__traceback__)
+            await self._tg.__aexit__(None, None, None)
             raise
         return self
 

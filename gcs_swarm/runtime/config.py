@@ -56,6 +56,9 @@ class StationConfig:
     over the commands in flight (the emulator's SIM_ACC_MAX default)."""
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
+    allow_rebind: bool = False
+    """A well-signed new address may take over a vehicle silent for
+    ``links.REBIND_S`` (needs ``signing_key``; ``mission.signing.allow_rebind``)."""
 
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(
