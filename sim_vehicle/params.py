@@ -55,6 +55,12 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_ACC_SHAPE": (1, _I8, "1: jerk and lean limits (Eqs. D5-D6) on the command; 0 ideal"),
     "SIM_NOISE_POS": (0.0, _R32, "m, std of noise added to LOCAL_POSITION_NED position"),
     "SIM_NOISE_VEL": (0.0, _R32, "m/s, std of noise added to LOCAL_POSITION_NED velocity"),
+    "SIM_LPN_MAX_HZ": (
+        0.0,
+        _R32,
+        "Hz, most LOCAL_POSITION_NED served whatever is asked (0: as asked; a router "
+        "lowering the stream rate, as MAVProxy's 4 Hz)",
+    ),
 }
 _NAMES = list(PARAM_TABLE)
 _INT_TYPES = (_I8, _I16, _I32)

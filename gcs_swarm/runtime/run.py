@@ -449,6 +449,10 @@ async def _write_run_report(
             "failure": summary.failure,
             "clipped_setpoints": summary.clipped_setpoints,
             "logging_error": summary.logging_error,
+            "telemetry_rate": {
+                str(v.sysid): {"min_hz": v.telemetry_rate_min_hz, "requests": v.rate_requests}
+                for v in summary.vehicles
+            },
         },
     }
     from gcs_swarm.report.artefacts import write_report

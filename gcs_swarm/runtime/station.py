@@ -323,6 +323,8 @@ class Station:
                 fresh[sysid] = pos.time_boot_ms
                 arrival[sysid] = rx_s
                 accepted += 1
+                if vp.outbound_waiting:  # the rate watch asked for the interval again
+                    self._service(vp, now)
         if accepted:
             self.reports_in += accepted
             self._maybe_step(now)
@@ -352,10 +354,11 @@ class Station:
             self.reports_in += 1
             self._arrival[sysid] = link.rx_time_s
             self._maybe_step(now)
-            if sysid in self._timers:
-                # Accepted telemetry in FLYING queues nothing, raises no event
-                # and only moves the protocol's deadlines later, so the armed
-                # (earlier) timer stands: ``_service`` would change nothing.
+            if sysid in self._timers and not vp.outbound_waiting:
+                # Accepted telemetry in FLYING queues nothing (but the rate
+                # watch's request), raises no event and only moves the
+                # protocol's deadlines later, so the armed (earlier) timer
+                # stands: ``_service`` would change nothing.
                 return
         self._service(vp, now)
 
@@ -654,6 +657,10 @@ class Station:
         drops = sum(link.stats.setpoints_dropped for link in self._links.values())
         if drops:
             parts.append(f"drops {drops}")
+        low = [f"{s}:{vp.telemetry_rate_hz:.1f}Hz" for s, vp in sorted(self.vehicles.items())
+               if vp.rate_low and vp.telemetry_rate_hz is not None]  # fmt: skip
+        if low:
+            parts.append("low telemetry " + " ".join(low))
         clipped = self.clipped_setpoints()
         if clipped:
             parts.append(f"clipped setpoints {clipped}")

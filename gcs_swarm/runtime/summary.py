@@ -33,6 +33,10 @@ class VehicleSummary:
     radius_m: float | None
     last_accel_ned_mps2: Vec3
     failure: str | None
+    telemetry_rate_min_hz: float | None = None
+    """Lowest LOCAL_POSITION_NED rate over a 2 s window in flight (vehicle time)."""
+    rate_requests: int = 0
+    """Times the station asked for the mission rate again because it was low."""
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,10 @@ class RunSummary:
                     float(vp.last_accel_ned[2]),
                 ),
                 failure=vp.failure,
+                telemetry_rate_min_hz=(
+                    vp.telemetry_rate_min_hz if math.isfinite(vp.telemetry_rate_min_hz) else None
+                ),
+                rate_requests=vp.rate_requests,
             )
             for s, vp in sorted(station.vehicles.items())
         )
@@ -169,6 +177,9 @@ class RunSummary:
                 xyz = ", ".join(f"{c:.3f}" for c in v.position_m)
                 where = f"at ({xyz}) m, radius {v.radius_m:.4f} m"
             why = f" [{v.failure}]" if v.failure else ""
+            if v.rate_requests:
+                why += (f" [telemetry as low as {v.telemetry_rate_min_hz:.1f} Hz; "
+                        f"rate asked again {v.rate_requests} times]")  # fmt: skip
             lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{why}")
         lines.append(
             f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
