@@ -10,6 +10,7 @@ on 127.0.0.1; the station's own ``Link``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
 from typing import Any
 
@@ -51,7 +52,7 @@ def test_garbage_and_foreign_ids_from_many_ports_keep_no_state_and_get_no_heartb
                 assert addr is not None
                 strangers = []
                 for k in range(N_STRANGERS):
-                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    s = stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
                     s.bind(("127.0.0.1", 0))
                     s.setblocking(False)
                     # Garbage from most, a valid frame of a system id the link does
@@ -82,12 +83,11 @@ def test_garbage_and_foreign_ids_from_many_ports_keep_no_state_and_get_no_heartb
                     except BlockingIOError:
                         continue
                     raise AssertionError(f"a stranger got {data!r}")
-                for s in strangers:
-                    s.close()
                 vehicle.close()
                 assert link.stats.bad_packets >= N_STRANGERS * 9 // 10
 
-    asyncio.run(main())
+    with contextlib.ExitStack() as stack:  # every socket closed however the test ends
+        asyncio.run(main())
 
 
 def vehicle_name(transport: asyncio.DatagramTransport) -> str:

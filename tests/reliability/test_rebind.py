@@ -65,10 +65,10 @@ def test_a_silent_vehicle_is_never_handed_to_an_impostor() -> None:
     )
     links = {v.sysid: f"udpin:127.0.0.1:{port}" for v in mission.vehicles}
     marks: dict[str, Any] = {}
+    impostor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
     async def main() -> Any:
         async with asyncio.timeout(120), Emulator(cfg) as emu:
-            impostor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             impostor.bind(("127.0.0.1", 0))
             impostor.setblocking(False)
             stop = asyncio.Event()
@@ -99,10 +99,10 @@ def test_a_silent_vehicle_is_never_handed_to_an_impostor() -> None:
                     received.append(impostor.recv(65536))
                 except BlockingIOError:
                     break
-            impostor.close()
             return summary, received, emu.vehicle_state(2)
 
-    summary, received, state2 = asyncio.run(main())
+    with impostor:  # closed however the test ends
+        summary, received, state2 = asyncio.run(main())
     assert "back" in marks
     # Nothing at all went to the impostor: no command, no heartbeat.
     assert received == []

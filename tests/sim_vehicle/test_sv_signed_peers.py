@@ -15,6 +15,7 @@ hold one if it had been registered.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -32,7 +33,7 @@ def test_an_unsigned_radio_status_registers_no_peer_and_draws_no_telemetry() -> 
     async def main() -> tuple[list[int], int]:
         async with asyncio.timeout(20), Emulator(cfg) as emu:
             addr = emu.endpoints[1]
-            unsigned = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            unsigned = stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
             unsigned.bind(("127.0.0.1", 0))
             unsigned.setblocking(False)
             plain = mav.MAVLink(None, 77, 1)
@@ -40,7 +41,7 @@ def test_an_unsigned_radio_status_registers_no_peer_and_draws_no_telemetry() -> 
             for _ in range(5):
                 unsigned.sendto(bytes(radio), addr)
             # Then the genuine station, well signed.
-            good = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            good = stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
             good.bind(("127.0.0.1", 0))
             good.setblocking(False)
             signer = signing.mavlink(255, 190, KEY)
@@ -61,10 +62,9 @@ def test_an_unsigned_radio_status_registers_no_peer_and_draws_no_telemetry() -> 
                     stray += 1
                 except BlockingIOError:
                     break
-            unsigned.close()
-            good.close()
             return ids, stray
 
-    ids, stray = asyncio.run(main())
+    with contextlib.ExitStack() as stack:  # the sockets closed however the test ends
+        ids, stray = asyncio.run(main())
     assert mav.MAVLINK_MSG_ID_HEARTBEAT in ids
     assert stray == 0
