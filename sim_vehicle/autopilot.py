@@ -183,6 +183,9 @@ class Autopilot:
         if interval_s == 0.0:
             interval_s = 1.0 / commands.STREAMABLE[msgid]
         if msgid == LPN:
+            cap_hz = self.params["SIM_LPN_MAX_HZ"]
+            if interval_s > 0 and cap_hz > 0:
+                interval_s = max(interval_s, 1.0 / cap_hz)  # the router's rate wins
             self.lpn_interval_s = interval_s if interval_s > 0 else None
             self.lpn_kick = interval_s > 0
             self.version += 1

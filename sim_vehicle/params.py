@@ -58,6 +58,12 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_VBIAS_N": (0.0, _R32, "m/s, constant bias of the reported velocity, north"),
     "SIM_VBIAS_E": (0.0, _R32, "m/s, constant bias of the reported velocity, east"),
     "SIM_VBIAS_D": (0.0, _R32, "m/s, constant bias of the reported velocity, down"),
+    "SIM_LPN_MAX_HZ": (
+        0.0,
+        _R32,
+        "Hz, most LOCAL_POSITION_NED served whatever is asked (0: as asked; a router "
+        "lowering the stream rate, as MAVProxy's 4 Hz)",
+    ),
 }
 _NAMES = list(PARAM_TABLE)
 _INT_TYPES = (_I8, _I16, _I32)

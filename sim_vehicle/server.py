@@ -140,9 +140,11 @@ class Emulator:
             for spec in cfg.vehicles:
                 await self._add(spec, initial=True)
             self._clock_task = self._tg.create_task(self._clock())
-        except BaseException as exc:
+        except BaseException:
+            # No task runs yet (the clock starts last): close what was opened
+            # and let the error out as it is (an OSError, not an ExceptionGroup).
             self._close_all()
-            await self._tg.__aexit__(type(exc), exc, exc.__traceback__)
+            await self._tg.__aexit__(None, None, None)
             raise
         return self
 
@@ -462,7 +464,10 @@ class Emulator:
             self._wake.set()
         # Only a peer that sent one good (with signing: well-signed) frame is
         # served: garbage or forgeries from elsewhere never evict the station.
-        new_peer = bool(msgs) and addr not in ep.peers
+        # With signing, the unsigned frames the parser lets through (RADIO_STATUS,
+        # ArduPilot's exception) are heard but register nobody (issue 15).
+        good = bool(msgs) and (ep.signing_key is None or any(m.get_signed() for m in msgs))
+        new_peer = good and addr not in ep.peers
         if new_peer:
             ep.peers[addr] = None
             if len(ep.peers) > _MAX_PEERS:
@@ -479,7 +484,7 @@ class Emulator:
                 v = self._vehicles[ep.sysids[sysid]]
                 self._contact(v)
                 self._transmit(ep, [(self._pack(v, v.ap.heartbeat()), 0)], only=addr)
-        elif msgs and ep.out == addr and id(ep) not in self._out_heard:
+        elif good and ep.out == addr and id(ep) not in self._out_heard:
             # The fixed ``out`` peer is known from the start: its first good
             # frame is its contact (rule 1), or a lockstep clock would never start.
             self._out_heard.add(id(ep))

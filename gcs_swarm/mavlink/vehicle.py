@@ -90,6 +90,14 @@ multicopter, far inside float32, and above every figure of the paper."""
 
 FloatArray = npt.NDArray[np.float64]
 
+RATE_WINDOW_MS = 2000
+"""Telemetry-rate window [ms of the vehicle's own time_boot_ms] (issue 15)."""
+RATE_LOW_FRACTION = 0.8
+"""A window whose LOCAL_POSITION_NED rate is below this fraction of the
+mission rate is low: the interval is asked again (MAV_CMD_SET_MESSAGE_INTERVAL)."""
+RATE_WARN_WINDOWS = 2
+"""Consecutive low windows after which the rate "stays low": one warning."""
+
 _REBOOT_MS = 10_000
 """Telemetry older than the last by more than this is a reboot, not a reorder."""
 _FLYING = Phase.FLYING
@@ -140,6 +148,17 @@ class VehicleProtocol:
         self.vel_correction_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
         """Subtracted from the reported velocity before the law sees it."""
         self.params: dict[str, float] = {}
+        self.telemetry_rate_hz: float | None = None
+        """LOCAL_POSITION_NED per second of vehicle time over the last window, in flight."""
+        self.telemetry_rate_min_hz = math.inf
+        """Lowest windowed rate in flight [Hz] (inf before the first window)."""
+        self.rate_requests = 0
+        """SET_MESSAGE_INTERVAL re-sent in flight because the rate was low."""
+        self.rate_low = False
+        """The rate has stayed low for ``RATE_WARN_WINDOWS`` windows (until one is not)."""
+        self._rate_t0_ms: int | None = None
+        self._rate_n = 0
+        self._rate_lows = 0
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
         self._hb_at = -math.inf
         self._heard_at = -math.inf
@@ -269,6 +288,13 @@ class VehicleProtocol:
         if self.phase is not Phase.READY:
             raise RuntimeError(f"vehicle {self.sysid} is {self.phase.value}, not ready")
         self._set_phase(Phase.FLYING, now)
+        self._rate_t0_ms = None
+        self._rate_lows = 0
+
+    @property
+    def outbound_waiting(self) -> bool:
+        """Something is queued for ``take_outbound``."""
+        return bool(self._out)
 
     def accel_setpoint(self, accel_mps2: npt.ArrayLike) -> MessageSpec:
         """The SET_POSITION_TARGET_LOCAL_NED for a mission-frame acceleration [m/s^2].
@@ -379,12 +405,53 @@ class VehicleProtocol:
         self.position = pos
         self.position_at = now
         self._observe(pos)
+        self._count_report(pos.time_boot_ms)
         return True
 
     def _observe(self, pos: LocalPositionNed) -> None:
         obs = self.velocity_bias
         obs.update(pos.time_boot_ms * 1e-3, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
         self.vel_correction_ned = obs.correction
+
+    def _count_report(self, ms: int) -> None:
+        """Telemetry-rate watch in flight (issue 15): reports are counted over
+        windows of ``RATE_WINDOW_MS`` of the vehicle's own clock (so lockstep
+        and load do not matter). rate = reports after the window's first /
+        elapsed vehicle time. A low window asks for the mission rate again;
+        ``RATE_WARN_WINDOWS`` low ones in a row raise one warning."""
+        t0 = self._rate_t0_ms
+        if t0 is None or ms < t0:
+            self._rate_t0_ms, self._rate_n = ms, 0
+            return
+        self._rate_n += 1
+        if ms - t0 < RATE_WINDOW_MS:
+            return
+        rate = self._rate_n / ((ms - t0) * 1e-3)
+        self._rate_t0_ms, self._rate_n = ms, 0
+        self.telemetry_rate_hz = rate
+        self.telemetry_rate_min_hz = min(self.telemetry_rate_min_hz, rate)
+        want = self.config.control_rate_hz
+        if rate >= RATE_LOW_FRACTION * want:
+            if self.rate_low:
+                self._event("info", f"vehicle {self.sysid}: LOCAL_POSITION_NED back at "
+                                    f"{rate:.1f} Hz")  # fmt: skip
+            self.rate_low, self._rate_lows = False, 0
+            return
+        self._rate_lows += 1
+        self.rate_requests += 1
+        # Not awaited: asked again every low window (MAVProxy, for one, lowers
+        # the rate again every 15 s); the ACK, if any, matches no pending command.
+        self._out.append(
+            b.set_message_interval(self.sysid, self.compid, b.MSG_ID_LOCAL_POSITION_NED, 1 / want)
+        )
+        if self._rate_lows >= RATE_WARN_WINDOWS and not self.rate_low:
+            self.rate_low = True
+            self._event(
+                "warning",
+                f"vehicle {self.sysid}: LOCAL_POSITION_NED at {rate:.1f} Hz, below the mission "
+                f"rate {want:g} Hz for {self._rate_lows * RATE_WINDOW_MS / 1000:g} s; interval "
+                "asked again (a router lowering the stream rate?)",
+            )
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""
@@ -472,6 +539,8 @@ class VehicleProtocol:
         self.position_at = now
         self._observe(pos)
         phase = self.phase
+        if phase is Phase.FLYING:
+            self._count_report(pos.time_boot_ms)
         if phase is Phase.TAKING_OFF:
             # Done within 5 % (at least 0.5 m): measured, 9.5 m of 10 m after 9.4 s.
             if -pos.z >= self._takeoff_up_m - max(0.5, 0.05 * abs(self._takeoff_up_m)):

@@ -151,6 +151,13 @@ SIGNING = Obj(
             None,
             "environment variable holding the key as 64 hex digits",
         ),
+        Key(
+            "allow_rebind",
+            Bool(),
+            False,
+            "let a well-signed new address take over a vehicle silent for 5 s "
+            "(default: a system id stays bound to its first address for the run)",
+        ),
     ),
 )
 

@@ -153,11 +153,15 @@ class Signing:
     Exactly one of ``key_file`` (a path, relative to the mission file, holding
     the 32-byte key raw or as 64 hex digits) or ``key_env`` (the name of an
     environment variable holding 64 hex digits). The key itself is never in
-    the mission and never logged.
+    the mission and never logged. ``allow_rebind``: a vehicle silent for 5 s
+    may be taken over by a new address whose frames are well signed
+    (otherwise, and always without signing, a system id stays bound to the
+    address it was first heard from for the whole run).
     """
 
     key_file: str | None = None
     key_env: str | None = None
+    allow_rebind: bool = False
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ alone (given the mission file); ``write_simulation_report`` writes them for
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -143,9 +144,21 @@ def _clean(x: Any) -> Any:
 
 
 def write_json(summary: dict[str, Any], path: str | os.PathLike[str]) -> None:
-    """Write ``summary`` as indented JSON (no NaN or infinity)."""
-    text = json.dumps(_clean(summary), indent=2, allow_nan=False)
-    Path(path).write_text(text + "\n", encoding="utf-8")
+    """Write ``summary`` as indented JSON (no NaN or infinity), atomically:
+    into a temporary file beside ``path``, then renamed over it, so a full
+    disk leaves the old file (or none), never a truncated or empty one.
+    ``OSError`` if it cannot be written (the temporary file is removed)."""
+    text = json.dumps(_clean(summary), indent=2, allow_nan=False) + "\n"
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def write_report(

@@ -59,6 +59,9 @@ class StationConfig:
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
     velocity_bias: BiasSettings = field(default_factory=BiasSettings)
     """The reported velocity's bias: estimated, and corrected (docs/velocity-bias.md)."""
+    allow_rebind: bool = False
+    """A well-signed new address may take over a vehicle silent for
+    ``links.REBIND_S`` (needs ``signing_key``; ``mission.signing.allow_rebind``)."""
 
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(

@@ -14,11 +14,23 @@ One ``Codec`` per peer (sequence numbers and parser state). Outbound policy
   dropped and counted (commands are resent by the protocol on timeout).
 A ``Link`` is an ``async with`` lifetime owning one ``asyncio.TaskGroup``.
 
-Security (issue 9): a system id is bound to the peer it was first heard
-from; frames carrying that id from another peer are spoofing, counted in
-``LinkStats.spoofed`` and dropped, until the bound peer has been silent for
-``REBIND_S`` (a vehicle that rebooted onto a new port). With a
+Security (issues 9 and 15): a system id is bound to the peer it was first
+heard from, for the whole run. Frames carrying that id from another peer
+are spoofing: counted in ``LinkStats.spoofed`` and, per system id, in
+``rebinds_refused``, dropped, and reported once per vehicle (``on_notice``).
+The one exception (``allow_rebind``, the mission's
+``signing.allow_rebind``): on a signed link, once the bound peer has been
+silent for ``REBIND_S``, a peer whose frames carry a good signature may take
+the id over (a vehicle that rebooted onto a new port); this is reported
+too. Without signing a vehicle is never handed to a new address. With a
 ``signing_key`` every codec signs and checks MAVLink 2 signatures.
+
+Listening links (issue 15): a datagram from an unknown address is decoded
+by one shared codec and leaves nothing behind; the address gets its own
+codec (sequence numbers, parser) and the station's broadcasts (HEARTBEAT)
+only once it is bound to one of the link's ``sysids``, so garbage from any
+number of ports keeps no state and draws no reply. A peer that no longer
+speaks for any system id (rebound away) loses its codec.
 """
 
 from __future__ import annotations
@@ -28,8 +40,8 @@ import contextlib
 import logging
 import struct
 import time
-from collections import deque
-from collections.abc import Callable, Sequence
+from collections import Counter, deque
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Literal
@@ -64,7 +76,8 @@ stream, so several whole frames in one datagram are what it would read from
 a serial port; a lost datagram loses all of them, as it would the frames of
 a lost serial burst."""
 REBIND_S = 5.0
-"""Silence [s] of a system id's peer after which another peer may take it over."""
+"""Silence [s] of a system id's peer after which another, well-signed, peer
+may take it over when the link allows rebinding (signed links only)."""
 _RECONNECT_S = 1.0
 
 Peer = Any  # a UDP address tuple, or a TCP connection object
@@ -90,6 +103,12 @@ class _Udp(asyncio.DatagramProtocol):
         _log.debug("%s: %s", self._link.endpoint, exc)
 
 
+def _name(peer: Peer) -> str:
+    if isinstance(peer, tuple) and len(peer) >= 2:
+        return f"{peer[0]}:{peer[1]}"
+    return "tcp" if isinstance(peer, _Stream) else str(peer)
+
+
 @dataclass(eq=False)
 class _Stream:
     writer: asyncio.StreamWriter
@@ -106,12 +125,26 @@ class Link:
         on_frame: OnFrame | None = None,
         on_position: OnPosition | None = None,
         signing_key: bytes | None = None,
+        sysids: Collection[int] | None = None,
+        allow_rebind: bool = False,
+        on_notice: Callable[[str], None] | None = None,
     ) -> None:
         """``on_message`` gets every decoded message, except that with
         ``on_position`` the unsigned LOCAL_POSITION_NED frames go there as
-        lists of ``RawPosition`` tuples (the station's hot path)."""
+        lists of ``RawPosition`` tuples (the station's hot path).
+        ``sysids``: the system ids this link serves (None: any); only they
+        bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
+        only (module docstring). ``on_notice`` gets one line per refused or
+        accepted rebinding of a vehicle (the first refusal only)."""
         self.endpoint = parse_connection(connection)
         self._signing_key = signing_key
+        self._sysids = None if sysids is None else frozenset(sysids)
+        self._allow_rebind = allow_rebind and signing_key is not None
+        self._on_notice = on_notice
+        self.rebinds_refused: Counter[int] = Counter()
+        """Frames refused per system id because they came from another peer
+        than the one the id is bound to."""
+        self._stranger: Codec | None = None
         self._sig_streams: dict[tuple[int, int, int], int] = {}
         self._heard: dict[int, float] = {}
         self.stats = LinkStats()
@@ -360,8 +393,11 @@ class Link:
         self.rx_time_s = time.monotonic()
         codec = self._codecs.get(peer)
         if codec is None:
-            codec = self._codecs[peer] = self._codec()
-            self.stats.peers.add(str(peer if not isinstance(peer, _Stream) else "tcp"))
+            # An address not bound to any vehicle: the shared decoder, no state
+            # kept (``_bound`` gives it a codec once one of its frames binds it).
+            if self._stranger is None:
+                self._stranger = self._codec()
+            codec = self._stranger
         cs = codec.stats
         bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
         on_position = self._on_position
@@ -394,20 +430,50 @@ class Link:
         key = self._signing_key
         return Codec(signing_key=key, streams=self._sig_streams, unix_s=time.time())
 
+    @property
+    def peer_count(self) -> int:
+        """Peers this link keeps state for (a codec each)."""
+        return len(self._codecs)
+
     def _bound(self, sysid: int, peer: Peer) -> bool:
         """True if ``peer`` may speak for ``sysid`` (binding it on first contact),
-        at the arrival time of the bytes being decoded."""
+        at the arrival time of the bytes being decoded. A system id the link
+        does not serve binds nothing (the station counts and ignores it)."""
+        if self._sysids is not None and sysid not in self._sysids:
+            return True
         now = self.rx_time_s
         bound = self._routes.get(sysid)
-        if bound is not None and bound != peer and now - self._heard.get(sysid, now) < REBIND_S:
-            return False
-        self._routes[sysid] = peer
+        if bound is not None and bound != peer:
+            silent_s = now - self._heard.get(sysid, now)
+            if not (self._allow_rebind and silent_s >= REBIND_S):
+                self.rebinds_refused[sysid] += 1
+                if self.rebinds_refused[sysid] == 1 and self._on_notice is not None:
+                    self._on_notice(
+                        f"{self.endpoint}: frames of vehicle {sysid} from {_name(peer)} refused: "
+                        f"it is bound to {_name(bound)} for the run (silent {silent_s:.1f} s)"
+                    )
+                return False
+            if self._on_notice is not None:
+                self._on_notice(
+                    f"{self.endpoint}: vehicle {sysid} rebound from {_name(bound)} to "
+                    f"{_name(peer)} (signed, silent {silent_s:.1f} s; signing.allow_rebind)"
+                )
+            self._routes[sysid] = peer
+            if bound not in self._routes.values() and not isinstance(bound, _Stream):
+                self._codecs.pop(bound, None)  # speaks for nobody now: its state goes
+        elif bound is None:
+            self._routes[sysid] = peer
+        if peer not in self._codecs:
+            self._codecs[peer] = self._codec()
+            self.stats.peers.add(_name(peer))
+            self._wake.set()  # flush what was queued while nobody was connected
         self._heard[sysid] = now
         return True
 
     async def _read_stream(self, reader: asyncio.StreamReader, stream: _Stream) -> None:
         self._streams.append(stream)
         self._codecs[stream] = self._codec()
+        self.stats.peers.add("tcp")
         self._wake.set()  # flush what was queued while nobody was connected
         try:
             while data := await reader.read(65536):

@@ -17,6 +17,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import shutil
 import signal
 import sys
 import time
@@ -25,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gcs_swarm.control.velocity_bias import BiasSettings
-from gcs_swarm.errors import StartupError
+from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
 from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
@@ -47,6 +48,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "END_MODES",
+    "EXIT_CODES",
     "emulator_config",
     "param_settings",
     "run_command",
@@ -63,6 +65,10 @@ END_MODES = {
     "rtl": b.COPTER_MODES["RTL"],
 }
 """Mission end action -> ArduCopter mode (mavlink-protocol.md, "Ending")."""
+
+EXIT_CODES = {"completed": 0, "degraded": 1, "failed": 1, "startup failed": 2, "cancelled": 130}
+"""``gcs-swarm run``'s exit code per outcome (``Station.outcome``): only a
+run in which every vehicle that flew ended is 0."""
 
 
 LOCKSTEP_GROUND_SPEEDUP = 20.0
@@ -177,6 +183,7 @@ def station_config(
             max_mps=s.velocity_bias.max,
         ),
         signing_key=signing_key(mission),
+        allow_rebind=s.signing is not None and s.signing.allow_rebind,
     )
 
 
@@ -301,10 +308,17 @@ async def run_mission(
             on_folder(folder)
     station: Station | None = None
     outcome = "cancelled"
+
+    def log_failed(text: str) -> None:  # logging stopped: say so once, fly on
+        if station is not None:
+            station.warn(text)
+        else:
+            _log.warning("%s", text)
+
     try:
         async with contextlib.AsyncExitStack() as stack:
             if folder is not None:
-                tlog = await stack.enter_async_context(TlogWriter(folder.tlog))
+                tlog = await stack.enter_async_context(TlogWriter(folder.tlog, on_error=log_failed))
                 recorder = FlightRecorder(
                     name=mission.settings.name,
                     source="run",
@@ -316,7 +330,12 @@ async def run_mission(
                 )
             if sims:
                 cfg = emulator_config(mission, airborne=sim_airborne)
-                emu = await stack.enter_async_context(Emulator(cfg))
+                try:
+                    emu = await stack.enter_async_context(Emulator(cfg))
+                except OSError as err:  # e.g. emulator.host does not resolve, a port in use
+                    raise LinkError(
+                        f"bundled emulator on {cfg.host}: {err.strerror or err}"
+                    ) from None
                 for v in sims:
                     host, port = emu.endpoints[v.sysid]
                     given[v.sysid] = f"udpout:{host}:{port}"
@@ -333,6 +352,7 @@ async def run_mission(
                 )
             )
             end_mode: int | None = None
+            flew = False
             # What the gains ask of the vehicle: a whole-mission simulation (seconds),
             # so off the event loop, while the swarm is readied (heartbeats and the
             # vehicles' hold must not stall: their GCS failsafe waits only 5 s).
@@ -348,7 +368,9 @@ async def run_mission(
                     for line in demand_report(mission, envelope, demand=await demand):
                         station.warn(line)
                 await station.fly()
-                outcome = "completed"
+                flew = True
+                if station.failure is not None:
+                    end_mode = END_MODES["hold"]  # the law failed in flight: brake everyone
             except StartupError:
                 outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
                 raise
@@ -356,12 +378,21 @@ async def run_mission(
                 if demand is not None:
                     demand.cancel()  # not needed any more (its thread finishes alone)
                 await station.end(end_mode)
+            if flew:
+                outcome = station.outcome()
     finally:
+        if station is None and folder is not None:
+            # Nothing was flown or commanded (the links or the emulator did not
+            # open): no empty run folder is left behind.
+            shutil.rmtree(folder.path, ignore_errors=True)
         # After the station, the emulator and the log have closed: the summary's
         # counters and the flight record then cover every frame in the .tlog.
         if station is not None:
             summary = RunSummary.from_station(
-                station, outcome=outcome, wall_time_s=time.monotonic() - wall0
+                station,
+                outcome=outcome,
+                wall_time_s=time.monotonic() - wall0,
+                logging_error=None if tlog is None else tlog.error,
             )
             if folder is not None:
                 _write_vehicle_params(folder, station)
@@ -418,6 +449,17 @@ async def _write_run_report(
             "unknown_sysid_messages": summary.unknown_sysid_messages,
             "spoofed": summary.spoofed,
             "signature_rejected": summary.signature_rejected,
+            "rebinds_refused": summary.rebinds_refused,
+        },
+        # What only the live station knows (a replay of the .tlog cannot).
+        "station": {
+            "failure": summary.failure,
+            "clipped_setpoints": summary.clipped_setpoints,
+            "logging_error": summary.logging_error,
+            "telemetry_rate": {
+                str(v.sysid): {"min_hz": v.telemetry_rate_min_hz, "requests": v.rate_requests}
+                for v in summary.vehicles
+            },
         },
         "velocity_bias": {
             str(v.sysid): {
@@ -450,8 +492,9 @@ def _with_end_timeout(cfg: StationConfig, end_timeout_s: float) -> StationConfig
 def run_command(
     path: str, *, status: bool = True, log_dir: str | None = None, record: bool = True
 ) -> int:
-    """``gcs-swarm run PATH``: exit 0 when the mission completed, 130 when it
-    was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
+    """``gcs-swarm run PATH``: exit 0 when the mission completed (every vehicle
+    that flew ended), 1 when it failed or was degraded (``EXIT_CODES``), 130
+    when it was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
     for the command line to print as one line. With ``record`` the run
     folder goes under ``log_dir`` (default the mission's ``log.dir``)."""
     mission = load_mission(path)
@@ -503,7 +546,7 @@ async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
         print(f"run folder: {folder.path}", file=sys.stderr)
 
     try:
-        await run_mission(
+        summary = await run_mission(
             mission,
             on_status=show if status else None,
             on_summary=report,
@@ -515,4 +558,4 @@ async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
-    return 0
+    return EXIT_CODES.get(summary.outcome, 1)

@@ -17,7 +17,13 @@
   its event, so that the join happens at the mission's time; a vehicle leaves
   on its event, or when its protocol reports it LOST or FAILED; the law simply
   gets the current set (formation-law.md s9). A lost vehicle that comes back
-  is readied again and rejoins at its slot.
+  is readied again and rejoins at its slot;
+- ending (issue 15): the mission time reached, or nobody left flying (after
+  ``stale_timeout_s``, or ``ready_timeout_s`` while a vehicle is being
+  readied to rejoin), or a failure of the law in flight (an expression that
+  fails, a non-finite leader state): then ``failure`` says why, no setpoint
+  of that step goes out, and the caller brakes everyone. ``outcome()``
+  judges the run honestly once it is ended.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import Envelope
-from gcs_swarm.errors import StartupError
+from gcs_swarm.errors import StartupError, SwarmError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.batch import accel_ned, mission_states
 from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
@@ -61,6 +67,12 @@ _READYING = frozenset(
     {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
      Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
 )  # fmt: skip
+
+
+LEADER_BOUND = 1.0e7
+"""Largest leader coordinate [m] or velocity component [m/s] taken as finite:
+beyond the Earth's size the mission's flat local frame means nothing, and
+the law's squares of such numbers overflow."""
 
 
 class Station:
@@ -121,6 +133,9 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._idle_since: float | None = None
+        self._idle_check: asyncio.TimerHandle | None = None
+        self.failure: str | None = None
+        """Why the law could not go on in flight (the mission then ends as failed)."""
         self._froze = False
         self.delay: DelayCompensator | None = None
         if config.delay_compensation and not config.lockstep:
@@ -135,9 +150,12 @@ class Station:
             for plan in self.config.vehicles:
                 link = self._links.get(plan.link)
                 if link is None:
+                    served = [p.sysid for p in self.config.vehicles if p.link == plan.link]
                     link = Link(plan.link, self._on_message, on_frame=self._on_frame,
                                 on_position=self._on_positions,
-                                signing_key=self.config.signing_key)  # fmt: skip
+                                signing_key=self.config.signing_key, sysids=served,
+                                allow_rebind=self.config.allow_rebind,
+                                on_notice=self.warn)  # fmt: skip
                     self._links[plan.link] = await self._stack.enter_async_context(link)
                     link = self._links[plan.link]
                 self._link_of[plan.sysid] = link
@@ -162,6 +180,8 @@ class Station:
             handle.cancel()
         if self._fallback is not None:
             self._fallback.cancel()
+        if self._idle_check is not None:
+            self._idle_check.cancel()
         try:
             await close_task_group(self._tg, self._tasks, et, ev, tb)
         finally:
@@ -303,6 +323,8 @@ class Station:
                 fresh[sysid] = pos.time_boot_ms
                 arrival[sysid] = rx_s
                 accepted += 1
+                if vp.outbound_waiting:  # the rate watch asked for the interval again
+                    self._service(vp, now)
         if accepted:
             self.reports_in += accepted
             self._maybe_step(now)
@@ -332,10 +354,11 @@ class Station:
             self.reports_in += 1
             self._arrival[sysid] = link.rx_time_s
             self._maybe_step(now)
-            if sysid in self._timers:
-                # Accepted telemetry in FLYING queues nothing, raises no event
-                # and only moves the protocol's deadlines later, so the armed
-                # (earlier) timer stands: ``_service`` would change nothing.
+            if sysid in self._timers and not vp.outbound_waiting:
+                # Accepted telemetry in FLYING queues nothing (but the rate
+                # watch's request), raises no event and only moves the
+                # protocol's deadlines later, so the armed (earlier) timer
+                # stands: ``_service`` would change nothing.
                 return
         self._service(vp, now)
 
@@ -373,6 +396,8 @@ class Station:
             self._note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
                        f"{len(self.flying)} re-form")  # fmt: skip
             self._maybe_step(now)
+            if not self.flying:
+                self._check_alive()
         elif vp.phase is Phase.READY and self.started and not self.ending:
             if sysid in self.members:
                 self._join(vp, now)
@@ -415,7 +440,7 @@ class Station:
 
     # --------------------------------------------------------- control loop
     def _maybe_step(self, now: float) -> None:
-        if not self.started or self.ending or not self._fresh:
+        if not self.started or self.ending or not self._fresh or self.failure is not None:
             return
         # _fresh holds flying vehicles only (a vehicle leaving is popped), so the
         # subset test runs once per step, not once per report.
@@ -450,7 +475,18 @@ class Station:
                     if last is not None:
                         t_s = last.time_boot_ms * 1e-3
                         pos[i], vel[i] = self.delay.predict(s, t_s, now, pos[i], vel[i])
-            out, accel, report = self.control.command(ids, pos, vel)
+            try:
+                # Overflow is judged below, on the leader (and counted, on the setpoints).
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    out, accel, report = self.control.command(ids, pos, vel)
+            except (SwarmError, ArithmeticError, ValueError) as err:
+                self._abort(f"t={t:.2f} s: the law failed in flight: {err}")
+                return
+            lead = (out.leader_pos_m, out.leader_vel_mps)
+            if not all((np.abs(x) <= LEADER_BOUND).all() for x in lead):  # NaN fails too
+                self._abort(f"t={t:.2f} s: the virtual leader's state is not finite (position "
+                            f"{lead[0].tolist()} m, velocity {lead[1].tolist()} m/s)")  # fmt: skip
+                return
             if out.event is not None:
                 what = "starts" if out.event == "start" else "ends: formation resumes"
                 self._note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
@@ -473,6 +509,24 @@ class Station:
         if t >= self.config.duration_s:
             self._note(f"mission time {t:.2f} s reached the duration")
             self._finished.set()
+
+    def _abort(self, why: str) -> None:
+        """End the mission now, as failed: no setpoint of this step goes out;
+        the caller ends every vehicle (``end``, braking)."""
+        if self.failure is None:
+            self.failure = why
+            self._note(f"{why}; ending the mission (failed)", level=logging.ERROR)
+        self._finished.set()
+
+    def outcome(self) -> str:
+        """The run's outcome once ``end()`` has returned: ``failed`` when the
+        law failed in flight or every vehicle that flew was lost (or failed,
+        or never confirmed its end action); ``degraded`` when some were;
+        ``completed`` when every vehicle that flew ended."""
+        gone = [s for s in self.flown if self.vehicles[s].phase is not Phase.ENDED]
+        if self.failure is not None or (self.flown and len(gone) == len(self.flown)):
+            return "failed"
+        return "degraded" if gone else "completed"
 
     def _answer(self, sysids: list[int], accel: FloatArray, now: float) -> None:
         """Write one acceleration setpoint (mission frame ``accel (K, 3)``) to
@@ -552,16 +606,24 @@ class Station:
             self._check_alive()
 
     def _check_alive(self) -> None:
-        """End a started mission once nobody has flown for ``ready_timeout_s``."""
+        """End a started mission once nobody has flown for ``stale_timeout_s``
+        (``ready_timeout_s`` while a member is being readied to rejoin)."""
+        if self._idle_check is not None:
+            self._idle_check.cancel()
+            self._idle_check = None
         if not self.started or self.ending or self.flying:
             self._idle_since = None
             return
         now = self.now()
         if self._idle_since is None:
             self._idle_since = now
-        elif now - self._idle_since >= self.config.ready_timeout_s:
+        coming = any(self.vehicles[s].phase in _READYING for s in self.members)
+        wait = self.config.ready_timeout_s if coming else self.config.stale_timeout_s
+        if now - self._idle_since >= wait:
             self._note("no vehicle left in the formation; ending", level=logging.WARNING)
             self._finished.set()
+        elif self._loop is not None:
+            self._idle_check = self._loop.call_at(self._idle_since + wait, self._check_alive)
 
     def status_line(self) -> str:
         """One line with the run's figures as they evolve: mission time, control
@@ -595,7 +657,29 @@ class Station:
         drops = sum(link.stats.setpoints_dropped for link in self._links.values())
         if drops:
             parts.append(f"drops {drops}")
+        low = [f"{s}:{vp.telemetry_rate_hz:.1f}Hz" for s, vp in sorted(self.vehicles.items())
+               if vp.rate_low and vp.telemetry_rate_hz is not None]  # fmt: skip
+        if low:
+            parts.append("low telemetry " + " ".join(low))
+        clipped = self.clipped_setpoints()
+        if clipped:
+            parts.append(f"clipped setpoints {clipped}")
+        refused = self.rebinds_refused()
+        if refused:
+            parts.append("rebind refused " + " ".join(f"{s}:{n}" for s, n in refused.items()))
         return " | ".join(parts)
+
+    def clipped_setpoints(self) -> int:
+        """Setpoints scaled down to the ceiling or zeroed (non-finite), all vehicles."""
+        return sum(vp.clipped_setpoints for vp in self.vehicles.values())
+
+    def rebinds_refused(self) -> dict[int, int]:
+        """Frames refused per vehicle because they came from another address
+        than the one it is bound to (``Link.rebinds_refused``), by system id."""
+        total: Counter[int] = Counter()
+        for link in self._links.values():
+            total.update(link.rebinds_refused)
+        return dict(sorted(total.items()))
 
     # ---------------------------------------------------------------- misc
     async def _wait_change(self) -> None:

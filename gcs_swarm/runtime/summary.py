@@ -38,11 +38,18 @@ class VehicleSummary:
     velocity_bias_ned_mps: Vec3 = (0.0, 0.0, 0.0)
     velocity_bias_corrected: bool = False
     velocity_bias_saturated: bool = False
+    telemetry_rate_min_hz: float | None = None
+    """Lowest LOCAL_POSITION_NED rate over a 2 s window in flight (vehicle time)."""
+    rate_requests: int = 0
+    """Times the station asked for the mission rate again because it was low."""
 
 
 @dataclass(frozen=True)
 class RunSummary:
-    """The run in numbers. ``outcome``: completed, cancelled, startup failed.
+    """The run in numbers. ``outcome`` (``Station.outcome``): completed (every
+    vehicle that flew ended), degraded (some were lost, failed or never
+    confirmed their end action), failed (all of them, or the law failed in
+    flight: ``failure``), cancelled, startup failed.
     Separation and clearance [m] are minima over the control steps (``inf``
     when not applicable); ``episodes`` counts avoidance episodes."""
 
@@ -68,9 +75,24 @@ class RunSummary:
     start_tolerance_m: float = 0.3
     start_speed_tolerance_mps: float = 0.3
     """What "at its start" meant at start-up (``mission.startup``)."""
+    clipped_setpoints: int = 0
+    """Setpoints scaled down to the ceiling, or zeroed (non-finite)."""
+    rebinds_refused: dict[int, int] | None = None
+    """Frames refused per vehicle: from another address than its bound one."""
+    failure: str | None = None
+    """Why the mission ended as failed in flight (the law failed), if it did."""
+    logging_error: str | None = None
+    """Why the run's log stopped (a write error), if it did."""
 
     @classmethod
-    def from_station(cls, station: Station, *, outcome: str, wall_time_s: float) -> RunSummary:
+    def from_station(
+        cls,
+        station: Station,
+        *,
+        outcome: str,
+        wall_time_s: float,
+        logging_error: str | None = None,
+    ) -> RunSummary:
         last = station.control.last
         at: dict[int, tuple[Vec3, float]] = {}
         if last is not None:
@@ -93,6 +115,10 @@ class RunSummary:
                 velocity_bias_ned_mps=vp.velocity_bias.bias,
                 velocity_bias_corrected=vp.velocity_bias.settings.correct,
                 velocity_bias_saturated=vp.velocity_bias.saturated,
+                telemetry_rate_min_hz=(
+                    vp.telemetry_rate_min_hz if math.isfinite(vp.telemetry_rate_min_hz) else None
+                ),
+                rate_requests=vp.rate_requests,
             )
             for s, vp in sorted(station.vehicles.items())
         )
@@ -125,6 +151,10 @@ class RunSummary:
             log=tuple(station.log),
             start_tolerance_m=station.config.start_tolerance_m,
             start_speed_tolerance_mps=station.config.start_speed_tolerance_mps,
+            clipped_setpoints=station.clipped_setpoints(),
+            rebinds_refused=station.rebinds_refused(),
+            failure=station.failure,
+            logging_error=logging_error,
         )
 
     def positions(self) -> dict[int, npt.NDArray[np.float64]]:
@@ -134,8 +164,9 @@ class RunSummary:
     def format(self) -> str:
         """A human-readable multi-line summary."""
         sep = f"{self.min_separation_m:.3f} m" if math.isfinite(self.min_separation_m) else "-"
+        why = f" ({self.failure})" if self.failure else ""
         lines = [
-            f"outcome: {self.outcome}; mission time {self.mission_time_s:.2f} s in "
+            f"outcome: {self.outcome}{why}; mission time {self.mission_time_s:.2f} s in "
             f"{self.wall_time_s:.1f} s wall, {self.steps} control steps",
             f"leader at ({', '.join(f'{c:.3f}' for c in self.leader_pos_m)}) m, "
             f"behaviour {self.behaviour}, minimum separation {sep}",
@@ -160,6 +191,9 @@ class RunSummary:
                 how = "corrected" if v.velocity_bias_corrected else "not corrected"
                 cap = ", at its cap" if v.velocity_bias_saturated else ""
                 bias = f", velocity bias ({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f}) m/s {how}{cap}"
+            if v.rate_requests:
+                why += (f" [telemetry as low as {v.telemetry_rate_min_hz:.1f} Hz; "
+                        f"rate asked again {v.rate_requests} times]")  # fmt: skip
             lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{bias}{why}")
         lines.append(
             f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
@@ -167,5 +201,14 @@ class RunSummary:
             f"{self.unknown_sysid_messages} from unknown systems, {self.spoofed} spoofed, "
             f"{self.signature_rejected} with bad signatures"
         )
+        if self.rebinds_refused:
+            who = ", ".join(f"vehicle {s}: {n}" for s, n in self.rebinds_refused.items())
+            lines.append(f"frames refused from another address than the vehicle's: {who}")
+        if self.clipped_setpoints:
+            lines.append(
+                f"setpoints clipped to the ceiling or zeroed (non-finite): {self.clipped_setpoints}"
+            )
+        if self.logging_error:
+            lines.append(f"logging: {self.logging_error}")
         lines.append(self.safety)
         return "\n".join(lines)

@@ -10,7 +10,11 @@ signature if signed). There is no file header and no direction flag.
 appends to an in-memory buffer bounded by ``max_buffer_bytes`` (a frame that
 does not fit is dropped and counted in ``stats.dropped_frames``); the buffer
 is handed to a worker thread once it holds ``flush_bytes`` or every
-``flush_interval_s``, and the file is flushed after each hand-over. As an
+``flush_interval_s``, and the file is flushed after each hand-over. Logging
+never ends a flight (issue 15): the first error opening or writing the file
+(ENOSPC, EFBIG, EIO...) stops the log; it is kept in ``error``, logged once
+as a warning and handed once to ``on_error``; every later frame is dropped
+and counted. As an
 ``async with`` lifetime it owns one ``asyncio.TaskGroup`` (the flusher); a
 plain ``with`` (tools, tests, no event loop) writes synchronously at the
 same thresholds. Closing writes everything still buffered.
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import struct
 import threading
@@ -50,6 +55,8 @@ __all__ = [
     "frame_header",
     "read_tlog",
 ]
+
+_log = logging.getLogger("gcs_swarm.tlog")
 
 STATION_SYSID = 255
 """Source system id of the ground station (mavlink-protocol.md, Identity)."""
@@ -113,6 +120,7 @@ class WriterStats:
     bytes: int = 0
     dropped_frames: int = 0
     flushes: int = 0
+    write_errors: int = 0
 
 
 class TlogWriter:
@@ -130,6 +138,7 @@ class TlogWriter:
         flush_interval_s: float = 1.0,
         max_buffer_bytes: int = 4 * 1024 * 1024,
         clock: Callable[[], float] = time.time,
+        on_error: Callable[[str], None] | None = None,
     ) -> None:
         if not 0 < flush_bytes <= max_buffer_bytes:
             raise ValueError("need 0 < flush_bytes <= max_buffer_bytes")
@@ -138,6 +147,10 @@ class TlogWriter:
         self.flush_interval_s = flush_interval_s
         self.max_buffer_bytes = max_buffer_bytes
         self.stats = WriterStats()
+        self.error: str | None = None
+        """Why logging stopped (the first open or write error), else None."""
+        self._on_error = on_error
+        self._reported = False
         self._clock = clock
         self._buf = bytearray()
         self._file: BinaryIO | None = None
@@ -154,7 +167,12 @@ class TlogWriter:
         """Append one raw frame; False (and counted) if the buffer is full or
         the writer is closed. Never blocks in an ``async with`` lifetime."""
         need = 8 + len(frame)
-        if self._file is None or self._closed or len(self._buf) + need > self.max_buffer_bytes:
+        if (
+            self._file is None
+            or self._closed
+            or self.error is not None
+            or len(self._buf) + need > self.max_buffer_bytes
+        ):
             self.stats.dropped_frames += 1
             return False
         stamp = int(self._clock() * 1e6) if t_us is None else int(t_us)
@@ -167,6 +185,7 @@ class TlogWriter:
                 self._wake.set()
             else:
                 self._write_out(self._take())
+                self._report()
         return True
 
     @property
@@ -179,38 +198,72 @@ class TlogWriter:
         return chunk
 
     def _write_out(self, chunk: bytes) -> None:
-        """Write ``chunk`` and flush the file (runs in a worker thread when async)."""
-        if not chunk:
+        """Write ``chunk`` and flush the file (runs in a worker thread when async);
+        an error stops the log (``_stop``) instead of propagating."""
+        if not chunk or self.error is not None:
             return
         with self._io_lock:
-            assert self._file is not None
-            self._file.write(chunk)
-            self._file.flush()
+            if self._file is None:
+                return
+            try:
+                self._file.write(chunk)
+                self._file.flush()
+            except OSError as err:
+                self._stop(err)
+                return
         self.stats.flushes += 1
 
+    def _stop(self, err: OSError) -> None:
+        """The first write error: logging stops here, the flight goes on."""
+        self.stats.write_errors += 1
+        if self.error is None:
+            self.error = f"{self.path}: {err.strerror or err}; logging stopped, flying on"
+            _log.warning("%s", self.error)
+        file, self._file = self._file, None
+        if file is not None:
+            with contextlib.suppress(OSError):  # its buffer cannot be written either
+                file.close()
+
+    def _report(self) -> None:
+        """Hand the error to ``on_error`` once (on the caller's thread)."""
+        if self.error is not None and not self._reported:
+            self._reported = True
+            if self._on_error is not None:
+                self._on_error(self.error)
+
     def _open(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.path, "ab")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "ab")
+        except OSError as err:
+            self._stop(err)
 
     def _close_file(self) -> None:
         self._write_out(self._take())
         self._closed = True
-        if self._file is not None:
-            self._file.close()
+        file, self._file = self._file, None
+        if file is not None:
+            try:
+                file.close()
+            except OSError as err:
+                self._stop(err)
 
     # ------------------------------------------------------- sync lifetime
     def __enter__(self) -> TlogWriter:
         self._open()
+        self._report()
         return self
 
     def __exit__(
         self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
     ) -> None:
         self._close_file()
+        self._report()
 
     # ------------------------------------------------------ async lifetime
     async def __aenter__(self) -> TlogWriter:
         await asyncio.to_thread(self._open)
+        self._report()
         self._wake = asyncio.Event()
         self._flushed = asyncio.Event()
         self._tg = asyncio.TaskGroup()
@@ -234,6 +287,7 @@ class TlogWriter:
             if self._inflight is not None:
                 await asyncio.shield(self._inflight)
             await asyncio.shield(asyncio.to_thread(self._close_file))
+            self._report()
 
     async def flush(self) -> None:
         """Write everything buffered so far to the file now (in a worker
@@ -245,6 +299,7 @@ class TlogWriter:
             self._inflight = asyncio.ensure_future(asyncio.to_thread(self._write_out, chunk))
             await asyncio.shield(self._inflight)
             self._inflight = None
+            self._report()
 
     async def next_flush(self) -> None:
         """Wait until the background flusher has written its next chunk."""
@@ -267,6 +322,7 @@ class TlogWriter:
                 self._inflight = asyncio.ensure_future(asyncio.to_thread(self._write_out, chunk))
                 await asyncio.shield(self._inflight)
                 self._inflight = None
+                self._report()
                 assert self._flushed is not None
                 self._flushed.set()
 

@@ -31,7 +31,7 @@ FLY_S = 30.0
 
 # Keys only the live run can know (wall time, link counters) or that say
 # where the record came from; everything else must agree.
-LIVE_ONLY = {"outcome", "wall_time_s", "links", "source", "log", "startup"}
+LIVE_ONLY = {"outcome", "wall_time_s", "links", "source", "log", "startup", "station"}
 
 
 def _mission() -> Mission:

@@ -172,10 +172,16 @@ def test_add_and_remove_vehicles_at_run_time() -> None:
             assert hb.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED
             emu.remove_vehicle(9)
             assert set(emu.endpoints) == {1}
+            # Everything vehicle 9 sent before its removal may still be on its way
+            # to the client (a loaded loop reads one datagram per turn): wait for
+            # all of it (the emulator counts what it sent; vehicle 1 has no peer,
+            # so it sent nothing; loopback loses nothing), then nothing more may come.
+            sent = emu.stats.link.tx_datagrams
+            await c.wait_datagrams(sent)
             _drain(c)
             c.heartbeat()
             await emu.wait_steps(60)  # more than one heartbeat period of sim time
-            assert _drain(c) == []
+            assert _drain(c) == [] and c.datagrams == sent
             c.close()
 
     asyncio.run(run())
