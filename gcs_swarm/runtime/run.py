@@ -460,14 +460,14 @@ async def _write_run_report(
                 str(v.sysid): {"min_hz": v.telemetry_rate_min_hz, "requests": v.rate_requests}
                 for v in summary.vehicles
             },
-        },
-        "velocity_bias": {
-            str(v.sysid): {
-                "estimate_ned_mps": list(v.velocity_bias_ned_mps),
-                "corrected": v.velocity_bias_corrected,
-                "at_cap": v.velocity_bias_saturated,
-            }
-            for v in summary.vehicles
+            "velocity_bias": {
+                str(v.sysid): {
+                    "estimate_ned_mps": list(v.velocity_bias_ned_mps),
+                    "corrected": v.velocity_bias_corrected,
+                    "at_cap": v.velocity_bias_saturated,
+                }
+                for v in summary.vehicles
+            },
         },
     }
     from gcs_swarm.report.artefacts import write_report
