@@ -101,9 +101,11 @@ parsed on arrival and commands answered at once.
    enabled) until it receives a setpoint (one lost by the uplink impairment
    still counts as the answer). Step k+1 is taken as soon as no vehicle
    blocks, or when ``lockstep_timeout_s`` of wall time has passed since step k
-   while one does (``stats.lockstep_timeouts`` counts these). While vehicles
-   hold but none is streamed LOCAL_POSITION_NED, the clock waits for the
-   timeout too.
+   while one does and a few more turns of the event loop have brought no
+   answer (after a stall of the whole process, a loaded machine or a garbage
+   collection, the answers on their way get in first; issue 15);
+   ``stats.lockstep_timeouts`` counts these. While vehicles hold but none is
+   streamed LOCAL_POSITION_NED, the clock waits for the timeout too.
 4. While no vehicle holds (start-up on the ground: commands, arming, takeoff),
    steps are paced at ``speedup`` x wall clock, so EKF delay, DISARM_DELAY and
    takeoff last what they last on a real vehicle.

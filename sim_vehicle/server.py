@@ -41,6 +41,11 @@ _MAX_PEERS = 8
 _SMALL = 64
 """Below this many vehicles the per-step bookkeeping runs on Python lists, not numpy."""
 _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+_GRACE_TURNS = 8
+"""Event-loop turns a lockstep step still waits for its answers once the
+wall-clock timeout has passed (microseconds on a quiet machine: a lost answer
+still times out; after a stall of the process the answers that are on their
+way get in)."""
 
 
 @dataclass(frozen=True)
@@ -800,6 +805,26 @@ class Emulator:
                     armed = self._last
                     timer = loop.call_at(armed + timeout, expire)
                 elif fired or self._last + timeout - loop.time() <= 0:
+                    # Before calling it a timeout, let the loop turn a few times:
+                    # after a stall of the whole process (a loaded machine, a
+                    # garbage collection) the answer may still be unread in a
+                    # socket, or one task switch away in the station.
+                    for _ in range(_GRACE_TURNS):
+                        await asyncio.sleep(0)
+                        if self._handed_back or not self._blocked() or self._error:
+                            break
+                    if self._error is not None:
+                        raise self._error
+                    if self._handed_back:
+                        return False
+                    if not self._blocked():
+                        return True
+                    if armed != self._last:  # steps were taken meanwhile: time from the last
+                        fired.clear()
+                        armed = self._last
+                        timer.cancel()
+                        timer = loop.call_at(armed + timeout, expire)
+                        continue
                     self.stats.lockstep_timeouts += 1
                     return True
         finally:

@@ -69,6 +69,12 @@ _READYING = frozenset(
 )  # fmt: skip
 
 
+_LATE_S = 0.05
+"""A protocol timer this late [s] means the process was stalled."""
+_GRACE_TURNS = 4
+"""Event-loop turns a late timer waits, so that datagrams that arrived during
+the stall are read first (microseconds: nothing is delayed noticeably)."""
+
 LEADER_BOUND = 1.0e7
 """Largest leader coordinate [m] or velocity component [m/s] taken as finite:
 beyond the Earth's size the mission's flat local frame means nothing, and
@@ -123,7 +129,7 @@ class Station:
         self._link_of: dict[int, Link] = {}
         self._fresh: dict[int, int] = {}
         self._arrival: dict[int, float] = {}
-        self._timers: dict[int, tuple[float, asyncio.TimerHandle]] = {}
+        self._timers: dict[int, tuple[float, asyncio.Handle]] = {}
         self._fallback: asyncio.TimerHandle | None = None
         self._tg = asyncio.TaskGroup()
         self._stack = contextlib.AsyncExitStack()
@@ -429,7 +435,15 @@ class Station:
             handle = self._loop.call_at(due, self._on_timer, vp.sysid, due)
             self._timers[vp.sysid] = (due, handle)
 
-    def _on_timer(self, sysid: int, due: float) -> None:
+    def _on_timer(self, sysid: int, due: float, turns: int = 0) -> None:
+        if turns < _GRACE_TURNS and self.now() - due > _LATE_S and self._loop is not None:
+            # Fired late: the process was stalled (a loaded machine, the garbage
+            # collection in ``fly``). What the vehicles sent meanwhile is read
+            # first, a few loop turns on, or a vehicle would look stale because
+            # the station itself stopped (issue 15 item 12).
+            handle = self._loop.call_soon(self._on_timer, sysid, due, turns + 1)
+            self._timers[sysid] = (due, handle)
+            return
         self._timers.pop(sysid, None)
         # call_at may fire up to one clock resolution early: never hand the
         # protocol a time before the deadline it asked for.

@@ -112,3 +112,27 @@ def test_a_listening_port_in_use_is_one_error_and_leaves_no_run_folder(tmp_path:
         with pytest.raises(SwarmError, match=re.escape(f"udpin:127.0.0.1:{port}")):
             asyncio.run(run_mission(mission, links=links, log_dir=tmp_path, picture=False))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_clipped_setpoints_are_reported_in_the_status_line_and_the_summary() -> None:
+    """A leader pulled away at 1e5 N (finite, far inside LEADER_BOUND over
+    8 s): Eq. 7's cubic spring then asks the vehicles for more than the
+    1000 m/s^2 ceiling, so setpoints are scaled down; each is counted and
+    shown (``clipped_setpoints`` used to be counted and reported nowhere)."""
+    mission = _with_force(
+        mission_from("example1_octahedron.yaml", n=4, duration=8.0),
+        ConstantForce((1e5, 0.0, 0.0)),
+    )
+    lines: list[str] = []
+
+    async def main() -> RunSummary:
+        async with asyncio.timeout(60), Emulator(lockstep_config(mission)) as emu:
+            links = {s: f"udpout:{h}:{p}" for s, (h, p) in emu.endpoints.items()}
+            return await run_mission(mission, links=links, lockstep=True, on_status=lines.append)
+
+    s = asyncio.run(main())
+    assert s.outcome == "completed" and s.clipped_setpoints > 0, s.format()
+    assert f"setpoints clipped to the ceiling or zeroed (non-finite): {s.clipped_setpoints}" in (
+        s.format()
+    )
+    assert any("clipped setpoints " in line for line in lines)

@@ -40,26 +40,25 @@ def test_scenario3_every_vehicle_passes_the_box_and_the_formation_re_forms() -> 
 
 
 @pytest.mark.slow
-def test_ardupilot_like_lag_in_real_time_settles_within_2_percent() -> None:
+def test_ardupilot_like_lag_settles_within_2_percent() -> None:
     mission = mission_from("example1_octahedron.yaml", duration=30.0)
-    # ArduCopter-like 0.2 s first-order acceleration lag, paced by the wall
-    # clock (5 x real time, so the run takes ~6 s): no lockstep, the station
-    # steps on telemetry as it would with SITL.
+    # ArduCopter-like 0.2 s first-order acceleration lag, in lockstep: the lag
+    # acts in vehicle time, exactly. (This test used to be paced by the wall
+    # clock at 5 x real time; on a loaded 2-core machine the process could not
+    # keep that pace, measured: 1617 of 1624 emulator steps late, radii
+    # 1.4-17.7 m, and 1570 of 1625 late at 1 x real time: loop delay that the
+    # machine adds, not the law. Real-time pacing with delay is
+    # test_delay_compensation's subject.)
     # The lag alone (accel_shaping off): the paper's gains ask for more than the
     # jerk-limited ArduCopter model can do, as on SITL (example1_arducopter.yaml
     # and docs/vehicle-envelope.md fly Example 1 within it).
-    cfg = lockstep_config(
-        mission, clock="realtime", speedup=5.0, dynamics="ardupilot", accel_shaping=False
-    )
+    cfg = lockstep_config(mission, dynamics="ardupilot", accel_shaping=False, accel_tau_s=0.2)
     assert cfg.tau_s == pytest.approx(0.2)
-    flown = asyncio.run(fly(mission, cfg, lockstep=False))
+    flown = asyncio.run(fly(mission, cfg))
     s = flown.ok
     assert s.mission_time_s == pytest.approx(30.0, abs=0.1)
     r = np.array(list(radii(s).values()))
     # Issue: within 2 % of the radius 2.48418.
     assert np.abs(r / 2.48418 - 1.0).max() < 0.02, r
-    # Paced by the wall clock, a loaded machine may overwrite a queued setpoint
-    # with a newer one before the writer runs (newest wins, by design): seen 6
-    # of 9000 on a busy 2-core machine, 0 on a quiet one. More than 1 % would
-    # mean the stream stalls.
-    assert s.setpoints_dropped <= 0.01 * 6 * 50 * 30.0
+    # In lockstep every telemetry is answered by one setpoint before the next.
+    assert s.setpoints_dropped == 0 and flown.emu.stats.lockstep_timeouts == 0
