@@ -123,3 +123,26 @@ def test_report_command_errors_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "x.tlog").write_bytes(b"")
     with pytest.raises(SwarmError, match="--mission"):
         report_command(tmp_path / "x.tlog")
+
+
+def test_report_on_a_run_folder_writes_beside_the_runs_own_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # issue 15, item 13: the run's own summary.json and report.png are kept
+    m = mission()
+    folder = tmp_path / "run"
+    folder.mkdir()
+    write_run(folder / "flight.tlog", m)
+    shutil.copyfile(m.source, folder / "mission.yaml")
+    (folder / "summary.json").write_text('{"outcome": "completed"}')
+    (folder / "report.png").write_bytes(b"the run's own")
+    assert report_command(folder) == 0
+    assert report_command(folder) == 0
+    assert (folder / "summary.json").read_text() == '{"outcome": "completed"}'
+    assert (folder / "report.png").read_bytes() == b"the run's own"
+    for n in (1, 2):
+        assert json.loads((folder / f"summary-{n}.json").read_text())["source"] == "tlog"
+        assert (folder / f"report-{n}.png").read_bytes()[:4] == b"\x89PNG"
+    assert f"summary written to {folder / 'summary-2.json'}" in capsys.readouterr().out
+    assert report_command(folder, force=True) == 0  # --force: overwrite
+    assert json.loads((folder / "summary.json").read_text())["source"] == "tlog"
