@@ -64,6 +64,8 @@ _FLOAT_RE = re.compile(
 )
 #: YAML 1.1's base-60 numbers (``1:30`` = 90): strings in YAML 1.2.
 _SEXAGESIMAL_RE = re.compile(r"[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?")
+#: A key shown as is in a key path; any other is shown quoted (a space, a colon, nothing).
+_KEY_NAME_RE = re.compile(r"[A-Za-z0-9_<>-]+")
 #: Longest integer literal read (a float holds at most about 309 digits).
 _MAX_INT_DIGITS = 400
 #: Nodes one file may expand to (aliases can make a small file huge).
@@ -443,7 +445,8 @@ class Obj(Field):
                 ok = False
                 continue
             name = str(key_node.value)
-            sub = f"{path}.{name}" if path else name
+            shown = name if _KEY_NAME_RE.fullmatch(name) else json.dumps(name)  # "a b", ""
+            sub = f"{path}.{shown}" if path else shown
             if name not in known:
                 hint = did_you_mean(name, names)
                 ctx.add(

@@ -11,8 +11,9 @@ YAML 1.2 core schema the format claims.
   ``yes``/``no``/``on``/``off`` are strings, not booleans; ``1e3`` is a float;
   ``0o17`` is octal; ``1_000`` and ``0b101`` are strings. And nesting is bounded:
   a collection more than ``MAX_NESTING`` levels deep is a YAML error at its
-  line (PyYAML composes recursively, so 5,000 ``[`` used to end in a
-  RecursionError).
+  line, raised by the scanner for flow collections (PyYAML's scanner is
+  quadratic in the flow depth) and by the composer for block ones (PyYAML
+  composes recursively, so 5,000 ``[`` used to end in a RecursionError).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import Any
 
 import yaml
 from yaml.composer import ComposerError
+from yaml.scanner import ScannerError
 
 __all__ = [
     "KEY_FILE_MAX_BYTES",
@@ -97,6 +99,18 @@ class YAML12Loader(yaml.SafeLoader):
     def __init__(self, stream: str) -> None:
         super().__init__(stream)
         self._depth = 0
+
+    def fetch_flow_collection_start(self, TokenClass: Any) -> None:
+        # PyYAML's scanner does work proportional to the flow depth for every
+        # token: 5,000 "[" took seconds, a megabyte of them would never end.
+        if self.flow_level >= MAX_NESTING:
+            raise ScannerError(
+                None,
+                None,
+                f"lists and mappings nested more than {MAX_NESTING} levels deep",
+                self.get_mark(),
+            )
+        super().fetch_flow_collection_start(TokenClass)
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         self._depth += 1

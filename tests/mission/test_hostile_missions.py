@@ -143,6 +143,22 @@ def test_hostile_numbers_and_yaml_are_one_line(text: str, where: tuple[int, str]
     assert why in message
 
 
+def test_a_megabyte_of_brackets_is_refused_without_a_hang() -> None:
+    # PyYAML's scanner works in proportion to the flow depth for each token:
+    # 5,000 "[" took seconds and 200,000 would never end; the watchdog turns
+    # a hang into a failure (it is not a timing: documents take milliseconds).
+    from missionfuzz import watchdog
+
+    with watchdog(60):
+        line, path, message = one_problem("[" * 200_000)
+    assert (line, path) == (1, "(syntax)") and "nested more than 64 levels" in message
+    # Block nesting (indentation) is bounded by the composer.
+    deep = "".join(f"{' ' * k}k{k}:\n" for k in range(100)) + " " * 100 + "v: 1\n"
+    with watchdog(60):
+        line, path, message = one_problem(deep)
+    assert path == "(syntax)" and "nested more than 64 levels" in message and line == 64
+
+
 # ------------------------------------------------------------- item 6
 def test_only_regular_files_are_read(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]

@@ -91,14 +91,19 @@ def test_first_vehicle_origin_when_the_mission_has_none(tmp_path: Path) -> None:
     np.testing.assert_allclose(rec.pos_m, live.pos_m - shift, atol=1e-5)
 
 
+def _run_folder(path: Path) -> Path:
+    """A run folder at ``path``: the synthetic run's log and its mission."""
+    m = mission()
+    path.mkdir()
+    write_run(path / "flight.tlog", m)
+    shutil.copyfile(m.source, path / "mission.yaml")
+    return path
+
+
 def test_report_command_on_a_run_folder_and_on_a_bare_tlog(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    m = mission()
-    folder = tmp_path / "20250101-120000-scenario-3"
-    folder.mkdir()
-    write_run(folder / "flight.tlog", m)
-    shutil.copyfile(m.source, folder / "mission.yaml")
+    folder = _run_folder(tmp_path / "20250101-120000-scenario-3")
     # The copied mission has the filter off: the command reads the folder's copy.
     assert report_command(folder) == 0
     out = capsys.readouterr().out
@@ -129,11 +134,7 @@ def test_report_on_a_run_folder_writes_beside_the_runs_own_files(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # issue 15, item 13: the run's own summary.json and report.png are kept
-    m = mission()
-    folder = tmp_path / "run"
-    folder.mkdir()
-    write_run(folder / "flight.tlog", m)
-    shutil.copyfile(m.source, folder / "mission.yaml")
+    folder = _run_folder(tmp_path / "run")
     (folder / "summary.json").write_text('{"outcome": "completed"}')
     (folder / "report.png").write_bytes(b"the run's own")
     assert report_command(folder) == 0
