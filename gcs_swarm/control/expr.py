@@ -122,17 +122,19 @@ class CompiledExpression:
         try:
             value = self._root(env)
         except (ArithmeticError, ValueError) as err:
-            shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
             raise ExpressionError(
-                f"expression {self.source!r} cannot be evaluated at {shown or 'no variables'}: "
-                f"{err}"
+                f"expression {self.source!r} cannot be evaluated{self._at(env)}: {err}"
             ) from None
         if not math.isfinite(value):
-            shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
             raise ExpressionError(
-                f"expression {self.source!r} is not finite ({value}) at {shown or 'no variables'}"
+                f"expression {self.source!r} is not finite ({value}){self._at(env)}"
             )
         return value
+
+    def _at(self, env: Mapping[str, float]) -> str:
+        """`` at x=1, t=2`` for the variables read (empty when none is)."""
+        shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
+        return f" at {shown}" if shown else ""
 
     def __repr__(self) -> str:
         return f"CompiledExpression({self.source!r})"
