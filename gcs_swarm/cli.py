@@ -6,32 +6,70 @@ Subcommands (their work lives in the library modules):
 - ``run MISSION``: fly the mission over MAVLink (``gcs_swarm.runtime``);
 - ``simulate MISSION``: the deterministic in-process reference
   (``gcs_swarm.missionsim``);
-- ``check MISSION``: validate without flying (``gcs_swarm.mission``);
+- ``check MISSION...``: validate without flying (``gcs_swarm.mission``);
 - ``schema``: print the JSON Schema of mission files;
 - ``report RUN_FOLDER_OR_TLOG``: rebuild a run's summary and picture from
   its ``.tlog`` and the mission file (``gcs_swarm.report``).
+
+Exit codes (``EXIT_*``, stated in the README): 0 done; 1 a vehicle or a link
+failed (start-up or flight); 2 refused before anything flew (bad arguments,
+a bad or unreadable file); 130 interrupted; 141 the output pipe was closed
+(``gcs-swarm schema | head``), as for a process killed by SIGPIPE.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gcs_swarm import __version__
-from gcs_swarm.errors import MissionError, SwarmError
+from gcs_swarm.errors import (
+    InfeasibleError,
+    LinkError,
+    MissionError,
+    SwarmError,
+    UsageError,
+    VehicleError,
+)
 
-__all__ = ["build_parser", "main"]
+if TYPE_CHECKING:
+    from gcs_swarm.mission import Mission
+
+__all__ = [
+    "EXIT_FAILED",
+    "EXIT_INTERRUPTED",
+    "EXIT_OK",
+    "EXIT_PIPE",
+    "EXIT_REFUSED",
+    "build_parser",
+    "main",
+]
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_REFUSED = 2
+EXIT_INTERRUPTED = 130
+EXIT_PIPE = 141
+
+#: Trajectory files ``simulate --out`` writes (``SimResult.save``).
+_OUT_SUFFIXES = (".csv", ".npz")
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from gcs_swarm.mission import check_command
 
-    code = check_command(args.mission)
-    if code == 0:
-        _check_envelope(args.mission)
+    code = EXIT_OK
+    for path in args.mission:
+        if check_command(path) == 0:
+            _check_envelope(path)
+        else:
+            code = EXIT_REFUSED
     return code
 
 
@@ -66,9 +104,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from gcs_swarm.mission import load_mission
     from gcs_swarm.missionsim import simulate_mission
 
+    _check_simulate_args(args)
     mission = load_mission(args.mission)
-    if args.dt <= 0.0:
-        raise SwarmError(f"--dt: expected a positive step in seconds, got {args.dt}")
+    if args.duration is not None:
+        _check_leader_for(mission, args.duration)
     out = simulate_mission(mission, dt_s=args.dt, duration_s=args.duration)
     how = f"RK4, dt {args.dt} s"
     if out.envelope is not None:
@@ -91,6 +130,39 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_simulate_args(args: argparse.Namespace) -> None:
+    """Every argument of ``simulate`` before anything is simulated."""
+    from gcs_swarm.mission.bounds import DURATION_MAX_S
+
+    if not (math.isfinite(args.dt) and args.dt > 0.0):
+        raise UsageError(f"--dt: expected a positive step in seconds, got {args.dt}")
+    d = args.duration
+    if d is not None and not (math.isfinite(d) and 0.0 < d <= DURATION_MAX_S):
+        raise UsageError(
+            f"--duration: expected seconds > 0 and <= {DURATION_MAX_S:g} (mission.duration's"
+            f" bound), got {d:g}"
+        )
+    if args.every < 1:
+        raise UsageError(f"--every: expected a whole number >= 1, got {args.every}")
+    if args.out is not None and args.out.suffix.lower() not in _OUT_SUFFIXES:
+        raise UsageError(
+            f"--out {args.out}: trajectory files are .csv or .npz, got {args.out.suffix!r}"
+        )
+
+
+def _check_leader_for(mission: Mission, duration_s: float) -> None:
+    """``--duration`` longer than the mission: the leader's path over it must
+    hold too (``mission.bounds``), refused like a mission error."""
+    from gcs_swarm.mission.bounds import leader_path_problem
+    from gcs_swarm.mission.checks import key_line
+
+    found = leader_path_problem(mission.law.leader, mission.law.gains, duration_s)
+    if found is not None:
+        key, why = found
+        line = f"{mission.source}:{key_line(mission.text, key)}: {key}: {why}"
+        raise MissionError(f"{line} (with --duration {duration_s:g})")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from gcs_swarm.runtime import run_command
 
@@ -102,7 +174,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from gcs_swarm.report import report_command
 
-    return report_command(args.path, args.mission)
+    return report_command(args.path, args.mission, force=args.force)
 
 
 def _log_options(p: argparse.ArgumentParser) -> None:
@@ -132,12 +204,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=0.01, help="RK4 step [s] (default 0.01)")
     p.add_argument("--duration", type=float, default=None, help="override the duration [s]")
     p.add_argument("--out", type=Path, default=None, help="write trajectories (.csv or .npz)")
-    p.add_argument("--every", type=int, default=1, help="write every n-th sample (default 1)")
+    p.add_argument("--every", type=int, default=1, help="write every n-th sample (default 1, >= 1)")
     _log_options(p)
     p.set_defaults(handler=_cmd_simulate)
 
-    p = sub.add_parser("check", help="validate a mission file without flying")
-    p.add_argument("mission", help="mission YAML file")
+    p = sub.add_parser("check", help="validate mission files without flying")
+    p.add_argument("mission", nargs="+", help="mission YAML file(s)")
     p.set_defaults(handler=_cmd_check)
 
     p = sub.add_parser("schema", help="print the JSON Schema of mission files")
@@ -148,22 +220,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--mission", default=None, help="the mission file flown (default: the folder's copy)"
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite an existing summary and picture (default: write summary-<n>.json,"
+        " report-<n>.png beside them)",
+    )
     p.set_defaults(handler=_cmd_report)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
+    """Entry point of the console script; returns the process exit code
+    (module docstring)."""
     args = build_parser().parse_args(argv)
     try:
         return int(args.handler(args))
     except MissionError as err:
         for line in err.problems:
             print(f"gcs-swarm: {line}", file=sys.stderr)
-        return 2
+        return EXIT_REFUSED
+    except (VehicleError, LinkError, InfeasibleError) as err:
+        print(f"gcs-swarm: {err}", file=sys.stderr)
+        return EXIT_FAILED
     except SwarmError as err:
         print(f"gcs-swarm: {err}", file=sys.stderr)
-        return 2
+        return EXIT_REFUSED
     except KeyboardInterrupt:
         print("gcs-swarm: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader went away (``| head``): nothing more can be written, and
+        # Python's own flush at exit must not fail again on the same pipe.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_PIPE

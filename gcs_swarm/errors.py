@@ -4,6 +4,7 @@
 
     SwarmError                      anything the command line prints as one line
      +-- MissionError(ValueError)   a mission file is malformed or inconsistent
+     +-- UsageError(ValueError)     a command-line argument is malformed
      +-- ExpressionError(ValueError) a leader-force expression does not parse or
      |                               uses a name that is not allowed
      +-- LinkError(OSError)         a MAVLink connection string or transport failed
@@ -13,7 +14,9 @@
      +-- InfeasibleError            the safety filter cannot satisfy its constraints
 
 The command line (``gcs_swarm.cli``) catches ``SwarmError``, prints ``str(err)``
-as a single line and exits non-zero. Any other exception is a bug and keeps its
+as a single line and exits non-zero: 1 when a vehicle or a link failed
+(``VehicleError``, ``LinkError``, ``InfeasibleError``), 2 for everything
+refused before anything flew. Any other exception is a bug and keeps its
 traceback.
 """
 
@@ -26,6 +29,7 @@ __all__ = [
     "MissionError",
     "StartupError",
     "SwarmError",
+    "UsageError",
     "VehicleError",
 ]
 
@@ -47,6 +51,10 @@ class MissionError(SwarmError, ValueError):
     def __init__(self, message: str, problems: tuple[str, ...] | list[str] = ()) -> None:
         super().__init__(message)
         self.problems: tuple[str, ...] = tuple(problems) if problems else (message,)
+
+
+class UsageError(SwarmError, ValueError):
+    """A command-line argument is malformed (``--duration -5``, ``--out t.txt``)."""
 
 
 class ExpressionError(SwarmError, ValueError):

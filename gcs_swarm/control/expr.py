@@ -5,7 +5,9 @@ ONCE into a tree of Python closures. Nothing is ever passed to ``eval`` or
 ``exec``. Only this whitelist is accepted:
 
 - numbers (int or float literals; every number is evaluated as a float, so
-  ``10**10**10`` overflows quickly instead of building a huge integer);
+  ``9**9**9`` overflows at once instead of building a huge integer; a literal
+  that is not a finite float, ``1e999`` or a 400-digit integer, is refused
+  when the expression is compiled);
 - the names ``x y z vx vy vz t`` (the leader's own state in the mission frame,
   metres, metres per second, seconds of vehicle time) and the constants
   ``pi`` and ``e``;
@@ -16,8 +18,12 @@ ONCE into a tree of Python closures. Nothing is ever passed to ``eval`` or
 Anything else (attributes, subscripts, lambdas, comprehensions, comparisons,
 keyword arguments, strings, other names, dunder names) raises
 :class:`gcs_swarm.errors.ExpressionError` naming the offending token and its
-column. A run-time domain error (``sqrt(-1)``, division by zero, overflow)
-also raises ``ExpressionError`` naming the expression and the variables.
+column. A run-time domain error (``sqrt(-1)``, division by zero, ``x % 0``,
+overflow, a negative number to a fractional power, which Python's ``**``
+would make complex) and a result that is not finite (``hypot(1e308, 1e308)``)
+raise ``ExpressionError`` naming the expression and the variables: evaluation
+never returns anything but a finite float, and never takes long (floats only,
+``**`` is ``math.pow``).
 """
 
 from __future__ import annotations
@@ -91,7 +97,7 @@ _BINOPS: dict[type[ast.operator], Callable[[float, float], float]] = {
     ast.Mult: lambda a, b: a * b,
     ast.Div: lambda a, b: a / b,
     ast.Mod: lambda a, b: a % b,
-    ast.Pow: lambda a, b: a**b,
+    ast.Pow: math.pow,  # floats only: OverflowError or ValueError, never complex or huge
 }
 
 _Node = Callable[[Mapping[str, float]], float]
@@ -116,17 +122,19 @@ class CompiledExpression:
         try:
             value = self._root(env)
         except (ArithmeticError, ValueError) as err:
-            shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
             raise ExpressionError(
-                f"expression {self.source!r} cannot be evaluated at {shown or 'no variables'}: "
-                f"{err}"
+                f"expression {self.source!r} cannot be evaluated{self._at(env)}: {err}"
             ) from None
         if not math.isfinite(value):
-            shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
             raise ExpressionError(
-                f"expression {self.source!r} is not finite ({value}) at {shown or 'no variables'}"
+                f"expression {self.source!r} is not finite ({value}){self._at(env)}"
             )
         return value
+
+    def _at(self, env: Mapping[str, float]) -> str:
+        """`` at x=1, t=2`` for the variables read (empty when none is)."""
+        shown = ", ".join(f"{k}={env[k]:.6g}" for k in sorted(self.names))
+        return f" at {shown}" if shown else ""
 
     def __repr__(self) -> str:
         return f"CompiledExpression({self.source!r})"
@@ -149,7 +157,13 @@ def _compile(source: str, node: ast.AST, names: set[str], depth: int = 0) -> _No
         value = node.value
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise _fail(source, node, f"literal {value!r} is not a number")
-        const = float(value)
+        try:
+            const = float(value)
+        except OverflowError:
+            const = math.inf
+        if not math.isfinite(const):
+            shown = str(value) if isinstance(value, float) else f"a {len(str(value))}-digit integer"
+            raise _fail(source, node, f"literal {shown} is not a finite number")
         return lambda env: const
     if isinstance(node, ast.Name):
         name = node.id

@@ -15,10 +15,12 @@ from collections.abc import Sequence
 import yaml
 
 from gcs_swarm.control.params import Box, LawConfig, Vec3, WaypointForce
+from gcs_swarm.mission.bounds import leader_path_problem
 from gcs_swarm.mission.context import Context
 from gcs_swarm.mission.model import Emulator, Event, GeoPoint, Settings, Vehicle
+from gcs_swarm.mission.source import compose
 
-__all__ = ["key_line", "run_checks"]
+__all__ = ["earlier_within", "key_line", "run_checks"]
 
 #: Two starts closer than this [m] count as the same point (Eq. 9 is singular there).
 SAME_POINT_M = 1e-6
@@ -55,6 +57,10 @@ def run_checks(
             _check_events(ctx, vehicles, events)
     if law is not None:
         _check_law(ctx, law, vehicles)
+        if settings is not None:
+            found = leader_path_problem(law.leader, law.gains, settings.duration)
+            if found is not None:
+                ctx.add(ctx.line_of(found[0]), found[0], found[1])
         if settings is not None and settings.failsafe.fence and law.limits.geofence_min is None:
             key = "mission.failsafe.fence"
             ctx.add(ctx.line_of(key), key, "expected limits.geofence for the vehicles' own fence")
@@ -72,16 +78,16 @@ def _check_vehicles(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:
             )
         else:
             first_of[v.sysid] = i
-    for i, v in enumerate(vehicles):
-        for j in range(i):
-            if math.dist(v.start, vehicles[j].start) < SAME_POINT_M:
-                path = f"vehicles[{i}].start"
-                ctx.add(
-                    ctx.line_of(path),
-                    path,
-                    f"same start as vehicles[{j}] {_fmt(v.start)}; vehicles must start apart",
-                )
-                break
+    starts = [v.start for v in vehicles]
+    for i, hit in enumerate(earlier_within(starts, SAME_POINT_M)):
+        if hit is not None:
+            path = f"vehicles[{i}].start"
+            ctx.add(
+                ctx.line_of(path),
+                path,
+                f"same start as vehicles[{hit[0]}] {_fmt(vehicles[i].start)};"
+                " vehicles must start apart",
+            )
     if all(v.reserve for v in vehicles):
         ctx.add(
             ctx.line_of("vehicles"),
@@ -93,8 +99,19 @@ def _check_vehicles(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:
 def _check_ground(
     ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator, settings: Settings | None
 ) -> None:
-    """A sim vehicle must start above its own home (the emulator's ground)."""
+    """A sim vehicle must start above its own home (the emulator's ground),
+    and its home must be placeable: with ``origin: first-vehicle`` and a real
+    first vehicle the origin is known only in flight, too late for the
+    emulator, which starts first."""
     origin = settings.origin if settings is not None else None
+    if origin == "first-vehicle" and not vehicles[0].is_sim and any(v.is_sim for v in vehicles):
+        key = "mission.origin"
+        ctx.add(
+            ctx.line_of(key),
+            key,
+            "sim vehicles with a real first vehicle need a geodetic origin {lat, lon, alt}:"
+            " the first vehicle's origin is known only once it reports it",
+        )
     for i, v in enumerate(vehicles):
         if not v.is_sim:
             continue
@@ -120,10 +137,14 @@ def _check_ground(
 
 
 def _check_ports(ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator) -> None:
-    """The k-th sim vehicle listens on base_port + 10 k: the last must be a port."""
+    """The k-th sim vehicle listens on base_port + 10 k (every one on
+    base_port when shared): the last must be a port, and none may be the port
+    a ``udpin`` vehicle listens on (both would bind it)."""
     n_sim = sum(v.is_sim for v in vehicles)
+    if not emulator.base_port or not n_sim:
+        return
     last = emulator.base_port + 10 * (n_sim - 1)
-    if emulator.base_port and not emulator.shared and n_sim and last > 65535:
+    if not emulator.shared and last > 65535:
         path = "emulator.base_port"
         ctx.add(
             ctx.line_of(path),
@@ -131,6 +152,20 @@ def _check_ports(ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator
             f"{n_sim} sim vehicles need ports up to {emulator.base_port} + 10 x {n_sim - 1}"
             f" = {last}, over 65535",
         )
+    ports = (
+        {emulator.base_port} if emulator.shared else set(range(emulator.base_port, last + 1, 10))
+    )
+    for i, v in enumerate(vehicles):
+        scheme, _, rest = v.link.partition(":")
+        port = int(rest.rpartition(":")[2]) if scheme == "udpin" else None
+        if port in ports:
+            path = f"vehicles[{i}].link"
+            ctx.add(
+                ctx.line_of(path),
+                path,
+                f"port {port} is also a sim vehicle's (emulator.base_port = {emulator.base_port},"
+                f" line {ctx.line_of('emulator.base_port')}): both would bind it",
+            )
 
 
 def _check_compensation(
@@ -250,18 +285,62 @@ def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | Non
                         ctx.line_of(path), path, f"{_fmt(point)} is inside obstacles.boxes[{b}]"
                     )
     _check_fence(ctx, law, vehicles)
-    if law.safety.enabled and vehicles is not None:
-        for i, v in enumerate(vehicles):
-            for j in range(i):
-                d = math.dist(v.start, vehicles[j].start)
-                if SAME_POINT_M <= d < law.safety.separation:
-                    path = f"vehicles[{i}].start"
-                    ctx.add(
-                        ctx.line_of(path),
-                        path,
-                        f"{d:g} m from vehicles[{j}], closer than"
-                        f" limits.safety.separation = {law.safety.separation:g}",
-                    )
+    if law.safety.enabled and vehicles is not None and law.safety.separation > SAME_POINT_M:
+        starts = [v.start for v in vehicles]
+        same = earlier_within(starts, SAME_POINT_M)
+        for i, hit in enumerate(earlier_within(starts, law.safety.separation)):
+            if hit is not None and same[i] is None:  # a shared start is reported already
+                path = f"vehicles[{i}].start"
+                ctx.add(
+                    ctx.line_of(path),
+                    path,
+                    f"{hit[1]:g} m from vehicles[{hit[0]}], closer than"
+                    f" limits.safety.separation = {law.safety.separation:g}",
+                )
+
+
+def earlier_within(points: Sequence[Vec3], radius: float) -> list[tuple[int, float] | None]:
+    """For each point i, ``(j, distance)`` of one earlier point j < i closer
+    than ``radius`` [m] (the lowest j in i's grid cell, else the first found
+    in the cells around), or None. O(N): a hash grid of cells of side
+    ``radius / 2``, whose diagonal (0.87 radius) is under ``radius``, so a
+    point with an earlier one in its own cell is answered at once, and only
+    the first point of a cell searches the 5 x 5 x 5 cells around it (each
+    point is then looked at by at most 124 such searches)."""
+    side = radius / 2.0
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    out: list[tuple[int, float] | None] = []
+    for i, p in enumerate(points):
+        key = (math.floor(p[0] / side), math.floor(p[1] / side), math.floor(p[2] / side))
+        own = cells.setdefault(key, [])
+        hit: tuple[int, float] | None = None
+        if own:
+            hit = (own[0], math.dist(p, points[own[0]]))
+        else:
+            hit = _search_around(points, cells, key, p, radius)
+        own.append(i)
+        out.append(hit)
+    return out
+
+
+def _search_around(
+    points: Sequence[Vec3],
+    cells: dict[tuple[int, int, int], list[int]],
+    key: tuple[int, int, int],
+    p: Vec3,
+    radius: float,
+) -> tuple[int, float] | None:
+    best: tuple[int, float] | None = None
+    kx, ky, kz = key
+    for dx in range(-2, 3):
+        for dy in range(-2, 3):
+            for dz in range(-2, 3):
+                for j in cells.get((kx + dx, ky + dy, kz + dz), ()):
+                    d = math.dist(p, points[j])
+                    if d < radius and (best is None or j < best[0]):
+                        best = (j, d)
+                        break  # the lowest index of this cell comes first
+    return best
 
 
 def _check_fence(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | None) -> None:
@@ -287,7 +366,7 @@ def key_line(text: str, path: str) -> int:
     """1-based line of the dotted key ``path`` (e.g. ``gains.time_scale``) in
     the mission ``text``, or of its nearest present ancestor; 1 if none."""
     try:
-        node: yaml.Node | None = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = compose(text)
     except yaml.YAMLError:
         return 1
     line = 1

@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import difflib
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
 
-__all__ = ["TAG", "Context", "Problem", "describe_node", "did_you_mean"]
+__all__ = ["MAX_PER_KIND", "TAG", "Context", "Problem", "describe_node", "did_you_mean"]
 
 #: Prefix of YAML's standard tags.
 TAG = "tag:yaml.org,2002:"
@@ -40,21 +41,50 @@ def _printable(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
+#: Problems kept per kind (key path with its list indices dropped); the rest are counted.
+MAX_PER_KIND = 20
+_INDEX_RE = re.compile(r"\[\d+\]")
+
+
 @dataclass
 class Context:
     """Problems found so far, the line of every parsed key path, and the
-    values other fields' defaults depend on (``defaults``)."""
+    values other fields' defaults depend on (``defaults``).
+
+    Only the first ``MAX_PER_KIND`` problems of one kind (``vehicles[].start``
+    for every ``vehicles[i].start``) are kept; ``omitted`` counts the rest
+    by kind, with the line of the first one left out, so memory stays
+    bounded however many vehicles share a mistake."""
 
     problems: list[Problem] = field(default_factory=list)
     lines: dict[str, int] = field(default_factory=dict)
     defaults: dict[str, Any] = field(default_factory=dict)
     nodes_seen: int = 0
     too_big: bool = False
+    kinds: dict[str, int] = field(default_factory=dict)
+    omitted: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     def add(self, where: yaml.Node | int, path: str, message: str) -> None:
         """Record a problem at a node (its start line) or at a 1-based line."""
         line = where if isinstance(where, int) else where.start_mark.line + 1
-        self.problems.append(Problem(line, path or "(top level)", message))
+        path = path or "(top level)"
+        kind = _INDEX_RE.sub("[]", path)
+        n = self.kinds.get(kind, 0) + 1
+        self.kinds[kind] = n
+        if n <= MAX_PER_KIND:
+            self.problems.append(Problem(line, path, message))
+        else:
+            first, count = self.omitted.get(kind, (line, 0))
+            self.omitted[kind] = (first, count + 1)
+
+    def summary_problems(self) -> list[Problem]:
+        """The kept problems and one line per kind saying how many were left out."""
+        more = [
+            Problem(line, kind, f"{count} more problems of this kind not shown"
+                    f" (the first {MAX_PER_KIND} are)")
+            for kind, (line, count) in self.omitted.items()
+        ]  # fmt: skip
+        return [*self.problems, *more]
 
     def line_of(self, path: str) -> int:
         """Line of ``path``, or of its nearest parsed ancestor, or 1."""
@@ -76,6 +106,10 @@ def did_you_mean(word: str, choices: Sequence[str]) -> str:
     return f' (did you mean "{close[0]}"?)' if close else ""
 
 
+#: Plain words YAML 1.1 reads as booleans (strings in YAML 1.2, which mission files follow).
+_YAML11_BOOLS = frozenset({"yes", "no", "on", "off", "y", "n"})
+
+
 def describe_node(node: yaml.Node) -> str:
     """What the user wrote, for ``got ...``: quoted strings, numbers as
     written, the kind of a collection."""
@@ -87,9 +121,9 @@ def describe_node(node: yaml.Node) -> str:
     text = str(node.value)
     shown = text if len(text) <= 40 else text[:37] + "..."
     if node.tag == TAG + "str":
+        if getattr(node, "style", None) is None and text.lower() in _YAML11_BOOLS:
+            return f"{shown} (YAML 1.1 reads it as a boolean, YAML 1.2 as a string)"
         return json.dumps(shown)
     if node.tag == TAG + "null":
         return "nothing (null)"
-    if node.tag == TAG + "bool" and text.lower() not in ("true", "false"):
-        return f"{shown} (YAML reads it as a boolean)"
     return shown

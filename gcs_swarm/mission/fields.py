@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import yaml
-from yaml.constructor import SafeConstructor
 
+from gcs_swarm.mission.bounds import POSITION_LIMIT_M
 from gcs_swarm.mission.context import TAG as _TAG
 from gcs_swarm.mission.context import Context, describe_node, did_you_mean
 
@@ -56,12 +56,20 @@ INVALID: Any = _Marker("INVALID")
 REQUIRED: Any = _Marker("REQUIRED")
 
 _SCALAR_TAGS = {_TAG + t for t in ("str", "int", "float", "bool", "null", "timestamp")}
-#: Plain scalars YAML 1.1 leaves as strings but everyone reads as numbers (1e-9, 5e3).
-_NUMBER_RE = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+#: YAML 1.2 core-schema numbers (``source.YAML12Loader`` resolves plain
+#: scalars with the same forms; an explicit ``!!int``/``!!float`` must match them too).
+_INT_RE = re.compile(r"[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+")
+_FLOAT_RE = re.compile(
+    r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?|([-+]?)\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)"
+)
+#: YAML 1.1's base-60 numbers (``1:30`` = 90): strings in YAML 1.2.
+_SEXAGESIMAL_RE = re.compile(r"[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?")
+#: A key shown as is in a key path; any other is shown quoted (a space, a colon, nothing).
+_KEY_NAME_RE = re.compile(r"[A-Za-z0-9_<>-]+")
+#: Longest integer literal read (a float holds at most about 309 digits).
+_MAX_INT_DIGITS = 400
 #: Nodes one file may expand to (aliases can make a small file huge).
 MAX_NODES = 100_000
-
-_constructor = SafeConstructor()
 
 
 def _num_text(x: float) -> str:
@@ -112,16 +120,49 @@ def _standard_tag(node: yaml.Node) -> bool:
     return node.tag in _SCALAR_TAGS
 
 
+class _NotANumber(ValueError):
+    """A scalar that looks like a number but is refused; ``str()`` says why."""
+
+
 def _number(node: yaml.Node) -> float | None:
-    """The finite-or-not number a scalar node holds, or None if it is not one."""
+    """The finite-or-not number a scalar node holds by the YAML 1.2 core
+    schema, or None if it is not one. ``_NotANumber`` for a literal too large
+    for a float, an ambiguous leading zero (``010`` is octal 8 in YAML 1.1,
+    10 in YAML 1.2) or a YAML 1.1 sexagesimal (``1:30``)."""
     if not isinstance(node, yaml.ScalarNode):
         return None
+    text = str(node.value)
     if node.tag == _TAG + "int":
-        return float(_constructor.construct_yaml_int(node))
+        if not _INT_RE.fullmatch(text):
+            return None
+        digits = text.lstrip("+-")
+        if len(digits) > _MAX_INT_DIGITS:
+            raise _NotANumber(f"a {len(digits)}-digit integer is too large for a number")
+        if digits.startswith("0x"):
+            value = int(digits[2:], 16)
+        elif digits.startswith("0o"):
+            value = int(digits[2:], 8)
+        elif len(digits) > 1 and digits.startswith("0"):
+            sign, plain = text[: len(text) - len(digits)], digits.lstrip("0") or "0"
+            raise _NotANumber(
+                f"a leading zero is ambiguous: YAML 1.1 reads {text} as octal;"
+                f" write {sign}{plain} or 0o{plain}"
+            )
+        else:
+            value = int(digits)
+        try:
+            return float(-value if text.startswith("-") else value)
+        except OverflowError:
+            raise _NotANumber(f"a {len(digits)}-digit integer is too large for a number") from None
     if node.tag == _TAG + "float":
-        return float(_constructor.construct_yaml_float(node))
-    if node.tag == _TAG + "str" and node.style is None and _NUMBER_RE.fullmatch(node.value):
-        return float(node.value)
+        m = _FLOAT_RE.fullmatch(text)
+        if m is None:
+            return None
+        if "inf" in text.lower():
+            return -math.inf if m[1] == "-" else math.inf
+        return math.nan if "nan" in text.lower() else float(text)
+    if node.tag == _TAG + "str" and node.style is None and _SEXAGESIMAL_RE.fullmatch(text):
+        raise _NotANumber(f"YAML 1.2 reads {text} as a string, not a base-60 number")
     return None
 
 
@@ -156,7 +197,10 @@ class Num(Field):
     def _parse(self, node: yaml.Node, path: str, ctx: Context) -> Any:
         if self.nullable and isinstance(node, yaml.ScalarNode) and node.tag == _TAG + "null":
             return None
-        x = _number(node)
+        try:
+            x = _number(node)
+        except _NotANumber as why:
+            return self._bad(node, path, ctx, f" ({why})")
         if x is None:
             return self._bad(node, path, ctx)
         if not math.isfinite(x):
@@ -185,14 +229,14 @@ def Int(lo: float | None = None, hi: float | None = None) -> Num:
     return Num(lo=lo, hi=hi, integer=True)
 
 
-def Pos(nullable: bool = False) -> Num:
-    """A number > 0 (optionally null)."""
-    return Num(lo=0.0, lo_open=True, nullable=nullable)
+def Pos(nullable: bool = False, hi: float | None = None) -> Num:
+    """A number > 0 (optionally null, optionally at most ``hi``)."""
+    return Num(lo=0.0, lo_open=True, hi=hi, nullable=nullable)
 
 
-def NonNeg() -> Num:
-    """A number >= 0."""
-    return Num(lo=0.0)
+def NonNeg(hi: float | None = None) -> Num:
+    """A number >= 0 (optionally at most ``hi``)."""
+    return Num(lo=0.0, hi=hi)
 
 
 @dataclass
@@ -221,7 +265,8 @@ class Bool(Field):
 @dataclass
 class Str(Field):
     """A non-empty string; plain scalars are taken as written (``name: 2024``).
-    ``check`` returns an error text for a malformed value, or None."""
+    ``check`` returns an error text for a malformed value, or None; without
+    one, the whole string must match ``pattern`` (which the schema states)."""
 
     what: str = "a non-empty string"
     pattern: str | None = None
@@ -241,6 +286,8 @@ class Str(Field):
             if problem is not None:
                 ctx.add(node, path, problem)
                 return INVALID
+        elif self.pattern is not None and re.fullmatch(self.pattern, text) is None:
+            return self._bad(node, path, ctx)
         return text
 
     def schema(self) -> dict[str, Any]:
@@ -325,9 +372,12 @@ class ListOf(Field):
         return out
 
 
-def Vec3(what: str = "[x, y, z]", positive: bool = False) -> ListOf:
-    """Three finite numbers (``positive``: each > 0), e.g. a position [m]."""
-    num = Num(lo=0.0, lo_open=True) if positive else Num()
+def Vec3(
+    what: str = "[x, y, z]", positive: bool = False, limit: float = POSITION_LIMIT_M
+) -> ListOf:
+    """Three finite numbers (``positive``: each > 0), e.g. a position [m];
+    each within +-``limit`` (default: the position bound of ``bounds``)."""
+    num = Num(lo=0.0, lo_open=True, hi=limit) if positive else Num(lo=-limit, hi=limit)
     kind = "numbers > 0" if positive else "numbers"
     return ListOf(item=num, min_items=3, max_items=3, what=f"a list of 3 {kind} {what}")
 
@@ -395,7 +445,8 @@ class Obj(Field):
                 ok = False
                 continue
             name = str(key_node.value)
-            sub = f"{path}.{name}" if path else name
+            shown = name if _KEY_NAME_RE.fullmatch(name) else json.dumps(name)  # "a b", ""
+            sub = f"{path}.{shown}" if path else shown
             if name not in known:
                 hint = did_you_mean(name, names)
                 ctx.add(

@@ -9,6 +9,7 @@ so that a file which leaves a key out gets exactly the dataclass default.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import re
 from typing import Any
@@ -16,6 +17,12 @@ from typing import Any
 import yaml
 
 from gcs_swarm.control.params import Gains, Leader, Readings
+from gcs_swarm.mission.bounds import (
+    DURATION_MAX_S,
+    GAIN_MAX,
+    POSITION_LIMIT_M,
+    SPEED_LIMIT_MPS,
+)
 from gcs_swarm.mission.context import Context, did_you_mean
 from gcs_swarm.mission.fields import (
     INVALID,
@@ -50,7 +57,7 @@ from gcs_swarm.mission.model import (
     VelocityBias,
 )
 
-__all__ = ["LAW_SOURCES", "LINK_SCHEMES", "MISSION", "check_link"]
+__all__ = ["LAW_SOURCES", "LINK_SCHEMES", "MISSION", "check_host", "check_link"]
 
 _EMU = Emulator()
 _IMP = Impairments()
@@ -68,6 +75,31 @@ _LINK_WHAT = (
 )
 
 
+_HOST_LABEL_RE = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def check_host(host: str) -> str | None:
+    """None if ``host`` is an IP address or a well-formed host name (RFC 1123),
+    else the error message. Syntax only, no name lookup (check needs no
+    network): ``999.1.1.1`` is refused, ``localhost`` passes."""
+    if re.fullmatch(r"[0-9.]+", host):
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            return f'"{host}" is not an IPv4 address (four numbers 0..255)'
+        return None
+    if ":" in host:
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError:
+            return f'"{host}" is not an IPv6 address'
+        return None
+    labels = host.removesuffix(".").split(".")
+    if len(host) > 253 or not all(_HOST_LABEL_RE.fullmatch(lab) for lab in labels):
+        return f'"{host}" is not an IP address or a host name'
+    return None
+
+
 def check_link(text: str) -> str | None:
     """None if ``text`` is a connection string the station understands
     (pymavlink's spelling), else the error message."""
@@ -83,6 +115,9 @@ def check_link(text: str) -> str | None:
     port = int(m[3])
     if not 1 <= port <= 65535:
         return f'expected a port 1..65535 in the connection string, got "{text}"'
+    bad_host = check_host(m[2])
+    if bad_host is not None:
+        return f"{bad_host} in the connection string"
     return None
 
 
@@ -147,7 +182,10 @@ SIGNING = Obj(
         ),
         Key(
             "key_env",
-            Str(pattern=r"[A-Za-z_][A-Za-z0-9_]*"),
+            Str(
+                what="an environment variable name (letters, digits, _; not a digit first)",
+                pattern=r"[A-Za-z_][A-Za-z0-9_]*",
+            ),
             None,
             "environment variable holding the key as 64 hex digits",
         ),
@@ -203,7 +241,7 @@ SETTINGS = Obj(
     build=_build_settings,
     keys=(
         Key("name", Str(), None, "a name for logs and the status line; default: the file name"),
-        Key("duration", Pos(), _SET.duration, "length of the formation phase [s]"),
+        Key("duration", Pos(hi=DURATION_MAX_S), _SET.duration, "length of the formation phase [s]"),
         Key("rate", Num(lo=1.0, hi=100.0), _SET.rate, "control and telemetry rate [Hz]"),
         Key(
             "origin",
@@ -393,7 +431,7 @@ VEHICLE = Obj(
             "ardupilot or sim (px4 reserved); default: sim for link sim, else ardupilot",
         ),
         Key("start", Vec3(), REQUIRED, "start position, mission frame [m]"),
-        Key("q", Pos(), None, "charge of Eq. 9 [C]; default: gains.q"),
+        Key("q", Pos(hi=GAIN_MAX), None, "charge of Eq. 9 [C]; default: gains.q"),
         Key("reserve", Bool(), False, "true: not in the formation until a join event"),
         Key(
             "origin",
@@ -460,25 +498,44 @@ EMULATOR = Obj(
             "first-order acceleration lag [s]; default 0.1 for ardupilot-like",
         ),
         Key("accel_max", Pos(nullable=True), None, "clamp on |acceleration| [m/s^2]; null: 5"),
-        Key("ekf_ready_delay", NonNeg(), _EMU.ekf_ready_delay, "arming refused this long [s]"),
-        Key("noise_pos", NonNeg(), _EMU.noise_pos, "std of position noise on telemetry [m]"),
-        Key("noise_vel", NonNeg(), _EMU.noise_vel, "std of velocity noise on telemetry [m/s]"),
+        Key(
+            "ekf_ready_delay", NonNeg(3600.0), _EMU.ekf_ready_delay, "arming refused this long [s]"
+        ),
+        Key("noise_pos", NonNeg(1000.0), _EMU.noise_pos, "std of position noise on telemetry [m]"),
+        Key(
+            "noise_vel",
+            NonNeg(SPEED_LIMIT_MPS),
+            _EMU.noise_vel,
+            "std of velocity noise on telemetry [m/s]",
+        ),
         Key(
             "velocity_bias_ned",
-            Vec3("[north, east, down] m/s"),
+            Vec3("[north, east, down] m/s", limit=10.0),
             None,
             "constant added to every reported velocity; absent: ArduCopter SITL's figure "
             "for ardupilot-like, none for ideal",
         ),
-        Key("ground", Num(), _EMU.ground, "mission-frame z of the sim vehicles' homes [m]"),
-        Key("origin_spread", NonNeg(), _EMU.origin_spread, "east spacing of default homes [m]"),
+        Key(
+            "ground",
+            Num(lo=-POSITION_LIMIT_M, hi=POSITION_LIMIT_M),
+            _EMU.ground,
+            "mission-frame z of the sim vehicles' homes [m]",
+        ),
+        Key(
+            "origin_spread", NonNeg(1000.0), _EMU.origin_spread, "east spacing of default homes [m]"
+        ),
         Key(
             "spawn",
             Enum(choices=("ground", "air")),
             _EMU.spawn,
             "ground: landed at home, full start-up; air: hovering at the start, armed, GUIDED",
         ),
-        Key("host", Str(), _EMU.host, "address the emulator's endpoints bind to"),
+        Key(
+            "host",
+            Str(what="an IP address or a host name", check=check_host),
+            _EMU.host,
+            "address the emulator's endpoints bind to",
+        ),
         Key("base_port", Int(0, 65535), _EMU.base_port, "k-th sim vehicle on base_port + 10 k"),
         Key("shared", Bool(), _EMU.shared, "all sim vehicles on one endpoint (by system id)"),
         Key(

@@ -29,6 +29,7 @@ from gcs_swarm.control.params import (
     WaypointForce,
 )
 from gcs_swarm.errors import ExpressionError
+from gcs_swarm.mission.bounds import GAIN_MAX, GAIN_MIN, POSITION_LIMIT_M, SPEED_LIMIT_MPS
 from gcs_swarm.mission.context import TAG, Context, describe_node
 from gcs_swarm.mission.fields import (
     INVALID,
@@ -50,6 +51,8 @@ from gcs_swarm.mission.fields import (
 __all__ = ["GAINS", "LEADER", "LIMITS", "OBSTACLES", "READINGS"]
 
 _G = Gains()
+#: A gain or charge: positive and at most ``GAIN_MAX``, so the law stays finite (``bounds``).
+_GAIN = Pos(hi=GAIN_MAX)
 _AV = Avoidance()
 _SAFE = Safety()
 
@@ -78,13 +81,13 @@ GAINS = Obj(
     cls=Gains,
     build=_build_gains,
     keys=(
-        Key("M", Pos(), _G.M, "mass of Eq. 1 [kg]"),
-        Key("D", NonNeg(), _G.D, "damping of Eq. 1 [N s/m]"),
-        Key("k", NonNeg(), _G.k, "extra damping of Eq. 1 [N s/m]; D + k > 0"),
-        Key("k_s", Pos(), _G.k_s, "sphere spring of Eq. 7 [N/m^3]"),
-        Key("k_r", Pos(), _G.k_r, "repulsion gain of Eq. 9 [N m^2/C^2]"),
-        Key("alpha", Pos(), _G.alpha, "sphere parameter of Eq. 7 [m]"),
-        Key("q", Pos(), _G.q_default, "charge of a vehicle naming none [C]", target="q_default"),
+        Key("M", Num(lo=GAIN_MIN, hi=GAIN_MAX), _G.M, "mass of Eq. 1 [kg]"),
+        Key("D", NonNeg(GAIN_MAX), _G.D, "damping of Eq. 1 [N s/m]"),
+        Key("k", NonNeg(GAIN_MAX), _G.k, "extra damping of Eq. 1 [N s/m]; D + k > 0"),
+        Key("k_s", _GAIN, _G.k_s, "sphere spring of Eq. 7 [N/m^3]"),
+        Key("k_r", _GAIN, _G.k_r, "repulsion gain of Eq. 9 [N m^2/C^2]"),
+        Key("alpha", _GAIN, _G.alpha, "sphere parameter of Eq. 7 [m]"),
+        Key("q", _GAIN, _G.q_default, "charge of a vehicle naming none [C]", target="q_default"),
         Key(
             "time_scale",
             Num(lo=1.0, hi=100.0),
@@ -157,7 +160,9 @@ WAYPOINTS = Obj(
             REQUIRED,
             "points the leader flies through, mission frame [m]",
         ),
-        Key("speed", Pos(), REQUIRED, "cruise speed [m/s]", target="cruise_speed"),
+        Key(
+            "speed", Pos(hi=SPEED_LIMIT_MPS), REQUIRED, "cruise speed [m/s]", target="cruise_speed"
+        ),
         Key(
             "accept_radius",
             Pos(),
@@ -185,7 +190,7 @@ LEADER = Obj(
     build=_build_leader,
     keys=(
         Key("start", Vec3(), (0.0, 0.0, 0.0), "initial position, mission frame [m]"),
-        Key("velocity", Vec3(), (0.0, 0.0, 0.0), "initial velocity [m/s]"),
+        Key("velocity", Vec3(limit=SPEED_LIMIT_MPS), (0.0, 0.0, 0.0), "initial velocity [m/s]"),
         Key(
             "force",
             _FORCE,
@@ -246,9 +251,19 @@ OBSTACLES = Obj(
             _AV.sense,
             "turning sense: auto (acute-angle rule, latched) or forced",
         ),
-        Key("r0", Num(lo=1.0, lo_open=True), _AV.r0, "field range, ellipsoidal-radius units"),
-        Key("F_D", Pos(), _AV.F_D, "size of the desired force of Eq. 28 [N]"),
-        Key("target_margin", NonNeg(), _AV.target_margin, "slot targets at rho >= r0 + this"),
+        Key(
+            "r0",
+            Num(lo=1.0, lo_open=True, hi=GAIN_MAX),
+            _AV.r0,
+            "field range, ellipsoidal-radius units",
+        ),
+        Key("F_D", Pos(hi=GAIN_MAX), _AV.F_D, "size of the desired force of Eq. 28 [N]"),
+        Key(
+            "target_margin",
+            NonNeg(POSITION_LIMIT_M),
+            _AV.target_margin,
+            "slot targets at rho >= r0 + this",
+        ),
         Key(
             "heading",
             Enum(choices=("auto", "velocity", "desired")),
@@ -297,8 +312,18 @@ SAFETY = Obj(
             "safety filter on; null (default): on when any vehicle is a real autopilot "
             "(link not sim), off for an all-sim mission (the paper exactly)",
         ),
-        Key("clearance", NonNeg(), _SAFE.clearance, "minimum distance to every box [m]"),
-        Key("separation", NonNeg(), _SAFE.separation, "minimum distance between vehicles [m]"),
+        Key(
+            "clearance",
+            NonNeg(POSITION_LIMIT_M),
+            _SAFE.clearance,
+            "minimum distance to every box [m]",
+        ),
+        Key(
+            "separation",
+            NonNeg(POSITION_LIMIT_M),
+            _SAFE.separation,
+            "minimum distance between vehicles [m]",
+        ),
     ),
 )
 
@@ -368,7 +393,12 @@ LIMITS = Obj(
     keys=(
         Key("a_max", Pos(nullable=True), None, "largest commanded acceleration [m/s^2]"),
         Key("v_max", Pos(nullable=True), None, "speed the commands may not push past [m/s]"),
-        Key("z_floor", Num(nullable=True), None, "altitude floor, mission-frame z [m]"),
+        Key(
+            "z_floor",
+            Num(lo=-POSITION_LIMIT_M, hi=POSITION_LIMIT_M, nullable=True),
+            None,
+            "altitude floor, mission-frame z [m]",
+        ),
         Key("geofence", GEOFENCE, None, "box {min, max}, mission frame [m]", target=None),
         Key("safety", SAFETY, Safety, "safety filter settings", target=None),
         Key(

@@ -1,8 +1,10 @@
 """Read a mission file into a ``Mission``, or fail with every problem at once.
 
-The YAML is composed with the safe loader (``yaml.compose``, SafeLoader): the
-node tree keeps line numbers and nothing is ever constructed from a tag, so
-``!!python/object`` is reported as one line like any other mistake. Every
+The YAML is composed with the safe loader (``source.compose``: SafeLoader with
+the YAML 1.2 core schema and bounded nesting): the node tree keeps line
+numbers and nothing is ever constructed from a tag, so ``!!python/object`` is
+reported as one line like any other mistake. Only a regular file of at most
+``MAX_FILE_BYTES`` is read. Every
 problem is one line ``file:line: key.path: message``, sorted by line; whole-file
 problems use the path ``(file)``, YAML syntax errors ``(syntax)``.
 """
@@ -23,7 +25,15 @@ from gcs_swarm.mission.checks import run_checks
 from gcs_swarm.mission.context import Context, Problem
 from gcs_swarm.mission.fields import INVALID
 from gcs_swarm.mission.format import MISSION
-from gcs_swarm.mission.model import Emulator, Mission, Settings, Vehicle
+from gcs_swarm.mission.model import Emulator, Mission, Settings, Signing, Vehicle
+from gcs_swarm.mission.source import (
+    KEY_FILE_MAX_BYTES,
+    SIGNING_KEY_BYTES,
+    compose,
+    key_file_path,
+    read_regular,
+    signing_key_bytes,
+)
 
 __all__ = [
     "MAX_FILE_BYTES",
@@ -58,20 +68,7 @@ def load_mission(path: str | os.PathLike[str]) -> Mission:
     """
     source = os.fspath(path)
     try:
-        size = os.path.getsize(source)
-        if size > MAX_FILE_BYTES:
-            raise _fail(
-                source,
-                [
-                    Problem(
-                        1,
-                        "(file)",
-                        f"{size} bytes is too large for a mission file (limit {MAX_FILE_BYTES})",
-                    )
-                ],
-            )
-        with open(source, "rb") as fh:
-            data = fh.read()
+        data = read_regular(source, MAX_FILE_BYTES)
     except OSError as err:
         raise _fail(
             source, [Problem(1, "(file)", f"cannot read the file: {err.strerror or err}")]
@@ -88,7 +85,7 @@ def parse_mission(text: str, source: str = "<string>", *, name: str = "mission")
     """Validate YAML ``text``; ``source`` names it in messages, ``name`` is the
     mission name when the file gives none."""
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        root = compose(text)
     except yaml.MarkedYAMLError as err:
         raise _fail(source, [_syntax_problem(err)]) from None
     except yaml.reader.ReaderError as err:  # a character YAML does not allow
@@ -111,7 +108,7 @@ def parse_mission(text: str, source: str = "<string>", *, name: str = "mission")
         sections = {}
     mission = _assemble(ctx, source, name, sections)
     if ctx.problems or mission is None:
-        raise _fail(source, ctx.problems)
+        raise _fail(source, ctx.summary_problems())
     return replace(mission, text=text)
 
 
@@ -183,6 +180,8 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
             heading_auto=heading_auto,
         )  # fmt: skip
     events = s.get("events", INVALID)
+    if _ok(settings) and settings.signing is not None:
+        _check_key_file(ctx, source, settings.signing)
     run_checks(
         ctx,
         settings if _ok(settings) else None,
@@ -205,6 +204,28 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
         events=tuple(sorted(events, key=lambda e: e.t)),
         log=log,
     )
+
+
+def _check_key_file(ctx: Context, source: str, signing: Signing) -> None:
+    """``mission.signing.key_file`` must be a regular file holding a key, now:
+    ``run`` reads it before any vehicle is commanded (``/dev/zero`` used to
+    pass here and then be read without end)."""
+    if signing.key_file is None:
+        return
+    key = "mission.signing.key_file"
+    path = key_file_path(source, signing.key_file)
+    try:
+        raw = read_regular(path, KEY_FILE_MAX_BYTES)
+    except OSError as err:
+        ctx.add(ctx.line_of(key), key, f"cannot read the key file {path}: {err.strerror or err}")
+        return
+    if signing_key_bytes(raw) is None:  # never echo the content: only its length
+        ctx.add(
+            ctx.line_of(key),
+            key,
+            f"expected a {SIGNING_KEY_BYTES}-byte signing key (raw, or"
+            f" {2 * SIGNING_KEY_BYTES} hex digits) in {path}, got {len(raw)} bytes",
+        )
 
 
 def _resolve_defaults(
@@ -263,13 +284,14 @@ def check_command(path: str) -> int:
     """``gcs-swarm check FILE``: validate without flying.
 
     Prints ``OK: FILE: <summary>`` on stdout and returns 0, or every problem on
-    stderr (one line each) and returns 1. Never raises for a bad file.
+    stderr (one line each) and returns 2 (the command line's "refused").
+    Never raises for a bad file.
     """
     try:
         mission = load_mission(path)
     except MissionError as err:
         for line in str(err).splitlines():
             print(line, file=sys.stderr)
-        return 1
+        return 2
     print(f"OK: {path}: {summary(mission)}")
     return 0

@@ -221,13 +221,31 @@ def _paths(path: Path, mission_path: str | None) -> tuple[Path, Path, Path, Path
     return path, mission, path.with_name(path.stem + "-summary.json"), path.with_suffix(".png")
 
 
-def report_command(path: str | os.PathLike[str], mission_path: str | None = None) -> int:
-    """``gcs-swarm report RUN_FOLDER_OR_TLOG [--mission FILE]``: rebuild
-    ``summary.json`` and ``report.png`` from the log (beside it: in a run
+def _free_pair(summary: Path, picture: Path) -> tuple[Path, Path]:
+    """``summary``, ``picture`` if neither exists, else both with the first
+    suffix ``-1``, ``-2``, ... that names two free files."""
+    n, s, p = 0, summary, picture
+    while s.exists() or p.exists():
+        n += 1
+        s = summary.with_name(f"{summary.stem}-{n}{summary.suffix}")
+        p = picture.with_name(f"{picture.stem}-{n}{picture.suffix}")
+    return s, p
+
+
+def report_command(
+    path: str | os.PathLike[str], mission_path: str | None = None, *, force: bool = False
+) -> int:
+    """``gcs-swarm report RUN_FOLDER_OR_TLOG [--mission FILE] [--force]``:
+    rebuild the summary and picture from the log (beside it: in a run
     folder, or ``<name>-summary.json`` and ``<name>.png`` for another
-    ``.tlog``), print the figures and the paths. ``SwarmError`` when a file
+    ``.tlog``), print the figures and the paths. Nothing is overwritten
+    unless ``force``: when a summary or picture is there already (a run's own
+    ``summary.json`` and ``report.png``), they go to ``summary-<n>.json`` and
+    ``report-<n>.png``, n the first free number. ``SwarmError`` when a file
     is missing or unreadable (``MissionError`` for the mission file)."""
     tlog, mission_file, summary_path, picture_path = _paths(Path(path), mission_path)
+    if not force:
+        summary_path, picture_path = _free_pair(summary_path, picture_path)
     if not tlog.is_file():
         raise SwarmError(f"{tlog}: no such telemetry log")
     if not mission_file.is_file():

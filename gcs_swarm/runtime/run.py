@@ -33,6 +33,12 @@ from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, Vehicle, load_mission
+from gcs_swarm.mission.source import (
+    KEY_FILE_MAX_BYTES,
+    key_file_path,
+    read_regular,
+    signing_key_bytes,
+)
 from gcs_swarm.missionsim import demand_report, envelope_demand
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
@@ -80,14 +86,9 @@ def _geo(point: MissionGeoPoint | None) -> GeoPoint | None:
 
 
 def _key_bytes(raw: bytes, where: str) -> bytes:
-    if len(raw) == SIGNING_KEY_BYTES:
-        return raw
-    text = raw.strip()
-    if len(text) == 2 * SIGNING_KEY_BYTES:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
+    key = signing_key_bytes(raw)
+    if key is not None:
+        return key
     # Never echo the content: only its length.
     raise StartupError(
         f"{where}: expected a {SIGNING_KEY_BYTES}-byte signing key "
@@ -108,11 +109,9 @@ def signing_key(mission: Mission) -> bytes | None:
             raise StartupError(f"signing key: environment variable {sig.key_env} is not set")
         return _key_bytes(value.encode("utf-8", "replace"), f"signing key in ${sig.key_env}")
     assert sig.key_file is not None
-    path = Path(sig.key_file)
-    if not path.is_absolute() and mission.source:
-        path = Path(mission.source).parent / path
+    path = key_file_path(mission.source, sig.key_file)
     try:
-        raw = path.read_bytes()
+        raw = read_regular(path, KEY_FILE_MAX_BYTES)
     except OSError as err:
         raise StartupError(f"signing key file {path}: {err.strerror or err}") from None
     return _key_bytes(raw, f"signing key file {path}")

@@ -87,3 +87,69 @@ def test_missing_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_bad_step_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["simulate", str(TETRA), "--dt", "0", "--no-log"]) == 2
     assert "--dt" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- issue 15, item 13
+@pytest.mark.parametrize(
+    ("args", "word"),
+    [
+        (["--duration", "-5"], "--duration"),
+        (["--duration", "nan"], "--duration"),
+        (["--duration", "1e9"], "--duration"),
+        (["--dt", "nan"], "--dt"),
+        (["--every", "0"], "--every"),
+        (["--out", "t.txt"], "--out t.txt: trajectory files are .csv or .npz"),
+    ],
+)
+def test_bad_simulate_arguments_are_one_line_before_anything_runs(
+    args: list[str], word: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["simulate", str(TETRA), "--log-dir", str(tmp_path), *args]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""  # nothing was simulated (it prints "simulated ... s" first)
+    assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and word in err
+    assert list(tmp_path.iterdir()) == []  # and no run folder
+
+
+def test_simulate_duration_beyond_the_mission_checks_the_leader_too(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    m = tmp_path / "m.yaml"
+    m.write_text(TETRA.read_text().replace("force: [0, 0, 0]", 'force: ["sqrt(100 - t)", 0, 0]'))
+    assert main(["check", str(m)]) == 0
+    capsys.readouterr()
+    assert main(["simulate", str(m), "--duration", "200", "--no-log"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1
+    assert f"{m}:" in err and "leader.force[0]" in err and "(with --duration 200)" in err
+
+
+def test_check_takes_several_files_and_exits_2_if_any_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mission: {duration: 1:30}\nvehicles:\n  - {sysid: 1, start: [0, 0, 1]}\n")
+    assert main(["check", str(TETRA), str(bad), str(TETRA)]) == 2
+    out, err = capsys.readouterr()
+    assert out.count("OK: ") == 2
+    assert err == (
+        f'{bad}:1: mission.duration: expected a number > 0 and <= 14400, got "1:30"'
+        " (YAML 1.2 reads 1:30 as a string, not a base-60 number)\n"
+    )
+    assert main(["check", str(TETRA), str(TETRA)]) == 0
+
+
+def test_a_closed_output_pipe_is_no_traceback() -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs_swarm", "schema"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdout is not None
+    proc.stdout.close()  # the reader is gone before a byte is written (| head, at once)
+    _, err = proc.communicate(timeout=120)
+    assert b"Traceback" not in err and b"BrokenPipe" not in err, err
+    assert proc.returncode == 141

@@ -9,9 +9,10 @@ from gcs_swarm.errors import MissionError
 from gcs_swarm.mission import Failsafe, parse_mission
 from gcs_swarm.runtime.run import param_settings
 
+# The sim vehicle first: with a real first vehicle it would need a geodetic mission.origin.
 VEHICLES = """vehicles:
-  - {sysid: 1, link: "udpin:127.0.0.1:14550", start: [0, 0, 10]}
   - {sysid: 2, start: [5, 0, 10]}
+  - {sysid: 1, link: "udpin:127.0.0.1:14550", start: [0, 0, 10]}
 """
 FENCE = """limits:
   geofence: {min: [-50, -40, 0], max: [50, 40, 30]}
@@ -21,7 +22,7 @@ FENCE = """limits:
 def test_defaults_on_for_ardupilot_off_for_sim() -> None:
     m = parse_mission(VEHICLES + FENCE, "m.yaml")
     assert m.settings.failsafe == Failsafe() and m.settings.startup.read_envelope is None
-    real, sim = (param_settings(m, v) for v in m.vehicles)
+    sim, real = (param_settings(m, v) for v in m.vehicles)
     assert (real.read_envelope, real.gcs_failsafe, real.fences, real.restore) == (
         True, True, True, True
     )  # fmt: skip
@@ -40,14 +41,14 @@ def test_keys_are_taken_and_a_fence_needs_a_geofence() -> None:
         + VEHICLES
     )
     m = parse_mission(text, "m.yaml")
-    real, sim = (param_settings(m, v) for v in m.vehicles)
+    sim, real = (param_settings(m, v) for v in m.vehicles)
     assert real == sim  # given explicitly: the same for sim vehicles
     assert (real.read_envelope, real.gcs_failsafe, real.gcs_timeout_s, real.fence) == (
         False, True, 8.0, False
     )  # fmt: skip
     assert (real.restore, real.end, real.fence_margin_m) == (False, "rtl", 2.0)
     # No geofence: the default (null) sets no fence; true is an error at its line.
-    assert not param_settings(parse_mission(VEHICLES, "m.yaml"), m.vehicles[0]).fences
+    assert not param_settings(parse_mission(VEHICLES, "m.yaml"), m.vehicles[1]).fences
     bad = "mission:\n  failsafe:\n    fence: true\n" + VEHICLES
     with pytest.raises(MissionError, match=r"m\.yaml:3: mission\.failsafe\.fence: expected "
                        r"limits\.geofence"):  # fmt: skip

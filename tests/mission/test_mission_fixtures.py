@@ -42,7 +42,7 @@ def test_check_prints_exactly_the_expected_lines(
     want = expected_lines(fixture)
     code = check_command(fixture.name)
     out, err = capsys.readouterr()
-    assert code == 1
+    assert code == 2
     assert out == ""
     assert "Traceback" not in err
     assert err.splitlines() == want

@@ -24,6 +24,7 @@ from gcs_swarm.mission import (
     load_mission,
     parse_mission,
 )
+from gcs_swarm.mission.context import MAX_PER_KIND
 from gcs_swarm.mission.loader import MAX_FILE_BYTES, MAX_PROBLEMS
 
 TWO = "vehicles:\n  - {sysid: 1, start: [2, 1, 2]}\n  - {sysid: 2, start: [-1, -1, -1]}\n"
@@ -43,14 +44,14 @@ def test_exported_names_exist() -> None:
 
 def test_missing_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "nope.yaml"
-    assert check_command(str(path)) == 1
+    assert check_command(str(path)) == 2
     out, err = capsys.readouterr()
     assert out == ""
     assert err == f"{path}:1: (file): cannot read the file: No such file or directory\n"
 
 
 def test_a_directory_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert check_command(str(tmp_path)) == 1
+    assert check_command(str(tmp_path)) == 2
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith(f"{tmp_path}:1: (file): cannot read the file: ")
 
@@ -78,7 +79,7 @@ def test_exponent_without_a_dot_is_a_number_but_a_quoted_number_is_not() -> None
     m = parse_mission("gains: {k_s: 2e-9}\n" + TWO)
     assert m.law.gains.k_s == 2e-9
     assert problems('gains: {k_s: "2"}\n' + TWO) == [
-        'm.yaml:1: gains.k_s: expected a number > 0, got "2"'
+        'm.yaml:1: gains.k_s: expected a number > 0 and <= 1000000, got "2"'
     ]
 
 
@@ -108,11 +109,25 @@ def test_events_replay_in_time_order_and_a_vehicle_may_leave_and_rejoin() -> Non
 
 
 def test_the_number_of_printed_problems_is_capped() -> None:
+    # 150 different kinds (one unknown key each): the first MAX_PROBLEMS and a count
     n = MAX_PROBLEMS + 50
-    text = "vehicles:\n" + "".join(f"  - {{sysid: 0, start: [{i}, 0, 0]}}\n" for i in range(n))
+    text = "".join(f"key{i}: 1\n" for i in range(n)) + TWO
     lines = problems(text)
     assert len(lines) == MAX_PROBLEMS + 1
     assert lines[-1] == "m.yaml:1: (file): 50 more problems not shown"
+
+
+def test_problems_of_one_kind_are_capped_at_20_and_counted() -> None:
+    # issue 15 item 6: 150 vehicles with sysid 0 are one kind, vehicles[].sysid
+    n = 150
+    text = "vehicles:\n" + "".join(f"  - {{sysid: 0, start: [{i}, 0, 0]}}\n" for i in range(n))
+    lines = problems(text)
+    assert len(lines) == MAX_PER_KIND + 1 == 21
+    assert lines[0].startswith("m.yaml:2: vehicles[0].sysid: expected an integer")
+    assert lines[19].startswith("m.yaml:21: vehicles[19].sysid: ")
+    assert lines[-1] == (
+        "m.yaml:22: vehicles[].sysid: 130 more problems of this kind not shown (the first 20 are)"
+    )
 
 
 def test_aliases_cannot_make_a_small_file_expensive() -> None:

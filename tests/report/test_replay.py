@@ -91,14 +91,19 @@ def test_first_vehicle_origin_when_the_mission_has_none(tmp_path: Path) -> None:
     np.testing.assert_allclose(rec.pos_m, live.pos_m - shift, atol=1e-5)
 
 
+def _run_folder(path: Path) -> Path:
+    """A run folder at ``path``: the synthetic run's log and its mission."""
+    m = mission()
+    path.mkdir()
+    write_run(path / "flight.tlog", m)
+    shutil.copyfile(m.source, path / "mission.yaml")
+    return path
+
+
 def test_report_command_on_a_run_folder_and_on_a_bare_tlog(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    m = mission()
-    folder = tmp_path / "20250101-120000-scenario-3"
-    folder.mkdir()
-    write_run(folder / "flight.tlog", m)
-    shutil.copyfile(m.source, folder / "mission.yaml")
+    folder = _run_folder(tmp_path / "20250101-120000-scenario-3")
     # The copied mission has the filter off: the command reads the folder's copy.
     assert report_command(folder) == 0
     out = capsys.readouterr().out
@@ -123,3 +128,22 @@ def test_report_command_errors_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "x.tlog").write_bytes(b"")
     with pytest.raises(SwarmError, match="--mission"):
         report_command(tmp_path / "x.tlog")
+
+
+def test_report_on_a_run_folder_writes_beside_the_runs_own_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # issue 15, item 13: the run's own summary.json and report.png are kept
+    folder = _run_folder(tmp_path / "run")
+    (folder / "summary.json").write_text('{"outcome": "completed"}')
+    (folder / "report.png").write_bytes(b"the run's own")
+    assert report_command(folder) == 0
+    assert report_command(folder) == 0
+    assert (folder / "summary.json").read_text() == '{"outcome": "completed"}'
+    assert (folder / "report.png").read_bytes() == b"the run's own"
+    for n in (1, 2):
+        assert json.loads((folder / f"summary-{n}.json").read_text())["source"] == "tlog"
+        assert (folder / f"report-{n}.png").read_bytes()[:4] == b"\x89PNG"
+    assert f"summary written to {folder / 'summary-2.json'}" in capsys.readouterr().out
+    assert report_command(folder, force=True) == 0  # --force: overwrite
+    assert json.loads((folder / "summary.json").read_text())["source"] == "tlog"
