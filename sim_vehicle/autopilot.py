@@ -54,6 +54,8 @@ MODE_NAMES = {
     17: "BRAKE",
 }
 _GUIDED_LIKE = {4, 5, 6, 16, 17}
+ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
+"""MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
@@ -220,7 +222,7 @@ class Autopilot:
         """MAV_CMD_DO_SET_MODE: p1 CUSTOM_MODE_ENABLED, p2 the Copter mode."""
         custom = int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         ok = custom and self.set_mode(int(p[1]), now, kin)
-        return mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_FAILED
+        return ACCEPTED if ok else FAILED
 
     def takeoff_params_ok(self, p: tuple[float, ...]) -> bool:
         """The take-off's numbers are usable (ArduCopter: a finite p7)."""
@@ -229,7 +231,7 @@ class Autopilot:
     def takeoff_command(self, p: tuple[float, ...], now: float, kin: Kin) -> int:
         """MAV_CMD_NAV_TAKEOFF: p7 altitude above home."""
         ok = self.takeoff(p[6], now, kin)
-        return mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_FAILED
+        return ACCEPTED if ok else FAILED
 
     def arm_reply(
         self, ok: bool, why: str | None, now: float
@@ -237,7 +239,7 @@ class Autopilot:
         """The ACK result of an arm/disarm and the reasons sent before it
         (ArduCopter: a STATUSTEXT)."""
         reasons = [telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, why)] if why else []
-        return (mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_FAILED), reasons
+        return (ACCEPTED if ok else FAILED), reasons
 
     def setpoint_heard(self, now: float) -> None:
         """A SET_POSITION_TARGET_LOCAL_NED for this vehicle arrived (any mode)."""

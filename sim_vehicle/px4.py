@@ -44,7 +44,16 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import telemetry
-from sim_vehicle.autopilot import GUIDED, LAND, LOITER, RTL, Autopilot
+from sim_vehicle.autopilot import (
+    ACCEPTED,
+    FAILED,
+    GUIDED,
+    LAND,
+    LOITER,
+    RTL,
+    TEMPORARILY_REJECTED,
+    Autopilot,
+)
 from sim_vehicle.params import _I32, _R32, PARAM_TABLE, ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
@@ -82,8 +91,11 @@ _OBL_INSIDE = {0: _POSCTL_IN, 1: _POSCTL_IN, 2: _POSCTL_IN, 3: RTL, 4: LAND, 5: 
 PX4_PARAMS: dict[str, tuple[float, int, str]] = {
     "MAV_SYS_ID": (1, _I32, "system id"),
     "COM_OF_LOSS_T": (1.0, _R32, "s without offboard setpoints before COM_OBL_RC_ACT"),
-    "COM_OBL_RC_ACT": (0, _I32, "offboard loss: 0 Position 1 Altitude 2 Manual 3 Return "
-                       "4 Land 5 Hold 6 Terminate 7 Disarm"),  # fmt: skip
+    "COM_OBL_RC_ACT": (
+        0,
+        _I32,
+        "offboard loss: 0 Position 1 Altitude 2 Manual 3 Return 4 Land 5 Hold 6 Terminate 7 Disarm",
+    ),
     "COM_DISARM_PRFLT": (10.0, _R32, "s armed on the ground without take-off before disarming"),
     "NAV_DLL_ACT": (0, _I32, "GCS link loss action (stored only)"),
     "MIS_TAKEOFF_ALT": (2.5, _R32, "m, take-off altitude when none (or a lower one) is given"),
@@ -164,7 +176,7 @@ last and now, are each at most this far apart."""
 class Px4Autopilot(Autopilot):
     """One emulated PX4 (module docstring)."""
 
-    unknown_stream_result = mav.MAV_RESULT_FAILED
+    unknown_stream_result = FAILED
 
     def __init__(
         self,
@@ -242,19 +254,19 @@ class Px4Autopilot(Autopilot):
     # ---------------------------------------------------- commands (hooks)
     def mode_command(self, p: tuple[float, ...], now: float, kin: Kin) -> int:
         if not int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED or not math.isfinite(p[2]):
-            return mav.MAV_RESULT_FAILED
+            return FAILED
         inside = _TO_INSIDE.get(px4_mode(int(p[1]), int(p[2])))
         if inside is None:
-            return mav.MAV_RESULT_FAILED
+            return FAILED
         if inside == GUIDED and self.armed and not self._streaming_setpoints(now):
-            return mav.MAV_RESULT_TEMPORARILY_REJECTED  # no offboard signal
+            return TEMPORARILY_REJECTED  # no offboard signal
         if inside == _TAKEOFF_IN:
             nan = math.nan
             return self.takeoff_command((0.0, 0.0, 0.0, nan, nan, nan, nan), now, kin)
         self.set_mode(inside, now, kin)
         if inside == _POSCTL_IN and self.armed and not kin.landed:
             self.set_control("land", now, kin)  # no RC: holds position, descends
-        return mav.MAV_RESULT_ACCEPTED
+        return ACCEPTED
 
     def set_mode(self, mode: int, now: float, kin: Kin) -> bool:
         if mode in (_POSCTL_IN, _TAKEOFF_IN):  # unknown to ArduCopter's table
@@ -270,12 +282,12 @@ class Px4Autopilot(Autopilot):
 
     def takeoff_command(self, p: tuple[float, ...], now: float, kin: Kin) -> int:
         if not self.armed:
-            return mav.MAV_RESULT_TEMPORARILY_REJECTED
+            return TEMPORARILY_REJECTED
         self.mode = _TAKEOFF_IN
         self.streaming = False
         lat, lon, alt = p[4], p[5], p[6]
         if lat == 0.0 and lon == 0.0:
-            return mav.MAV_RESULT_ACCEPTED  # latitude/longitude 0: it never leaves the ground
+            return ACCEPTED  # latitude/longitude 0: it never leaves the ground
         home_amsl = self.origin[2] - self.home[2]
         minimum = self.params["MIS_TAKEOFF_ALT"]
         up = alt - home_amsl if math.isfinite(alt) else minimum
@@ -283,7 +295,7 @@ class Px4Autopilot(Autopilot):
         if kin.landed:
             self._tk_alt_d = self.home[2] - up
             self.set_control("spool", now, kin)
-        return mav.MAV_RESULT_ACCEPTED
+        return ACCEPTED
 
     def arm(self, now: float, kin: Kin, force: bool) -> tuple[bool, str | None]:
         self._refusal = None
@@ -302,13 +314,13 @@ class Px4Autopilot(Autopilot):
         self, ok: bool, why: str | None, now: float
     ) -> tuple[int, list[mav.MAVLink_message]]:
         if ok:
-            return mav.MAV_RESULT_ACCEPTED, []
+            return ACCEPTED, []
         if self._refusal is None:  # disarm refused in flight, or a mandatory check
             return super().arm_reply(ok, why, now)
         self._event_seq = (self._event_seq + 1) & 0xFFFF
         ms = round((now - self.boot) * 1000) & 0xFFFFFFFF
         event = EventMessage(self._refusal, ms, self._event_seq, ())
-        return mav.MAV_RESULT_TEMPORARILY_REJECTED, [event]
+        return TEMPORARILY_REJECTED, [event]
 
     def setpoint_heard(self, now: float) -> None:
         self._sp_times = (self._sp_times[1], now)

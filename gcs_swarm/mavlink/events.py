@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
@@ -36,18 +36,24 @@ class EventMessage(_dialect.MAVLink_message):  # type: ignore[misc]
 
     id = MSG_ID_EVENT
     msgname = "EVENT"
-    fieldnames = ["destination_component", "destination_system", "id",
-                  "event_time_boot_ms", "sequence", "log_levels", "arguments"]  # fmt: skip
-    ordered_fieldnames = ["id", "event_time_boot_ms", "sequence", "destination_component",
-                          "destination_system", "log_levels", "arguments"]  # fmt: skip
-    fieldtypes = ["uint8_t", "uint8_t", "uint32_t", "uint32_t", "uint16_t", "uint8_t", "uint8_t"]
-    fielddisplays_by_name: dict[str, str] = {}
-    fieldenums_by_name: dict[str, str] = {}
-    fieldunits_by_name = {"event_time_boot_ms": "ms"}
+    fieldnames: ClassVar[list[str]] = [
+        "destination_component", "destination_system", "id", "event_time_boot_ms", "sequence",
+        "log_levels", "arguments",
+    ]  # fmt: skip
+    ordered_fieldnames: ClassVar[list[str]] = [
+        "id", "event_time_boot_ms", "sequence", "destination_component", "destination_system",
+        "log_levels", "arguments",
+    ]  # fmt: skip
+    fieldtypes: ClassVar[list[str]] = [
+        "uint8_t", "uint8_t", "uint32_t", "uint32_t", "uint16_t", "uint8_t", "uint8_t",
+    ]  # fmt: skip
+    fielddisplays_by_name: ClassVar[dict[str, str]] = {}
+    fieldenums_by_name: ClassVar[dict[str, str]] = {}
+    fieldunits_by_name: ClassVar[dict[str, str]] = {"event_time_boot_ms": "ms"}
     native_format = bytearray(b"<IIHBBBB")
-    orders = [3, 4, 0, 1, 2, 5, 6]
-    lengths = [1, 1, 1, 1, 1, 1, _ARGS]
-    array_lengths = [0, 0, 0, 0, 0, 0, _ARGS]
+    orders: ClassVar[list[int]] = [3, 4, 0, 1, 2, 5, 6]
+    lengths: ClassVar[list[int]] = [1, 1, 1, 1, 1, 1, _ARGS]
+    array_lengths: ClassVar[list[int]] = [0, 0, 0, 0, 0, 0, _ARGS]
     crc_extra = 160
     unpacker = struct.Struct(f"<IIHBBB{_ARGS}B")
     instance_field = None
@@ -57,7 +63,7 @@ class EventMessage(_dialect.MAVLink_message):  # type: ignore[misc]
         self,
         destination_component: int,
         destination_system: int,
-        id: int,  # noqa: A002 - the field's name in common.xml
+        id: int,  # the field's name in common.xml
         event_time_boot_ms: int,
         sequence: int,
         log_levels: int,

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Mapping
+from typing import ClassVar
 
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.mavlink import builders as b
@@ -92,8 +93,10 @@ _EKF_READY = 1 | 2 | 4 | 16 | 32
 absolute horizontal and vertical position (the EKF_STATUS_REPORT bits)."""
 
 MAV_PARAM_TYPE_INT32 = 6
-PX4_INT_PARAMS = frozenset({"COM_OBL_RC_ACT", "NAV_DLL_ACT", "NAV_RCL_ACT", "COM_RCL_EXCEPT",
-                            "GF_ACTION", "COM_ARM_WO_GPS", "SYS_AUTOSTART", "MAV_SYS_ID"})  # fmt: skip
+PX4_INT_PARAMS = frozenset(
+    {"COM_OBL_RC_ACT", "NAV_DLL_ACT", "NAV_RCL_ACT", "COM_RCL_EXCEPT", "GF_ACTION",
+     "COM_ARM_WO_GPS", "SYS_AUTOSTART", "MAV_SYS_ID"}
+)  # fmt: skip
 """The INT32 parameters the station may set (PX4 v1.14 parameter metadata)."""
 
 PX4_ENVELOPE_PARAMS = (
@@ -190,7 +193,9 @@ def envelope_from_px4(
     return envelope, missing
 
 
-def px4_failsafe_values(end: EndAction, timeout_s: float, station_sysid: int) -> tuple[Setting, ...]:
+def px4_failsafe_values(
+    end: EndAction, timeout_s: float, station_sysid: int
+) -> tuple[Setting, ...]:
     """PX4's offboard-loss action for a mission ending with ``end``:
     COM_OBL_RC_ACT (``OBL_ACTIONS``). Its delay, COM_OF_LOSS_T, the station
     always sets (``Px4.station_sets``, as GUID_TIMEOUT on ArduCopter); the
@@ -226,13 +231,13 @@ class Px4(Personality):
         ("GPS_RAW_INT", b.MSG_ID_GPS_RAW_INT),
         ("EXTENDED_SYS_STATE", b.MSG_ID_EXTENDED_SYS_STATE),
     )
-    _READYING = {
+    _READYING: ClassVar[dict[Phase, frozenset[int]]] = {
         Phase.WAITING_ARMABLE: frozenset({HOLD}),
         Phase.ARMING: frozenset({HOLD}),
         Phase.TAKING_OFF: frozenset({HOLD, TAKEOFF}),
         Phase.GOING_TO_START: frozenset({HOLD, TAKEOFF, OFFBOARD}),
     }
-    _END = {
+    _END: ClassVar[dict[int, int]] = {
         b.COPTER_MODES["LAND"]: LAND,
         b.COPTER_MODES["RTL"]: RTL,
         b.COPTER_MODES["GUIDED"]: OFFBOARD,

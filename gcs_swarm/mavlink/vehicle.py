@@ -45,12 +45,12 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
+from gcs_swarm.mavlink.events import describe as describe_event
 from gcs_swarm.mavlink.frames import (
     GeoPoint,
     mission_to_ned,
     origin_offset_m,
 )
-from gcs_swarm.mavlink.events import describe as describe_event
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
     EkfStatus,
@@ -177,7 +177,8 @@ class VehicleProtocol:
     # ----------------------------------------------------------------- queries
     @property
     def mode_name(self) -> str:
-        return "-" if self.heartbeat is None else self.personality.mode_name(self.heartbeat.custom_mode)
+        hb = self.heartbeat
+        return "-" if hb is None else self.personality.mode_name(hb.custom_mode)
 
     @property
     def armed(self) -> bool:

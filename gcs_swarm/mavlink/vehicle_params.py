@@ -236,7 +236,10 @@ def fence_values(
     )
     return settings, tuple(notes)
 
-EnvelopeFn = Callable[[Mapping[str, float], Envelope | None, float], tuple[Envelope, tuple[str, ...]]]
+
+EnvelopeFn = Callable[
+    [Mapping[str, float], Envelope | None, float], tuple[Envelope, tuple[str, ...]]
+]
 FailsafeFn = Callable[[EndAction, float, int], tuple[Setting, ...]]
 ParamSetFn = Callable[[int, int, str, float], MessageSpec]
 
@@ -488,7 +491,8 @@ class VehicleParams:
         name, value, why = setting
         self._change(name, value, why)
         queue.push(
-            now, f"PARAM_SET {name}", partial(self.profile.param_set, self.sysid, compid, name, value),
+            now, f"PARAM_SET {name}",
+            partial(self.profile.param_set, self.sysid, compid, name, value),
             partial(self._set_done, name), param=name, expect=value,
         )  # fmt: skip
 

@@ -151,7 +151,12 @@ def station_config(
     return StationConfig(
         vehicles=tuple(
             VehiclePlan(
-                v.sysid, links[v.sysid], v.start, v.q, v.reserve, param_settings(mission, v),
+                v.sysid,
+                links[v.sysid],
+                v.start,
+                v.q,
+                v.reserve,
+                param_settings(mission, v),
                 autopilot=v.autopilot,
             )
             for v in mission.vehicles

@@ -87,8 +87,13 @@ class Station:
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
         self.vehicles = {
-            p.sysid: VehicleProtocol(p.sysid, pcfg, goto_m=p.start_m, params=p.params,
-                                     personality=personality_for(p.autopilot))  # fmt: skip
+            p.sysid: VehicleProtocol(
+                p.sysid,
+                pcfg,
+                goto_m=p.start_m,
+                params=p.params,
+                personality=personality_for(p.autopilot),
+            )
             for p in config.vehicles
         }
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},

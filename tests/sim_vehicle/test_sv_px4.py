@@ -195,3 +195,11 @@ def test_no_ekf_status_report_but_estimator_status() -> None:
     assert _ack(out, mav.MAV_CMD_SET_MESSAGE_INTERVAL) == 0
     sent = ap.poll(2.5, GROUND)
     assert any(m.get_type() == "ESTIMATOR_STATUS" and m.flags & 0x37 == 0x37 for m in sent)
+
+
+def test_sim_vehicle_autopilot_px4_defaults_to_18570() -> None:
+    from sim_vehicle.cli import build_config, parse_args
+
+    cfg = build_config(parse_args(["--autopilot", "px4", "--count", "3"]))
+    assert cfg.base_port == 18570 and {v.autopilot for v in cfg.vehicles} == {"px4"}
+    assert build_config(parse_args(["--count", "1"])).base_port == 5760  # ArduCopter's

@@ -54,10 +54,10 @@ def binary_or_skip() -> Path:
 
 def only_loopback() -> bool:
     """True inside a network namespace whose only device is ``lo``."""
-    try:
-        return sorted(os.listdir("/sys/class/net")) == ["lo"]
-    except OSError:
-        return False
+    import socket
+
+    # The current namespace's devices (/sys/class/net shows the mounter's).
+    return [name for _, name in socket.if_nameindex()] == ["lo"]
 
 
 def in_private_namespace_or_rerun(nodeid: str) -> bool:
@@ -149,8 +149,8 @@ def px4_swarm(
             shutil.rmtree(folder, ignore_errors=True)
             folder.mkdir(parents=True)
             lock = Path(f"/tmp/px4_lock-{i}")
-            held = lock.exists() and subprocess.run(["fuser", str(lock)],
-                                                    capture_output=True).returncode == 0  # fmt: skip
+            fuser = ["fuser", str(lock)]
+            held = lock.exists() and subprocess.run(fuser, capture_output=True).returncode == 0
             if held:
                 pytest.fail(f"PX4 instance {i} is already running on this machine ({lock})")
             for stale in (lock, Path(f"/tmp/px4-sock-{i}")):
@@ -160,12 +160,12 @@ def px4_swarm(
             # PX4_HOME_LAT/LON go to SIH_LOC_LAT0/LON0, INT32 parameters in degE7.
             env = dict(os.environ, PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT=str(round(lat * 1e7)),
                        PX4_HOME_LON=str(round(lon * 1e7)))  # fmt: skip
-            out = (folder / "out.log").open("wb")
-            proc = subprocess.Popen(
-                [str(binary), "-i", str(i), "-d", str(etc)],
-                cwd=folder, env=env, stdin=subprocess.DEVNULL, stdout=out,
-                stderr=subprocess.STDOUT, start_new_session=True,
-            )  # fmt: skip
+            with (folder / "out.log").open("wb") as out:
+                proc = subprocess.Popen(
+                    [str(binary), "-i", str(i), "-d", str(etc)],
+                    cwd=folder, env=env, stdin=subprocess.DEVNULL, stdout=out,
+                    stderr=subprocess.STDOUT, start_new_session=True,
+                )  # fmt: skip
             swarm.instances.append(Px4Instance(i, folder, proc))
         yield swarm
     finally:
@@ -175,3 +175,68 @@ def px4_swarm(
                     os.killpg(inst.proc.pid, signal.SIGKILL)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 inst.proc.wait(10)
+
+
+class Px4Monitor:
+    """Watch PX4 instance ``instance`` from a thread on its onboard link (PX4
+    sends it to UDP 14540 + i). PX4 ignores SET_MESSAGE_INTERVAL for
+    HEARTBEAT there (measured: 1 Hz still), so the monitor asks for one
+    HEARTBEAT every ``poll_s`` with MAV_CMD_REQUEST_MESSAGE (answered: 20 Hz
+    measured), which times a mode change to ``poll_s``. System id 254, no
+    HEARTBEAT and no setpoint of its own: it feeds no failsafe."""
+
+    def __init__(self, instance: int, poll_s: float = 0.05) -> None:
+        import socket
+        import threading
+
+        from pymavlink.dialects.v20 import ardupilotmega as mav
+
+        self._mavmod = mav
+        self.heartbeats: list[tuple[float, int, bool]] = []
+        """(monotonic arrival time [s], custom_mode, armed)."""
+        self.texts: list[tuple[float, str]] = []
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind(("127.0.0.1", 14540 + instance))
+        self._sock.settimeout(poll_s / 2)
+        self._peer = ("127.0.0.1", 14580 + instance)
+        self._mav = mav.MAVLink(None, srcSystem=254, srcComponent=191)
+        self._mav.robust_parsing = True
+        self._ask = self._mav.command_long_encode(instance + 1, 1, 512, 0, 0, 0, 0, 0, 0, 0, 0)
+        self._poll_s = poll_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        mav = self._mavmod
+        asked = 0.0
+        while not self._stop.is_set():
+            if time.monotonic() - asked >= self._poll_s:
+                asked = time.monotonic()
+                self._sock.sendto(self._ask.pack(self._mav), self._peer)
+            try:
+                data, _ = self._sock.recvfrom(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            now = time.monotonic()
+            for msg in self._mav.parse_buffer(data) or []:
+                kind = msg.get_type()
+                if kind == "HEARTBEAT" and msg.autopilot != mav.MAV_AUTOPILOT_INVALID:
+                    armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+                    self.heartbeats.append((now, int(msg.custom_mode), armed))
+                elif kind == "STATUSTEXT":
+                    self.texts.append((now, str(msg.text)))
+
+    def first_mode_after(self, t0: float, modes: set[int]) -> float | None:
+        """Arrival time of the first HEARTBEAT at or after ``t0`` in one of ``modes``."""
+        for at, mode, _ in self.heartbeats:
+            if at >= t0 and mode in modes:
+                return at
+        return None
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self._sock.close()
