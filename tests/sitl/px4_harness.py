@@ -77,7 +77,7 @@ def in_private_namespace_or_rerun(nodeid: str) -> bool:
         pytest.skip(f"unshare -n not permitted here: {probe.stderr.decode().strip()}")
     root = Path(__file__).resolve().parents[2]
     cmd = (f"ip link set lo up && exec {sys.executable} -m pytest -x -q -p no:cacheprovider "
-           f"-m px4_sitl '{nodeid}'")  # fmt: skip
+           f"--show-capture=no -m px4_sitl '{nodeid}'")  # fmt: skip
     env = dict(os.environ, **{ENV_INSIDE: "1"})
     run = subprocess.run(["unshare", "-n", "sh", "-c", cmd], cwd=root, env=env,
                          capture_output=True, text=True)  # fmt: skip
