@@ -23,8 +23,7 @@ DT = 0.02  # emulator step [s]
 
 def _mission(ports: dict[int, int]) -> str:
     vehicles = "\n".join(
-        f"  - {{sysid: {s}, link: 'udpout:127.0.0.1:{ports[s]}', autopilot: px4, "
-        f"start: {list(p)}}}"
+        f"  - {{sysid: {s}, link: 'udpout:127.0.0.1:{ports[s]}', autopilot: px4, start: {list(p)}}}"
         for s, p in STARTS.items()
     )
     return f"""
