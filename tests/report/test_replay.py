@@ -123,3 +123,18 @@ def test_report_command_errors_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "x.tlog").write_bytes(b"")
     with pytest.raises(SwarmError, match="--mission"):
         report_command(tmp_path / "x.tlog")
+
+
+def test_a_px4_offboard_command_does_not_end_its_flight_but_hold_does() -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from gcs_swarm.report.replay import _ends_flight
+
+    def mode(main: float, sub: float) -> object:
+        return mav.MAVLink_command_long_message(1, 1, 176, 0, 1, main, sub, 0, 0, 0, 0)
+
+    # PX4: OFFBOARD (6, 0) is the fly mode; Hold (4, 3) and AUTO.LAND (4, 6) end.
+    assert not _ends_flight(mode(6, 0), px4=True)
+    assert _ends_flight(mode(4, 3), px4=True) and _ends_flight(mode(4, 6), px4=True)
+    # ArduCopter: p2 = 4 is GUIDED, 6 is RTL (the same numbers, other meanings).
+    assert not _ends_flight(mode(4, 0)) and _ends_flight(mode(6, 0))
