@@ -54,6 +54,8 @@ MODE_NAMES = {
     17: "BRAKE",
 }
 _GUIDED_LIKE = {4, 5, 6, 16, 17}
+ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
+"""MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
@@ -213,6 +215,37 @@ class Autopilot:
         if self.params["WP_YAW_BEHAVIOR"] != 0 and math.hypot(kin.vel[0], kin.vel[1]) > 0.5:
             self.yaw = math.atan2(kin.vel[1], kin.vel[0])
         return self.yaw
+
+    # ------------------------------------------- autopilot-specific replies
+    # Hooks of ``commands.dispatch``: ArduCopter's answers here, PX4's in px4.py.
+    unknown_stream_result = mav.MAV_RESULT_DENIED
+    """COMMAND_ACK result of a SET_MESSAGE_INTERVAL for a message it cannot stream."""
+
+    def mode_command(self, p: tuple[float, ...], now: float, kin: Kin) -> int:
+        """MAV_CMD_DO_SET_MODE: p1 CUSTOM_MODE_ENABLED, p2 the Copter mode."""
+        custom = int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        ok = custom and self.set_mode(int(p[1]), now, kin)
+        return ACCEPTED if ok else FAILED
+
+    def takeoff_params_ok(self, p: tuple[float, ...]) -> bool:
+        """The take-off's numbers are usable (ArduCopter: a finite p7)."""
+        return math.isfinite(p[6])
+
+    def takeoff_command(self, p: tuple[float, ...], now: float, kin: Kin) -> int:
+        """MAV_CMD_NAV_TAKEOFF: p7 altitude above home."""
+        ok = self.takeoff(p[6], now, kin)
+        return ACCEPTED if ok else FAILED
+
+    def arm_reply(
+        self, ok: bool, why: str | None, now: float
+    ) -> tuple[int, list[mav.MAVLink_message]]:
+        """The ACK result of an arm/disarm and the reasons sent before it
+        (ArduCopter: a STATUSTEXT)."""
+        reasons = [telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, why)] if why else []
+        return (ACCEPTED if ok else FAILED), reasons
+
+    def setpoint_heard(self, now: float) -> None:
+        """A SET_POSITION_TARGET_LOCAL_NED for this vehicle arrived (any mode)."""
 
     # -------------------------------------------------------------- messages
     def handle(self, msg: mav.MAVLink_message, now: float, kin: Kin) -> list[mav.MAVLink_message]:

@@ -68,7 +68,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--base-port", type=int, default=5760, help="vehicle i on BASE+10*i (5760)")
+    p.add_argument("--base-port", type=int, default=None,
+                   help="vehicle i on BASE+10*i (5760); PX4: BASE+i (18570)")  # fmt: skip
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="behave as ArduCopter 4.5 (default) or PX4 v1.14 (OFFBOARD)")  # fmt: skip
     p.add_argument("--shared-port", type=int, help="serve every sysid on this one UDP port")
     p.add_argument(
         "--tcp",
@@ -149,8 +152,11 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
                 origin=_shift_east(args.origin, i * args.origin_spread),
                 start_ned_m=start,
                 airborne=args.airborne,
+                autopilot=args.autopilot,
             )
         )
+    if args.base_port is None:
+        args.base_port = 18570 if args.autopilot == "px4" else 5760
     imp = Impairment(loss=args.loss, delay_s=args.delay, jitter_s=args.jitter, duplicate=args.dup)
     sitl = getattr(args, "sitl_times", False)
     ekf = args.ekf_delay if args.ekf_delay is not None else (25.0 if sitl else 2.0)
@@ -252,9 +258,11 @@ async def _console(emu: Emulator, stop: asyncio.Event) -> None:
                     continue
                 if words[0] == "add" and len(words) in (2, 3):
                     start = _triple(words[2]) if len(words) == 3 else (0.0, 0.0, 0.0)
+                    first = emu.config.vehicles[:1]  # an added vehicle is of the same kind
                     spec = VehicleSpec(
-                        sysid=int(words[1]), start_ned_m=start, airborne=start[2] < 0
-                    )
+                        sysid=int(words[1]), start_ned_m=start, airborne=start[2] < 0,
+                        autopilot=first[0].autopilot if first else "ardupilot",
+                    )  # fmt: skip
                     await emu.add_vehicle(spec)
                     print(_describe(emu, spec.sysid), flush=True)
                 elif words[0] == "remove" and len(words) == 2:

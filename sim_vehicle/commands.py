@@ -145,7 +145,7 @@ def _ack(command: int, result: int, msg: Any) -> mav.MAVLink_message:
 
 
 def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float, kin: Kin) -> Msgs:
-    if not _finite(*p[:2]) or (cmd == mav.MAV_CMD_NAV_TAKEOFF and not _finite(p[6])):
+    if not _finite(*p[:2]) or (cmd == mav.MAV_CMD_NAV_TAKEOFF and not ap.takeoff_params_ok(p)):
         ap.rejected += 1
         return [_ack(cmd, DENIED, msg)]
     out: Msgs = []
@@ -153,7 +153,8 @@ def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float
     after: Msgs = []
     if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
         interval = p[1] / 1e6 if p[1] > 0 else (0.0 if p[1] == 0 else -1.0)
-        result = ACCEPTED if ap.set_interval(int(p[0]), interval, now) else DENIED
+        ok = ap.set_interval(int(p[0]), interval, now)
+        result = ACCEPTED if ok else ap.unknown_stream_result
     elif cmd == mav.MAV_CMD_GET_MESSAGE_INTERVAL:
         iv = ap.interval_of(int(p[0]))
         us = round(iv * 1e6) if iv > 0 else -1
@@ -165,18 +166,16 @@ def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float
     elif cmd == mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
         after.append(telemetry.autopilot_version(ap.sysid))
     elif cmd == mav.MAV_CMD_DO_SET_MODE:
-        custom = int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-        result = ACCEPTED if custom and ap.set_mode(int(p[1]), now, kin) else FAILED
+        result = ap.mode_command(p, now, kin)
     elif cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
         if p[0] == 1.0:
             ok, why = ap.arm(now, kin, force=round(p[1]) == ARM_FORCE)
         else:
             ok, why = ap.disarm(now, kin, force=round(p[1]) == DISARM_FORCE)
-        if why:
-            out.append(telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, why))
-        result = ACCEPTED if ok else FAILED
+        result, reasons = ap.arm_reply(ok, why, now)
+        out.extend(reasons)
     elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
-        result = ACCEPTED if ap.takeoff(p[6], now, kin) else FAILED
+        result = ap.takeoff_command(p, now, kin)
     elif cmd == mav.MAV_CMD_NAV_LAND:
         result = ACCEPTED if ap.set_mode(9, now, kin) else FAILED
     elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
@@ -192,15 +191,18 @@ def _param(ap: Autopilot, kind: str, msg: Any, now: float, kin: Kin) -> Msgs:
     if kind == "PARAM_REQUEST_LIST":
         return list(store.all_messages())
     if kind == "PARAM_REQUEST_READ":
-        name = ParamStore.name_at(msg.param_index) if msg.param_index >= 0 else _pid(msg)
-        return [store.message(name)] if name is not None and name in store.values else []
+        name = store.name_at(msg.param_index) if msg.param_index >= 0 else _pid(msg)
+        return [store.message(name)] if name is not None and store.on_wire(name) else []
     if kind == "PARAM_SET":
         name = _pid(msg)
         if not _finite(float(msg.param_value)):
             ap.rejected += 1
             return []  # ArduPilot ignores NaN and infinite values
-        if not store.set(name, float(msg.param_value)):
-            return []  # ArduPilot ignores unknown names
+        if not store.on_wire(name):
+            return []  # ArduPilot and PX4 ignore unknown names
+        value = store.decode_set(name, float(msg.param_value), int(msg.param_type))
+        if value is None or not store.set(name, value):
+            return []  # PX4: a REAL32 PARAM_SET on an INT32 parameter is ignored
         ap.refresh(now, kin)
         return [store.message(name)]
     return []
@@ -219,6 +221,7 @@ def _rot(yaw: float, v: Vec3) -> Vec3:
 
 
 def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
+    ap.setpoint_heard(now)
     if ap.mode != 4 or not ap.armed or kin.landed:
         return  # honoured only in GUIDED, armed and airborne; silently ignored otherwise
     mask = msg.type_mask

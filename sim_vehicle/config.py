@@ -61,7 +61,7 @@ class Impairment:
 class VehicleSpec:
     """One emulated vehicle.
 
-    ``port``: ``None`` -> ``base_port + 10 * index`` (or an ephemeral port when
+    ``port``: ``None`` -> ``base_port + 10 * index`` (PX4: ``+ index``; or an ephemeral port when
     ``base_port`` is 0); ``0`` -> ephemeral; ignored when the emulator shares one
     endpoint. ``start_ned_m``: start position relative to ``origin`` (NED m,
     z <= 0). ``airborne``: start EKF-ready, armed, in GUIDED, hovering at
@@ -78,8 +78,12 @@ class VehicleSpec:
     airborne: bool = False
     compid: int = 1
     vid: int | None = None
+    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
+    """Whose behaviour it has: ArduCopter 4.5's (autopilot.py) or PX4 v1.14's
+    (px4.py); a PX4's default port is ``base_port + index`` (SITL: 18570 + i)."""
 
     def __post_init__(self) -> None:
+        _check(self.autopilot in ("ardupilot", "px4"), f"autopilot: unknown {self.autopilot!r}")
         _check(1 <= self.sysid <= 254, f"sysid: expected an integer 1..254, got {self.sysid}")
         _check(1 <= self.compid <= 255, f"compid: expected 1..255, got {self.compid}")
         if self.port is not None:

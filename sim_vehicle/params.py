@@ -65,15 +65,27 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
         "lowering the stream rate, as MAVProxy's 4 Hz)",
     ),
 }
-_NAMES = list(PARAM_TABLE)
 _INT_TYPES = (_I8, _I16, _I32)
 
 
 class ParamStore:
-    """Values of one vehicle's parameters; typed rounding on set."""
+    """Values of one vehicle's parameters; typed rounding on set.
 
-    def __init__(self, overrides: dict[str, float] | None = None) -> None:
-        self.values: dict[str, float] = {k: float(v[0]) for k, v in PARAM_TABLE.items()}
+    ``table`` (default ``PARAM_TABLE``) names them; only ``visible`` ones
+    (default all) are on the wire: read, listed and set by PARAM_* messages
+    (the PX4 personality keeps ArduCopter's names inside, hidden)."""
+
+    def __init__(
+        self,
+        overrides: dict[str, float] | None = None,
+        *,
+        table: dict[str, tuple[float, int, str]] | None = None,
+        visible: frozenset[str] | None = None,
+    ) -> None:
+        self.table = PARAM_TABLE if table is None else table
+        self.values: dict[str, float] = {k: float(v[0]) for k, v in self.table.items()}
+        self.names = [n for n in self.table if visible is None or n in visible]
+        """The names on the wire, in PARAM_VALUE index order."""
         self.generation = 0  # bumped by every ``set`` (lets callers cache derived values)
         for name, value in (overrides or {}).items():
             if not self.set(name, value):
@@ -84,9 +96,9 @@ class ParamStore:
 
     def set(self, name: str, value: float) -> bool:
         """Set ``name``; False if unknown. Integer types are rounded, as ArduPilot stores them."""
-        if name not in PARAM_TABLE:
+        if name not in self.table:
             return False
-        if PARAM_TABLE[name][1] in _INT_TYPES:
+        if self.table[name][1] in _INT_TYPES:
             value = float(round(value))
         self.values[name] = float(value)
         self.generation += 1
@@ -94,23 +106,35 @@ class ParamStore:
 
     def index(self, name: str) -> int:
         """Index of ``name`` in PARAM_VALUE order."""
-        return _NAMES.index(name)
+        return self.names.index(name)
 
-    @staticmethod
-    def name_at(index: int) -> str | None:
+    def name_at(self, index: int) -> str | None:
         """Name at ``index``, or None when out of range."""
-        return _NAMES[index] if 0 <= index < len(_NAMES) else None
+        return self.names[index] if 0 <= index < len(self.names) else None
+
+    def on_wire(self, name: str) -> bool:
+        """True when ``name`` is read and set by PARAM_* messages."""
+        return name in self.values and name in self.names
+
+    def wire_value(self, name: str) -> float:
+        """The float PARAM_VALUE carries for ``name`` (ArduPilot: the value cast)."""
+        return self.values[name]
+
+    def decode_set(self, name: str, value: float, param_type: int) -> float | None:
+        """The value a PARAM_SET of ``name`` means, None to ignore it
+        (ArduPilot converts any type to its own)."""
+        return value
 
     def message(self, name: str) -> mav.MAVLink_param_value_message:
         """PARAM_VALUE for ``name`` (value as float, its MAV_PARAM_TYPE, count, index)."""
         return mav.MAVLink_param_value_message(
             param_id=name.encode(),
-            param_value=self.values[name],
-            param_type=PARAM_TABLE[name][1],
-            param_count=len(_NAMES),
-            param_index=_NAMES.index(name),
+            param_value=self.wire_value(name),
+            param_type=self.table[name][1],
+            param_count=len(self.names),
+            param_index=self.names.index(name),
         )
 
     def all_messages(self) -> list[mav.MAVLink_param_value_message]:
         """Every PARAM_VALUE, in index order (the answer to PARAM_REQUEST_LIST)."""
-        return [self.message(n) for n in _NAMES]
+        return [self.message(n) for n in self.names]

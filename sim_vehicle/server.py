@@ -31,7 +31,8 @@ from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.link import Addr, Endpoint, Impairer, LinkStats, TcpPort, bind_udp
-from sim_vehicle.params import ParamStore
+from sim_vehicle.params import PARAM_TABLE, ParamStore
+from sim_vehicle.px4 import PX4_OVERRIDES, Px4Autopilot, Px4ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
 __all__ = ["Emulator", "EmulatorStats", "VehicleState"]
@@ -243,7 +244,8 @@ class Emulator:
         else:
             port = spec.port
             if port is None:
-                port = cfg.base_port + 10 * index if cfg.base_port else 0
+                step = 1 if spec.autopilot == "px4" else 10
+                port = cfg.base_port + step * index if cfg.base_port else 0
             tcp = cfg.tcp_base_port
             tcp_port = None if tcp is None else (tcp + 10 * index if tcp else 0)
             ep = await self._open_endpoint(port, shared=False, key=key, tcp_port=tcp_port)
@@ -257,14 +259,28 @@ class Emulator:
             "SIM_VBIAS_N": cfg.vel_bias[0],
             "SIM_VBIAS_E": cfg.vel_bias[1],
             "SIM_VBIAS_D": cfg.vel_bias[2],
-            **cfg.params,
         }
+        px4 = spec.autopilot == "px4"
+        if px4:
+            overrides.update(PX4_OVERRIDES)  # its measured lag, no shaping, no end of boot
+            if cfg.vel_bias_ned_m_s is None:  # the preset's bias is ArduCopter SITL's
+                overrides.update({"SIM_VBIAS_N": 0.0, "SIM_VBIAS_E": 0.0, "SIM_VBIAS_D": 0.0})
+            if cfg.accel_tau_s is not None or cfg.dynamics == "ideal":
+                overrides["SIM_ACC_TAU"] = cfg.tau_s
+            if cfg.accel_shaping is not None:
+                overrides["SIM_ACC_SHAPE"] = 1.0 if cfg.accel_shaping else 0.0
+        # A mixed fleet's overrides may name the other autopilot's parameters.
+        table = Px4ParamStore().table if px4 else PARAM_TABLE
+        other = PARAM_TABLE if px4 else Px4ParamStore().table
+        for name, value in cfg.params.items():
+            if name in table or name not in other:
+                overrides[name] = value  # an unknown name fails in the store
         now = self.sim_time_s
         start = spec.start_ned_m
-        ap = Autopilot(
+        ap = (Px4Autopilot if px4 else Autopilot)(
             spec.sysid,
             spec.origin,
-            ParamStore(overrides),
+            Px4ParamStore(overrides) if px4 else ParamStore(overrides),
             now,
             compid=spec.compid,
             airborne_at=start if spec.airborne else None,

@@ -21,10 +21,12 @@ __all__ = [
     "MAV_CMD_SET_MESSAGE_INTERVAL",
     "MAV_FRAME_LOCAL_NED",
     "MSG_ID_EKF_STATUS_REPORT",
+    "MSG_ID_ESTIMATOR_STATUS",
     "MSG_ID_EXTENDED_SYS_STATE",
     "MSG_ID_GPS_GLOBAL_ORIGIN",
     "MSG_ID_GPS_RAW_INT",
     "MSG_ID_LOCAL_POSITION_NED",
+    "MSG_ID_SYS_STATUS",
     "TYPE_MASK_ACCEL",
     "TYPE_MASK_POSITION",
     "accel_setpoint",
@@ -37,7 +39,9 @@ __all__ = [
     "request_message",
     "set_message_interval",
     "set_mode",
+    "set_mode_main_sub",
     "takeoff",
+    "takeoff_amsl",
 ]
 
 # MAV_CMD values (MAVLink common.xml).
@@ -49,10 +53,12 @@ MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 
 # Message ids the station asks for (mavlink-protocol.md, start-up step 2).
+MSG_ID_SYS_STATUS = 1
 MSG_ID_GPS_RAW_INT = 24
 MSG_ID_LOCAL_POSITION_NED = 32
 MSG_ID_GPS_GLOBAL_ORIGIN = 49
 MSG_ID_EKF_STATUS_REPORT = 193
+MSG_ID_ESTIMATOR_STATUS = 230
 MSG_ID_EXTENDED_SYS_STATE = 245
 
 MAV_FRAME_LOCAL_NED = 1
@@ -158,6 +164,33 @@ def arm(target_system: int, target_component: int, *, armed: bool = True) -> Mes
     )
 
 
+def set_mode_main_sub(
+    target_system: int, target_component: int, main: int, sub: int
+) -> MessageSpec:
+    """MAV_CMD_DO_SET_MODE (176) as PX4 reads it: param1 = CUSTOM_MODE_ENABLED,
+    param2 = main mode, param3 = sub mode (mavlink-protocol.md, PX4)."""
+    return command_long(
+        target_system,
+        target_component,
+        MAV_CMD_DO_SET_MODE,
+        (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub),
+    )
+
+
+def takeoff_amsl(target_system: int, target_component: int, altitude_amsl_m: float) -> MessageSpec:
+    """MAV_CMD_NAV_TAKEOFF (22) as PX4 reads it: params 4-6 (yaw, latitude,
+    longitude) NaN = "here, as you are"; param7 = altitude [m AMSL]. PX4
+    takes 0 in params 5-6 as latitude/longitude 0 and never leaves the
+    ground (mavlink-protocol.md, PX4)."""
+    nan = float("nan")
+    return command_long(
+        target_system,
+        target_component,
+        MAV_CMD_NAV_TAKEOFF,
+        (0.0, 0.0, 0.0, nan, nan, nan, altitude_amsl_m),
+    )
+
+
 def takeoff(target_system: int, target_component: int, altitude_m: float) -> MessageSpec:
     """MAV_CMD_NAV_TAKEOFF (22): param7 = altitude [m] above home."""
     return command_long(
@@ -168,8 +201,17 @@ def takeoff(target_system: int, target_component: int, altitude_m: float) -> Mes
     )
 
 
-def param_set(target_system: int, target_component: int, name: str, value: float) -> MessageSpec:
-    """PARAM_SET of a parameter as REAL32 (ArduPilot converts to its own type)."""
+def param_set(
+    target_system: int,
+    target_component: int,
+    name: str,
+    value: float,
+    *,
+    param_type: int = MAV_PARAM_TYPE_REAL32,
+) -> MessageSpec:
+    """PARAM_SET of a parameter, by default as REAL32 (ArduPilot converts to
+    its own type). Another ``param_type`` sends ``value`` as it is: the
+    caller has encoded it (PX4 carries an integer's bytes in the float)."""
     if len(name) > 16:
         raise ValueError(f"parameter name {name!r} longer than 16 characters")
     return MessageSpec(
@@ -179,7 +221,7 @@ def param_set(target_system: int, target_component: int, name: str, value: float
             "target_component": target_component,
             "param_id": name,
             "param_value": float(value),
-            "param_type": MAV_PARAM_TYPE_REAL32,
+            "param_type": param_type,
         },
     )
 

@@ -31,6 +31,10 @@ import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
+from gcs_swarm.mavlink.events import register as _register_event
+
+_register_event()  # PX4's EVENT (410) is not in pymavlink's dialect (events.py)
+
 __all__ = [
     "SETPOINT_FIELDS",
     "SIGNING_KEY_BYTES",

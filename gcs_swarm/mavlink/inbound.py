@@ -21,6 +21,7 @@ __all__ = [
     "SPEED_LIMIT_MPS",
     "CommandAck",
     "EkfStatus",
+    "Event",
     "ExtendedSysState",
     "GpsGlobalOrigin",
     "GpsRaw",
@@ -30,6 +31,7 @@ __all__ = [
     "ParamValue",
     "PositionTarget",
     "StatusText",
+    "SysStatus",
     "from_pymavlink",
     "plausible",
 ]
@@ -147,12 +149,40 @@ class GpsRaw:
 
 @dataclass(frozen=True, slots=True)
 class ParamValue:
-    """PARAM_VALUE (22): the value the vehicle actually holds."""
+    """PARAM_VALUE (22): the value the vehicle actually holds, as the float
+    field carries it, and its MAV_PARAM_TYPE (9 REAL32; PX4 carries an
+    integer's bytes in the float: ``Personality.param_value`` decodes it)."""
 
     sysid: int
     compid: int
     name: str
     value: float
+    param_type: int = 9
+
+
+@dataclass(frozen=True, slots=True)
+class SysStatus:
+    """SYS_STATUS (1): MAV_SYS_STATUS_SENSOR bitmasks present / enabled /
+    health; PX4 sets MAV_SYS_STATUS_PREARM_CHECK (0x10000000) in health
+    when its pre-arm checks pass."""
+
+    sysid: int
+    compid: int
+    present: int
+    enabled: int
+    health: int
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """EVENT (410), PX4's reasons: ``event_id`` (PX4's hash of the event's
+    name), ``log_levels`` and the raw ``arguments`` bytes."""
+
+    sysid: int
+    compid: int
+    event_id: int
+    log_levels: int
+    arguments: tuple[int, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -179,6 +209,8 @@ Inbound = (
     | GpsRaw
     | ParamValue
     | PositionTarget
+    | SysStatus
+    | Event
 )
 
 
@@ -223,14 +255,27 @@ def from_pymavlink(msg: Any) -> Inbound | None:
         return GpsGlobalOrigin(
             sysid, compid, int(msg.latitude), int(msg.longitude), int(msg.altitude)
         )
-    if kind == "EKF_STATUS_REPORT":
+    if kind in ("EKF_STATUS_REPORT", "ESTIMATOR_STATUS"):
+        # The same EKF_STATUS_FLAGS / ESTIMATOR_STATUS_FLAGS bits (common.xml).
         return EkfStatus(sysid, compid, int(msg.flags))
+    if kind == "SYS_STATUS":
+        return SysStatus(
+            sysid,
+            compid,
+            int(msg.onboard_control_sensors_present),
+            int(msg.onboard_control_sensors_enabled),
+            int(msg.onboard_control_sensors_health),
+        )
+    if kind == "EVENT":
+        return Event(sysid, compid, int(msg.id), int(msg.log_levels), tuple(msg.arguments))
     if kind == "EXTENDED_SYS_STATE":
         return ExtendedSysState(sysid, compid, int(msg.vtol_state), int(msg.landed_state))
     if kind == "GPS_RAW_INT":
         return GpsRaw(sysid, compid, int(msg.fix_type), int(msg.satellites_visible))
     if kind == "PARAM_VALUE":
-        return ParamValue(sysid, compid, _text(msg.param_id), float(msg.param_value))
+        return ParamValue(
+            sysid, compid, _text(msg.param_id), float(msg.param_value), int(msg.param_type)
+        )
     if kind == "POSITION_TARGET_LOCAL_NED":
         return PositionTarget(
             sysid,
@@ -261,7 +306,8 @@ def plausible(msg: Inbound) -> bool:
     if isinstance(msg, GpsGlobalOrigin):
         return abs(msg.lat_e7) <= 900_000_000 and abs(msg.lon_e7) <= 1_800_000_000
     if isinstance(msg, ParamValue):
-        return math.isfinite(msg.value)
+        # An integer sent byte-wise (PX4) may look like any float, NaN included.
+        return math.isfinite(msg.value) or msg.param_type != 9
     if isinstance(msg, PositionTarget):
         return all(math.isfinite(v) for v in (msg.afx, msg.afy, msg.afz))
     return True

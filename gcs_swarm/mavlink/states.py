@@ -101,7 +101,10 @@ class ProtocolConfig:
       "at the start point" means within this distance and below this speed.
     - ``heartbeat_timeout_s``/``stale_timeout_s``: silence after which the
       vehicle is LOST (stale LOCAL_POSITION_NED counts while airborne).
-    - ``end_mode``: Copter mode of the ending (BRAKE, LAND or RTL).
+    - ``end_mode``: Copter mode of the ending (BRAKE, LAND or RTL; each
+      personality reads it as its own: PX4 Hold, Land, RTL).
+    - ``offboard_lead_s``: how long setpoints stream before OFFBOARD is
+      asked (PX4 refuses it without a stream; measured: 1 s at 50 Hz is enough).
     - ``mission_origin``: the mission frame's geodetic origin, or None until
       the station learns it (``VehicleProtocol.set_reference``).
     - ``velocity_bias``: the estimate of a constant bias in the reported
@@ -128,6 +131,7 @@ class ProtocolConfig:
     stale_timeout_s: float = 1.0
     end_mode: int = b.COPTER_MODES["BRAKE"]
     end_confirm_timeout_s: float = 3.0
+    offboard_lead_s: float = 1.0
     mission_origin: GeoPoint | None = None
     velocity_bias: BiasSettings = field(default_factory=BiasSettings)
 

@@ -46,6 +46,7 @@ from gcs_swarm.control.velocity_bias import VelocityBiasObserver
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
+from gcs_swarm.mavlink.events import describe as describe_event
 from gcs_swarm.mavlink.frames import (
     GeoPoint,
     mission_to_ned,
@@ -54,6 +55,7 @@ from gcs_swarm.mavlink.frames import (
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
     EkfStatus,
+    Event,
     ExtendedSysState,
     GpsGlobalOrigin,
     GpsRaw,
@@ -63,13 +65,12 @@ from gcs_swarm.mavlink.inbound import (
     ParamValue,
     PositionTarget,
     StatusText,
+    SysStatus,
     plausible,
 )
+from gcs_swarm.mavlink.personality import Health, Personality
 from gcs_swarm.mavlink.states import (
-    EKF_READY_FLAGS,
-    EKF_UNINITIALIZED,
     FINAL_PHASES,
-    GUIDED,
     IDLE_PHASES,
     LANDED_STATE_NAMES,
     READYING_PHASES,
@@ -78,7 +79,6 @@ from gcs_swarm.mavlink.states import (
     ProtocolConfig,
     ProtocolEvent,
     judge_ground,
-    mode_name,
 )
 from gcs_swarm.mavlink.vehicle_params import ParamSettings, VehicleParams
 
@@ -118,7 +118,14 @@ class VehicleProtocol:
         goto_m: tuple[float, float, float],
         enabled: bool = True,
         params: ParamSettings | None = None,
+        personality: Personality | None = None,
     ) -> None:
+        if personality is None:
+            from gcs_swarm.mavlink.ardupilot import ARDUPILOT
+
+            personality = ARDUPILOT
+        self.personality = personality
+        """The autopilot's own modes, commands and rules (personality.py)."""
         self.sysid = sysid
         self.enabled = enabled
         self.config = config
@@ -164,8 +171,7 @@ class VehicleProtocol:
         self._heard_at = -math.inf
         """Last message of any kind: the link watchdog (a lost HEARTBEAT with
         telemetry still flowing is a lossy link, not a lost vehicle)."""
-        self._ekf_flags = 0
-        self._gps_fix = 0
+        self._health = Health()
         self._guided_asks = 0
         self._guided_accepted = False
         self._arm_sent = False
@@ -180,21 +186,23 @@ class VehicleProtocol:
         )
         self._timers: dict[str, float] = {}
         self._arm_tries = 0
+        self._fly_asks = 0
         self._takeoff_refused: tuple[int, str] | None = None
         """(MAV_RESULT, reason) of a refused take-off, decided on the next HEARTBEAT."""
         self._takeoff_up_m = 0.0
         self._end_mode = config.end_mode
         self.vehicle_params = VehicleParams(
             sysid, params or ParamSettings(), self.params, self._event,
-            station_sets={"GUID_TIMEOUT": config.guid_timeout_s,
-                          "WP_YAW_BEHAVIOR": float(config.wp_yaw_behavior)},
+            station_sets={n: v for n, v, _ in personality.station_sets(config)},
+            profile=personality.params,
         )  # fmt: skip
         """Envelope read, failsafe and fence set, old values restored (vehicle_params.py)."""
 
     # ----------------------------------------------------------------- queries
     @property
     def mode_name(self) -> str:
-        return "-" if self.heartbeat is None else mode_name(self.heartbeat.custom_mode)
+        hb = self.heartbeat
+        return "-" if hb is None else self.personality.mode_name(hb.custom_mode)
 
     @property
     def armed(self) -> bool:
@@ -322,7 +330,7 @@ class VehicleProtocol:
         ground with nothing to undo."""
         if self.phase in (Phase.ENDING, Phase.ENDED) or self._yielded:
             return
-        self._end_mode = self.config.end_mode if mode is None else mode
+        self._end_mode = self.personality.end_mode(self.config.end_mode if mode is None else mode)
         ground, where = self._ground()
         undo = self.armed or self._arm_sent
         if self.phase is Phase.LOST:
@@ -332,7 +340,7 @@ class VehicleProtocol:
                 self._out.append(b.arm(self.sysid, self.compid, armed=False))
             elif self.armed:
                 self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
-                self._out.append(b.set_mode(self.sysid, self.compid, self._end_mode))
+                self._out.append(self.personality.set_mode(self.sysid, self.compid, self._end_mode))
             return
         self._reset()
         if ground and not undo:
@@ -366,21 +374,30 @@ class VehicleProtocol:
         elif isinstance(msg, StatusText):
             self._commands.note_text(msg.severity, msg.text)
             self._event("statustext", f"vehicle {self.sysid} says: {msg.text}")
+        elif isinstance(msg, Event):
+            # PX4's reasons (an arming refusal has no STATUSTEXT): a reason like any.
+            text = describe_event(msg.event_id, msg.log_levels, msg.arguments)
+            self._commands.note_text(msg.log_levels & 0x0F, text)
+            self._event("statustext", f"vehicle {self.sysid} event: {text}")
+        elif isinstance(msg, SysStatus):
+            self._health.sys_health = msg.health
+            self._decide(now)
         elif isinstance(msg, GpsGlobalOrigin):
             self._on_origin(msg, now)
         elif isinstance(msg, EkfStatus):
-            self._ekf_flags = msg.flags
+            self._health.ekf_flags = msg.flags
             self._decide(now)
         elif isinstance(msg, GpsRaw):
-            self._gps_fix = msg.fix_type
+            self._health.gps_fix = msg.fix_type
             self._decide(now)
         elif isinstance(msg, ExtendedSysState):
             known = msg.landed_state in LANDED_STATE_NAMES
             self.landed_state = msg.landed_state if known else None
             self._decide(now)
         elif isinstance(msg, ParamValue):
-            self.params[msg.name] = msg.value
-            self._commands.on_param(msg.name, now, msg.value)
+            value = self.personality.param_value(msg)
+            self.params[msg.name] = value
+            self._commands.on_param(msg.name, now, value)
         elif isinstance(msg, PositionTarget):
             self.target_echo = msg
 
@@ -479,7 +496,11 @@ class VehicleProtocol:
         elif name == "arm":
             self._send_arm(now)
         elif name == "mode_confirm":
-            self._guided_lost(now, "no HEARTBEAT in GUIDED since it was asked")
+            self._guided_lost(
+                now, f"no HEARTBEAT in {self.personality.ready_label} since it was asked"
+            )
+        elif name == "offboard":
+            self._send_fly_mode(now)
         elif name == "takeoff":
             self._fail(now, f"take-off not complete after {self.config.takeoff_timeout_s:g} s")
         elif name == "end_confirm":
@@ -499,23 +520,30 @@ class VehicleProtocol:
             if self.enabled:
                 self._start_configuring(now)
         elif phase is Phase.SETTING_GUIDED and "mode_confirm" in self._timers:
-            if hb.custom_mode == GUIDED:
+            if hb.custom_mode == self.personality.ready_mode:
                 del self._timers["mode_confirm"]
                 self._after_guided(now)
             elif self._guided_accepted:
                 # Sent after the accepting ACK, so it shows what became of it:
                 # the autopilot left GUIDED again (end of boot): ask at once.
                 del self._timers["mode_confirm"]
-                self._guided_lost(now, f"in {self.mode_name} after GUIDED was accepted")
+                label = self.personality.ready_label
+                self._guided_lost(now, f"in {self.mode_name} after {label} was accepted")
         elif phase in READYING_PHASES:
             refused, self._takeoff_refused = self._takeoff_refused, None
-            if hb.custom_mode != GUIDED:
+            if not self.personality.readying_ok(phase, hb.custom_mode):
                 self._guided_lost(now)  # then take off again, armed or not
             elif refused is not None and phase is Phase.TAKING_OFF:
                 self._after_takeoff_refusal(*refused, now)
+            elif phase is Phase.GOING_TO_START and self.personality.offboard:
+                if self._in_fly_mode():
+                    self._timers.pop("offboard", None)
+                elif "offboard" not in self._timers and not self._commands.busy:
+                    self._arm_fly_mode(now)  # it left OFFBOARD before READY: again
         elif phase in (Phase.READY, Phase.FLYING):
-            if hb.custom_mode != GUIDED:
-                self._yield(now, f"left GUIDED (now {self.mode_name}): someone else has it")
+            if hb.custom_mode != self.personality.fly_mode:
+                label = self.personality.fly_label
+                self._yield(now, f"left {label} (now {self.mode_name}): someone else has it")
             elif not hb.armed:
                 self._yield(now, "disarmed in flight")
         elif phase is Phase.ENDING and "end_confirm" in self._timers:
@@ -584,11 +612,10 @@ class VehicleProtocol:
         self.landed_state = None
         self._set_phase(Phase.CONFIGURING, now)
         cfg, s, c = self.config, self.sysid, self.compid
+        pers = self.personality
         for label, msg_id, hz in (
             ("LOCAL_POSITION_NED", b.MSG_ID_LOCAL_POSITION_NED, cfg.control_rate_hz),
-            ("EKF_STATUS_REPORT", b.MSG_ID_EKF_STATUS_REPORT, cfg.status_rate_hz),
-            ("GPS_RAW_INT", b.MSG_ID_GPS_RAW_INT, cfg.status_rate_hz),
-            ("EXTENDED_SYS_STATE", b.MSG_ID_EXTENDED_SYS_STATE, cfg.status_rate_hz),
+            *((lb, i, cfg.status_rate_hz) for lb, i in pers.status_streams),
         ):
             make = partial(b.set_message_interval, s, c, msg_id, 1.0 / hz)
             done: Callable[[int, float], None] = partial(self._refused_if, f"stream {label}")
@@ -599,11 +626,8 @@ class VehicleProtocol:
                 command=b.MAV_CMD_SET_MESSAGE_INTERVAL,
             )  # fmt: skip
         self.vehicle_params.start(now, self._commands, c)  # reads first: the old values
-        for name, value, why in (
-            ("GUID_TIMEOUT", cfg.guid_timeout_s, "s: when setpoints stop it brakes after this"),
-            ("WP_YAW_BEHAVIOR", float(cfg.wp_yaw_behavior), "(heading kept while flying)"),
-        ):
-            make = partial(b.param_set, s, c, name, value)
+        for name, value, why in pers.station_sets(cfg):
+            make = partial(pers.params.param_set, s, c, name, value)
             self._commands.push(
                 now, f"PARAM_SET {name}", make, partial(self._param_set, name, why), param=name
             )
@@ -630,7 +654,7 @@ class VehicleProtocol:
 
     def _after_configuring(self, now: float) -> None:
         hb = self.heartbeat
-        if hb is not None and hb.custom_mode == GUIDED:
+        if hb is not None and hb.custom_mode == self.personality.ready_mode:
             self._after_guided(now)
         else:
             self._set_phase(Phase.SETTING_GUIDED, now)
@@ -640,20 +664,23 @@ class VehicleProtocol:
         if self._guided_asks >= self.config.guided_attempts:
             self._fail(
                 now,
-                f"GUIDED not kept: asked {self._guided_asks} times, the vehicle is in "
+                f"{self.personality.ready_label} not kept: asked {self._guided_asks} times, "
+                f"the vehicle is in "
                 f"{self.mode_name}",
             )
             return
         self._guided_asks += 1
-        make = partial(b.set_mode, self.sysid, self.compid, GUIDED)
+        pers = self.personality
+        make = partial(pers.set_mode, self.sysid, self.compid, pers.ready_mode)
         self._commands.push(
-            now, "set mode GUIDED", make, self._guided_acked, command=b.MAV_CMD_DO_SET_MODE
-        )
+            now, f"set mode {pers.ready_label}", make, self._guided_acked,
+            command=b.MAV_CMD_DO_SET_MODE,
+        )  # fmt: skip
 
     def _guided_acked(self, result: int, now: float) -> None:
         self._guided_accepted = result == 0
         if result != 0:
-            self._refused(now, "GUIDED", result)
+            self._refused(now, self.personality.ready_label, result)
         # Confirm in the next HEARTBEAT (spec step 3); ask again if it does not come.
         self._timers["mode_confirm"] = now + 2 * self.config.command_timeout_s
 
@@ -663,20 +690,26 @@ class VehicleProtocol:
         it again, confirm it by HEARTBEAT, then decide afresh; nothing is armed
         or taken off meanwhile."""
         why = why or f"in {self.mode_name} while {self.phase.value}"
-        self._timers.pop("arm", None)
-        self._timers.pop("takeoff", None)
+        for name in ("arm", "takeoff", "offboard"):
+            self._timers.pop(name, None)
         self._set_phase(Phase.SETTING_GUIDED, now)
         if self._guided_asks < self.config.guided_attempts:  # else _send_guided fails it
             self._event(
                 "warning",
-                f"vehicle {self.sysid}: {why}: asking for GUIDED again "
+                f"vehicle {self.sysid}: {why}: asking for {self.personality.ready_label} again "
                 f"({self._guided_asks + 1} of at most {self.config.guided_attempts})",
             )
         self._send_guided(now)
 
     def _guided(self) -> bool:
-        """The latest HEARTBEAT says GUIDED."""
-        return self.heartbeat is not None and self.heartbeat.custom_mode == GUIDED
+        """The latest HEARTBEAT says the ready mode (GUIDED; PX4 Hold), or one
+        the autopilot may show in this readying phase."""
+        hb = self.heartbeat
+        if hb is None:
+            return False
+        if self.phase in READYING_PHASES:
+            return self.personality.readying_ok(self.phase, hb.custom_mode)
+        return hb.custom_mode == self.personality.ready_mode
 
     def _after_guided(self, now: float) -> None:
         self._set_phase(Phase.WAITING_ARMABLE, now)
@@ -702,7 +735,7 @@ class VehicleProtocol:
                     self.took_over = True
                     self._event(
                         "info",
-                        f"vehicle {self.sysid} is {where}, armed in GUIDED: "
+                        f"vehicle {self.sysid} is {where}, armed in {self.mode_name}: "
                         "taking it over without a take-off",
                     )
                 self._go_to_start(now)
@@ -718,9 +751,7 @@ class VehicleProtocol:
             )
             self._send_takeoff(now)
             return
-        flags = self._ekf_flags
-        ekf_ok = flags & EKF_READY_FLAGS == EKF_READY_FLAGS and not flags & EKF_UNINITIALIZED
-        if ekf_ok and self._gps_fix >= 3:
+        if self.personality.armable(self._health):
             self._set_phase(Phase.ARMING, now)
             self._send_arm(now)
 
@@ -761,7 +792,10 @@ class VehicleProtocol:
         self._takeoff_up_m = up_now + alt
         self._set_phase(Phase.TAKING_OFF, now)
         self._timers["takeoff"] = now + self.config.takeoff_timeout_s
-        make = partial(b.takeoff, self.sysid, self.compid, alt)
+        # PX4 wants the target's altitude AMSL: the EKF origin's plus the height
+        # above it (LOCAL_POSITION_NED is relative to that origin).
+        amsl = None if self.origin is None else self.origin.alt_m + self._takeoff_up_m
+        make = partial(self.personality.takeoff, self.sysid, self.compid, alt, amsl)
         self._commands.push(
             now, f"take-off to {alt:.1f} m", make, self._takeoff_acked,
             command=b.MAV_CMD_NAV_TAKEOFF,
@@ -814,18 +848,19 @@ class VehicleProtocol:
         self._timers["end_confirm"] = now + self.config.end_confirm_timeout_s
 
     def _send_end_mode(self, now: float) -> None:
-        make = partial(b.set_mode, self.sysid, self.compid, self._end_mode)
+        make = partial(self.personality.set_mode, self.sysid, self.compid, self._end_mode)
         self._commands.push(
-            now, f"set mode {mode_name(self._end_mode)}", make, self._end_mode_acked,
+            now, f"set mode {self.personality.mode_name(self._end_mode)}", make,
+            self._end_mode_acked,
             command=b.MAV_CMD_DO_SET_MODE, urgent=True,
         )  # fmt: skip
 
     def _end_mode_acked(self, result: int, now: float) -> None:
         if self.phase is not Phase.ENDING:
             return
-        land = b.COPTER_MODES["LAND"]
+        land = self.personality.land_mode
         if result != 0:
-            self._refused(now, f"mode {mode_name(self._end_mode)}", result)
+            self._refused(now, f"mode {self.personality.mode_name(self._end_mode)}", result)
             if self._end_mode != land:
                 self._event("info", f"vehicle {self.sysid}: falling back to LAND")
                 self._end_mode = land
@@ -838,17 +873,57 @@ class VehicleProtocol:
             self._timers["end_confirm"] = now + self.config.end_confirm_timeout_s
 
     def _go_to_start(self, now: float) -> None:
-        """GOING_TO_START until at the goto point and slow, then READY (holding)."""
+        """GOING_TO_START until at the goto point and slow, in the fly mode,
+        then READY (holding). An ``offboard`` autopilot (PX4) gets the
+        position setpoint streamed for ``offboard_lead_s`` before the fly
+        mode is asked: it refuses OFFBOARD without a stream."""
         if self.phase is not Phase.READY:
-            self._set_phase(Phase.GOING_TO_START, now)
+            if self.phase is not Phase.GOING_TO_START:
+                self._set_phase(Phase.GOING_TO_START, now)
+                self._fly_asks = 0
+                self._arm_fly_mode(now)
             pos, vel = self.state_mission()
             cfg = self.config
             if (
                 np.linalg.norm(pos - self._goto_m) <= cfg.goto_tolerance_m
                 and np.linalg.norm(vel) <= cfg.goto_speed_tolerance_mps
+                and self._in_fly_mode()
             ):
                 self._set_phase(Phase.READY, now)
         self._answer_hold()
+
+    def _in_fly_mode(self) -> bool:
+        hb = self.heartbeat
+        return hb is not None and hb.custom_mode == self.personality.fly_mode
+
+    def _arm_fly_mode(self, now: float) -> None:
+        """Ask the fly mode ``offboard_lead_s`` from now (PX4, not yet in it)."""
+        if self.personality.offboard and not self._in_fly_mode():
+            self._timers["offboard"] = now + self.config.offboard_lead_s
+
+    def _send_fly_mode(self, now: float) -> None:
+        pers = self.personality
+        if self.phase is not Phase.GOING_TO_START or self._in_fly_mode():
+            return
+        if self._fly_asks >= self.config.guided_attempts:
+            self._fail(now, f"{pers.fly_label} not entered: asked {self._fly_asks} times, "
+                       f"the vehicle is in {self.mode_name}")  # fmt: skip
+            return
+        self._fly_asks += 1
+        make = partial(pers.set_mode, self.sysid, self.compid, pers.fly_mode)
+        self._commands.push(
+            now, f"set mode {pers.fly_label}", make, self._fly_mode_acked,
+            command=b.MAV_CMD_DO_SET_MODE,
+        )  # fmt: skip
+
+    def _fly_mode_acked(self, result: int, now: float) -> None:
+        if self.phase is not Phase.GOING_TO_START:
+            return
+        if result != 0:
+            self._refused(now, self.personality.fly_label, result)
+            self._arm_fly_mode(now)  # the stream goes on; ask again after the lead
+        else:  # confirmed by HEARTBEAT, asked again if none comes
+            self._timers["offboard"] = now + 2 * self.config.command_timeout_s
 
     def _answer_hold(self) -> None:
         """Position setpoint to the goto point, sent in answer to each telemetry."""

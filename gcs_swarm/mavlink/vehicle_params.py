@@ -37,7 +37,7 @@ from typing import Any, Literal
 
 from gcs_swarm.control.params import Envelope, Vec3
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import STATION_SYSID
+from gcs_swarm.mavlink.codec import STATION_SYSID, MessageSpec
 from gcs_swarm.mavlink.commands import NO_ANSWER, CommandQueue, same_param_value
 
 __all__ = [
@@ -48,7 +48,9 @@ __all__ = [
     "MEASURED_LAG_S",
     "EndAction",
     "ParamChange",
+    "ParamProfile",
     "ParamSettings",
+    "Setting",
     "VehicleParams",
     "envelope_from_params",
     "failsafe_values",
@@ -79,7 +81,6 @@ ENVELOPE_PARAMS = (
 """The position controller's limits read at start-up (ardupilot-facts.md)."""
 FAILSAFE_PARAMS = ("SYSID_MYGCS", "FS_GCS_TIMEOUT", "FS_GCS_ENABLE")
 FENCE_PARAMS = ("FENCE_TYPE", "FENCE_ALT_MAX", "FENCE_RADIUS", "FENCE_ACTION", "FENCE_ENABLE")
-_SAFETY_PARAMS = frozenset(FAILSAFE_PARAMS + FENCE_PARAMS)
 
 ARDUCOPTER_DEFAULTS: dict[str, float] = {
     "WPNAV_ACCEL": 250.0,
@@ -121,7 +122,6 @@ retries: that vehicle does not know these names (8 x 10 s would eat the
 start-up); a real ArduCopter answers every one."""
 _RESTORE_ATTEMPTS = 3
 """Sends of each restoring PARAM_SET (best effort, inside the end timeout)."""
-_ENDS_ON_ITS_OWN = frozenset({b.COPTER_MODES["LAND"], b.COPTER_MODES["RTL"]})
 
 
 def _positive(values: Mapping[str, float], name: str) -> float | None:
@@ -237,6 +237,54 @@ def fence_values(
     return settings, tuple(notes)
 
 
+EnvelopeFn = Callable[
+    [Mapping[str, float], Envelope | None, float], tuple[Envelope, tuple[str, ...]]
+]
+FailsafeFn = Callable[[EndAction, float, int], tuple[Setting, ...]]
+ParamSetFn = Callable[[int, int, str, float], MessageSpec]
+
+
+@dataclass(frozen=True)
+class ParamProfile:
+    """One autopilot's parameters as ``VehicleParams`` reads and sets them:
+    the envelope's names and how they become an ``Envelope`` (Eq. E1 for
+    ArduCopter), the failsafe's names and values, the fence's (empty: no
+    fence), how a PARAM_SET is built, and the end modes after which the
+    vehicle comes down on its own (its failsafe and fence may be restored)."""
+
+    autopilot: str
+    envelope_params: tuple[str, ...]
+    envelope: EnvelopeFn
+    failsafe_params: tuple[str, ...]
+    failsafe: FailsafeFn
+    fence_params: tuple[str, ...]
+    param_set: ParamSetFn
+    ends_on_own: frozenset[int]
+
+    @property
+    def safety_params(self) -> frozenset[str]:
+        return frozenset(self.failsafe_params + self.fence_params)
+
+
+def _envelope(
+    values: Mapping[str, float], fallback: Envelope | None, lag_s: float
+) -> tuple[Envelope, tuple[str, ...]]:
+    return envelope_from_params(values, fallback, lag_s=lag_s)
+
+
+ARDUCOPTER = ParamProfile(
+    autopilot="ArduCopter",
+    envelope_params=ENVELOPE_PARAMS,
+    envelope=_envelope,
+    failsafe_params=FAILSAFE_PARAMS,
+    failsafe=lambda end, timeout, sysid: failsafe_values(end, timeout, sysid),
+    fence_params=FENCE_PARAMS,
+    param_set=b.param_set,
+    ends_on_own=frozenset({b.COPTER_MODES["LAND"], b.COPTER_MODES["RTL"]}),
+)
+"""ArduCopter 4.5's parameters (ardupilot-facts.md)."""
+
+
 @dataclass(frozen=True)
 class ParamSettings:
     """What the station does with one vehicle's parameters (from the mission).
@@ -322,12 +370,14 @@ class VehicleParams:
         emit: Emit,
         *,
         station_sets: Mapping[str, float] | None = None,
+        profile: ParamProfile = ARDUCOPTER,
     ) -> None:
         self.sysid = sysid
         self.settings = settings
+        self.profile = profile
         self.envelope: Envelope = settings.fallback
         """The vehicle's envelope: read from it, or the mission's (``fallback``)."""
-        self.envelope_missing: tuple[str, ...] = ENVELOPE_PARAMS
+        self.envelope_missing: tuple[str, ...] = profile.envelope_params
         """Envelope parameters not (yet) read: their bounds are the mission's."""
         self.old: dict[str, float] = {}
         """First value read of each parameter (later reads may be our own)."""
@@ -341,6 +391,12 @@ class VehicleParams:
         self._envelope_due: set[str] = set()
         self._fence_pushed = False
 
+    @property
+    def fences(self) -> bool:
+        """A fence will be set: asked for, a box to set it from, and an
+        autopilot whose fence the station knows (ArduCopter's)."""
+        return self.settings.fences and bool(self.profile.fence_params)
+
     # ----------------------------------------------------------- start-up
     def start(self, now: float, queue: CommandQueue, compid: int) -> None:
         """CONFIGURING: queue the reads, then the failsafe's PARAM_SETs."""
@@ -348,16 +404,16 @@ class VehicleParams:
         self._fence_pushed = False
         for name, value in self._station_sets.items():
             self._change(name, value, "set by the station at start-up")
-        if not cfg.active:
+        if not (cfg.read_envelope or cfg.gcs_failsafe or self.fences):
             return
         names = list(self._station_sets)
         if cfg.gcs_failsafe:
-            names += FAILSAFE_PARAMS
-        if cfg.fences:
-            names += FENCE_PARAMS
+            names += self.profile.failsafe_params
+        if self.fences:
+            names += self.profile.fence_params
         if cfg.read_envelope:
-            names += ENVELOPE_PARAMS
-            self._envelope_due = set(ENVELOPE_PARAMS)
+            names += self.profile.envelope_params
+            self._envelope_due = set(self.profile.envelope_params)
 
         def attempts() -> int:
             return min(_QUICK_READ_ATTEMPTS, queue.attempts) if self._silent else queue.attempts
@@ -369,7 +425,7 @@ class VehicleParams:
                 partial(self._read_done, name), param=name, optional=True, attempts=attempts,
             )  # fmt: skip
         if cfg.gcs_failsafe:
-            for setting in failsafe_values(cfg.end, cfg.gcs_timeout_s, cfg.station_sysid):
+            for setting in self.profile.failsafe(cfg.end, cfg.gcs_timeout_s, cfg.station_sysid):
                 self._push_set(now, queue, compid, setting)
 
     def home_known(
@@ -379,7 +435,7 @@ class VehicleParams:
         in the mission frame at ``home_m`` [m]: queue the fence (once per
         start-up)."""
         cfg = self.settings
-        if self._fence_pushed or not cfg.fences:
+        if self._fence_pushed or not self.fences:
             return
         assert cfg.geofence_min is not None and cfg.geofence_max is not None
         self._fence_pushed = True
@@ -398,7 +454,7 @@ class VehicleParams:
             if name not in self.unanswered:
                 self.unanswered.append(name)
             self._emit("warning", f"vehicle {self.sysid}: no answer to PARAM_REQUEST_READ "
-                       f"{name} (not an ArduCopter?)")  # fmt: skip
+                       f"{name} (not an {self.profile.autopilot}?)")  # fmt: skip
         else:
             self.old.setdefault(name, value)
             ch = self.changes.get(name)
@@ -411,8 +467,8 @@ class VehicleParams:
 
     def _envelope_read(self) -> None:
         cfg = self.settings
-        self.envelope, self.envelope_missing = envelope_from_params(
-            self._values, cfg.fallback, lag_s=cfg.lag_s
+        self.envelope, self.envelope_missing = self.profile.envelope(
+            self._values, cfg.fallback, cfg.lag_s
         )
         e = self.envelope
         source = "from its parameters"
@@ -435,7 +491,8 @@ class VehicleParams:
         name, value, why = setting
         self._change(name, value, why)
         queue.push(
-            now, f"PARAM_SET {name}", partial(b.param_set, self.sysid, compid, name, value),
+            now, f"PARAM_SET {name}",
+            partial(self.profile.param_set, self.sysid, compid, name, value),
             partial(self._set_done, name), param=name, expect=value,
         )  # fmt: skip
 
@@ -475,12 +532,13 @@ class VehicleParams:
             if not self.settings.restore:
                 ch.note = "not restored (mission.failsafe.restore false)"
                 continue
-            if name in _SAFETY_PARAMS and armed and end_mode not in _ENDS_ON_ITS_OWN:
+            safety = name in self.profile.safety_params
+            if safety and armed and end_mode not in self.profile.ends_on_own:
                 ch.note = "kept: the vehicle is still armed and not landing or returning"
                 continue
             queue.push(
                 now, f"PARAM_SET {name} (restore)",
-                partial(b.param_set, self.sysid, compid, name, ch.old),
+                partial(self.profile.param_set, self.sysid, compid, name, ch.old),
                 partial(self._restore_done, name), param=name, expect=ch.old, optional=True,
                 attempts=lambda: min(_RESTORE_ATTEMPTS, queue.attempts),
             )  # fmt: skip
@@ -509,7 +567,8 @@ class VehicleParams:
         """This vehicle's entry of ``vehicle_params.json``."""
         e, missing = self.envelope, self.envelope_missing
         source = "vehicle and mission"
-        if len(missing) == len(ENVELOPE_PARAMS):
+        names = self.profile.envelope_params
+        if len(missing) == len(names):
             source = "mission"
         elif not missing:
             source = "vehicle"
@@ -518,7 +577,8 @@ class VehicleParams:
             "envelope": {f.name: getattr(e, f.name) for f in fields(e)},
             "envelope_source": source,
             "envelope_unanswered": list(missing) if self.settings.read_envelope else [],
-            "read": {n: self.old[n] for n in ENVELOPE_PARAMS if n in self.old},
+            "autopilot": self.profile.autopilot,
+            "read": {n: self.old[n] for n in names if n in self.old},
             "unanswered": list(self.unanswered),
             "params": [self._final(ch).as_dict() for ch in self.changes.values()],
         }

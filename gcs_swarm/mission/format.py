@@ -373,18 +373,11 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
     link, autopilot = v["link"], v["autopilot"]
     if autopilot is None:
         autopilot = "sim" if link == "sim" else "ardupilot"
-    if autopilot == "px4":
+    if link == "sim" and autopilot not in ("sim", "px4"):
         ctx.add(
             ctx.line_of(f"{path}.autopilot"),
             f"{path}.autopilot",
-            "px4 is not supported yet (reserved); use ardupilot or sim",
-        )
-        ok = False
-    elif link == "sim" and autopilot != "sim":
-        ctx.add(
-            ctx.line_of(f"{path}.autopilot"),
-            f"{path}.autopilot",
-            f'expected sim for link sim (the bundled emulator), got "{autopilot}"',
+            f'expected sim or px4 for link sim (the bundled emulator), got "{autopilot}"',
         )
         ok = False
     if v["origin"] is not None and link != "sim":
@@ -428,7 +421,8 @@ VEHICLE = Obj(
             "autopilot",
             Enum(choices=("ardupilot", "sim", "px4")),
             None,
-            "ardupilot or sim (px4 reserved); default: sim for link sim, else ardupilot",
+            "ardupilot, px4 (OFFBOARD) or sim (the emulator's ArduCopter; px4 on link sim is "
+            "the emulator's PX4); default: sim for link sim, else ardupilot",
         ),
         Key("start", Vec3(), REQUIRED, "start position, mission frame [m]"),
         Key("q", Pos(hi=GAIN_MAX), None, "charge of Eq. 9 [C]; default: gains.q"),

@@ -49,13 +49,18 @@ __all__ = ["ReplayStats", "record_from_tlog", "safety_applied"]
 _LPN, _ORIGIN, _COMMAND_LONG, _SETPOINT, _DEBUG_VECT = 32, 49, 76, 84, 250
 _MAV_CMD_NAV_LAND, _MAV_CMD_DO_SET_MODE, _MAV_CMD_ARM_DISARM = 21, 176, 400
 _COPTER_GUIDED = 4
+_PX4_OFFBOARD = (6, 0)
 
 
-def _ends_flight(msg: Any) -> bool:
+def _ends_flight(msg: Any, px4: bool = False) -> bool:
     """A command that takes a vehicle out of the formation: a mode other than
-    GUIDED (the station's ending: BRAKE, LAND, RTL), a land, a disarm."""
+    its fly mode (ArduCopter GUIDED; PX4 OFFBOARD, main mode 6 sub 0: the
+    station's ending is BRAKE, LAND, RTL or PX4's Hold, AUTO.LAND, AUTO.RTL),
+    a land, a disarm."""
     cmd = int(msg.command)
     if cmd == _MAV_CMD_DO_SET_MODE:
+        if px4:
+            return (round(float(msg.param2)), round(float(msg.param3))) != _PX4_OFFBOARD
         return round(float(msg.param2)) != _COPTER_GUIDED
     return cmd == _MAV_CMD_NAV_LAND or (cmd == _MAV_CMD_ARM_DISARM and float(msg.param1) == 0.0)
 
@@ -225,6 +230,7 @@ def _replay_law(
 ) -> None:
     from gcs_swarm.runtime.control import ControlLoop
 
+    px4 = {v.sysid for v in mission.vehicles if v.autopilot == "px4"}
     loop = ControlLoop(mission.law, {v.sysid: v.q for v in mission.vehicles},
                        mission.settings.rate, defer=False)  # fmt: skip
     stale_us = mission.settings.stale_timeout * 1e6
@@ -278,7 +284,7 @@ def _replay_law(
             continue
         target = int(msg.target_system)
         if h.msgid == _COMMAND_LONG:
-            if target in members and _ends_flight(msg):
+            if target in members and _ends_flight(msg, target in px4):
                 flush()
                 members.discard(target)
                 recorder.member(loop.t_s, target, False)

@@ -27,6 +27,8 @@ class VehiclePlan:
     q: float
     reserve: bool = False
     params: ParamSettings = field(default_factory=ParamSettings)
+    autopilot: str = "ardupilot"
+    """The mission's ``autopilot`` (ardupilot, sim or px4): its personality."""
 
 
 @dataclass(frozen=True)

@@ -121,9 +121,12 @@ def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
     """What the station reads and sets among ``vehicle``'s parameters: the
     mission's ``startup.read_envelope`` and ``failsafe`` keys, where null
     means on for an ``ardupilot`` vehicle and off for a ``sim`` one (today's
-    emulator does not answer these parameters: docs/vehicle-safety.md)."""
+    emulator does not answer these parameters: docs/vehicle-safety.md). A
+    ``px4`` vehicle, real or emulated, counts as real: the emulator's PX4
+    answers its parameters (COM_OF_LOSS_T, COM_OBL_RC_ACT, MPC_*); PX4 gets
+    no fence from the station (ArduCopter's FENCE_* only)."""
     s, limits = mission.settings, mission.law.limits
-    fs, real = s.failsafe, vehicle.autopilot == "ardupilot"
+    fs, real = s.failsafe, vehicle.autopilot in ("ardupilot", "px4")
 
     def on(choice: bool | None) -> bool:
         return real if choice is None else choice
@@ -148,17 +151,19 @@ def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
 def station_config(
     mission: Mission, links: Mapping[int, str], *, lockstep: bool = False
 ) -> StationConfig:
-    """The station's view of ``mission``, with each vehicle's connection string.
-    ``StartupError`` for a PX4 vehicle: the station speaks ArduCopter's GUIDED
-    only (PX4's OFFBOARD is in mavlink-protocol.md "for later")."""
-    px4 = [v.sysid for v in mission.vehicles if v.autopilot == "px4"]
-    if px4:
-        raise StartupError(f"vehicles {px4}: PX4 (OFFBOARD) is not supported by the station yet")
+    """The station's view of ``mission``, with each vehicle's connection string
+    and autopilot (ArduCopter GUIDED or PX4 OFFBOARD: mavlink/personality.py)."""
     s = mission.settings
     return StationConfig(
         vehicles=tuple(
             VehiclePlan(
-                v.sysid, links[v.sysid], v.start, v.q, v.reserve, param_settings(mission, v)
+                v.sysid,
+                links[v.sysid],
+                v.start,
+                v.q,
+                v.reserve,
+                param_settings(mission, v),
+                autopilot=v.autopilot,
             )
             for v in mission.vehicles
         ),
@@ -223,6 +228,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
                 origin=(home.lat_deg, home.lon_deg, home.alt_m),
                 start_ned_m=start,
                 airborne=airborne and not v.reserve,
+                autopilot="px4" if v.autopilot == "px4" else "ardupilot",
             )
         )
     em = mission.emulator

@@ -48,6 +48,7 @@ from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.batch import accel_ned, mission_states
 from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
+from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolEvent
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
@@ -104,7 +105,13 @@ class Station:
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
         self.vehicles = {
-            p.sysid: VehicleProtocol(p.sysid, pcfg, goto_m=p.start_m, params=p.params)
+            p.sysid: VehicleProtocol(
+                p.sysid,
+                pcfg,
+                goto_m=p.start_m,
+                params=p.params,
+                personality=personality_for(p.autopilot),
+            )
             for p in config.vehicles
         }
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},

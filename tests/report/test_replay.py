@@ -147,3 +147,18 @@ def test_report_on_a_run_folder_writes_beside_the_runs_own_files(
     assert f"summary written to {folder / 'summary-2.json'}" in capsys.readouterr().out
     assert report_command(folder, force=True) == 0  # --force: overwrite
     assert json.loads((folder / "summary.json").read_text())["source"] == "tlog"
+
+
+def test_a_px4_offboard_command_does_not_end_its_flight_but_hold_does() -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from gcs_swarm.report.replay import _ends_flight
+
+    def mode(main: float, sub: float) -> object:
+        return mav.MAVLink_command_long_message(1, 1, 176, 0, 1, main, sub, 0, 0, 0, 0)
+
+    # PX4: OFFBOARD (6, 0) is the fly mode; Hold (4, 3) and AUTO.LAND (4, 6) end.
+    assert not _ends_flight(mode(6, 0), px4=True)
+    assert _ends_flight(mode(4, 3), px4=True) and _ends_flight(mode(4, 6), px4=True)
+    # ArduCopter: p2 = 4 is GUIDED, 6 is RTL (the same numbers, other meanings).
+    assert not _ends_flight(mode(4, 0)) and _ends_flight(mode(6, 0))
