@@ -273,7 +273,11 @@ class Station:
         await self._finished.wait()
 
     async def end(self, mode: int | None = None) -> None:
-        """Zero acceleration and the end mode for everyone, confirmed by heartbeat."""
+        """Zero acceleration and the end mode for everyone, confirmed by heartbeat.
+        A started formation's last figures go out as one more status line first
+        (a run shorter than the status interval would otherwise show none)."""
+        if self.started and not self.ending and self.on_status is not None:
+            self.on_status(self.status_line())
         self.ending = True
         now = self.now()
         for vp in self.vehicles.values():
