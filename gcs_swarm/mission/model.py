@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from gcs_swarm.control.params import LawConfig, Vec3
+from gcs_swarm.control.velocity_bias import BiasSettings
 
 __all__ = [
     "DEFAULT_SIM_HOME",
@@ -117,11 +118,11 @@ class VelocityBias:
     constant bias in each vehicle's reported velocity from its own positions
     over ``window`` [s] of telemetry and, with ``correct``, take it out of the
     velocity the law damps (Eq. 1); estimates longer than ``max`` [m/s] are
-    held at ``max`` and reported."""
+    held at ``max`` and reported. Defaults: the estimator's own."""
 
-    correct: bool = True
-    window: float = 10.0
-    max: float = 0.3
+    correct: bool = BiasSettings.correct
+    window: float = BiasSettings.window_s
+    max: float = BiasSettings.max_mps
 
 
 @dataclass(frozen=True)
