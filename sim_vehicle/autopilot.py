@@ -79,6 +79,8 @@ class ControlTarget:
     jerk_xy: float = _INF
     jerk_z: float = _INF
     lean_acc: float = _INF
+    drag: float = 0.0
+    """Eq. D7's drag over mass (1/s): only on raw acceleration setpoints (SIM_DRAG)."""
 
 
 class Autopilot:
@@ -137,6 +139,7 @@ class Autopilot:
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
         self.target = ControlTarget()
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
+        self._drag = 0.0  # SIM_DRAG as of the cached base target
         self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
@@ -357,6 +360,7 @@ class Autopilot:
             acc_lim=acc_max, acc_max=acc_max, jerk_xy=jxy, jerk_z=jz, lean_acc=lean,
         )  # fmt: skip
         self._base = (p.generation, base)
+        self._drag = p["SIM_DRAG"]  # the same float object while unchanged (Fleet.set_target)
         return base
 
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
@@ -372,7 +376,7 @@ class Autopilot:
         if ctl == "accel":
             tg = ControlTarget(
                 sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self._drag,
             )  # fmt: skip
         elif ctl == "vel":
             tg = ControlTarget(

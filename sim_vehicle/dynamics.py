@@ -37,8 +37,15 @@ Equations (named where used):
 - (D6) lean-angle cap: ``|s_h| <= a_lean = g tan(ANGLE_MAX)`` (norm clamp of the
   horizontal shaped command, stored so it does not wind up). D2 then lags ``s``.
   With ``j = a_lean = inf`` (the ideal preset) D5-D6 give ``s = c`` bit for bit.
+- (D7) linear drag on vehicles that fly raw acceleration setpoints: the
+  airframe's drag ``-k v`` (k in 1/s: drag coefficient over mass) is not
+  cancelled by the autopilot when its velocity loop is bypassed (PX4's
+  OFFBOARD acceleration; PX4 SIH's ``SIH_KDV / SIH_MASS`` = 1.0 1/s), so it
+  adds to D2, evaluated at the step's start velocity:
+  ``v1 -= k v0 h``, ``p1 -= k v0 h^2 / 2`` (explicit; ``k h`` <= 0.02 at 50 Hz).
+  ``a`` stays the lagged thrust acceleration. ``k = 0`` rows are untouched.
 
-``advance_small`` is D3 then D1, D5, D6, D2, D4 for a few vehicles in plain Python floats:
+``advance_small`` is D3 then D1, D5, D6, D2, D7, D4 for a few vehicles in plain Python floats:
 the same operations in the same order as ``tracking_accel`` then ``step``, so
 the same bits (a test compares them on random cases), without numpy's cost
 per call, which dominates below a few tens of vehicles.
@@ -100,7 +107,8 @@ class DynParams:
     ``tau_s``: lag time constant of D1 (0 = ideal); ``acc_max_m_s2``: norm
     clamp of the command; ``ground_d_m``: ground plane (down coordinate).
     ``jerk_xy_m_s3``, ``jerk_z_m_s3``: jerk limits of D5; ``lean_acc_m_s2``:
-    horizontal cap of D6 (``inf`` = no limit; None = D5-D6 skipped).
+    horizontal cap of D6 (``inf`` = no limit; None = D5-D6 skipped);
+    ``drag_1_s``: D7's drag over mass (None or 0 = no drag).
     """
 
     tau_s: F64
@@ -109,6 +117,7 @@ class DynParams:
     jerk_xy_m_s3: F64 | None = None
     jerk_z_m_s3: F64 | None = None
     lean_acc_m_s2: F64 | None = None
+    drag_1_s: F64 | None = None
 
 
 @dataclass(frozen=True)
@@ -225,6 +234,12 @@ def step(state: KinState, accel_cmd: F64, dt: float, params: DynParams) -> KinSt
     a1 = c + d * e
     v1 = v0 + c * dt + d * t * (1.0 - e)
     p1 = p0 + v0 * dt + 0.5 * c * (dt * dt) + d * t * (dt - t * (1.0 - e))
+    if params.drag_1_s is not None:
+        dragged = params.drag_1_s != 0.0
+        if dragged.any():  # Eq. D7, only on the rows with drag (signed zeros elsewhere kept)
+            kv = params.drag_1_s[dragged, None] * v0[dragged]
+            v1[dragged] = v1[dragged] - kv * dt
+            p1[dragged] = p1[dragged] - 0.5 * kv * (dt * dt)
     s1 = c.copy()
     # Eq. D4: ground plane.
     ground = params.ground_d_m
@@ -336,13 +351,15 @@ def advance_small(
     kp_1_s: float,
     kv_1_s: float,
     shaping: tuple[Rows, Sequence[float], Sequence[float], Sequence[float]] | None = None,
+    drag: Sequence[float] | None = None,
 ) -> tuple[list[list[float]], list[list[float]], list[list[float]], list[bool], list[list[float]]]:
     """``tracking_accel`` then ``step`` for rows given as Python lists, bit for bit.
 
     ``tg`` holds the ``Targets`` fields in their order, ``acc_max`` and
     ``ground`` the ``DynParams`` ones, ``lag`` is ``lag_factors(tau, dt)``,
     ``shaping`` is (shaped command rows, jerk_xy, jerk_z, lean_acc) for D5-D6
-    (None: skipped). Returns (pos, vel, acc, landed, shaped command) as lists.
+    (None: skipped), ``drag`` the D7 coefficients (None: none).
+    Returns (pos, vel, acc, landed, shaped command) as lists.
     numpy's elementwise rules are
     copied where Python's differ: ``np.maximum(a, b)`` is ``a if a > b else b``
     (``b`` on a tie, which matters for signed zeros), ``np.minimum`` likewise,
@@ -418,6 +435,11 @@ def advance_small(
             p0[1] + v0[1] * dt + 0.5 * c1 * hh + d1 * t * w,
             p0[2] + v0[2] * dt + 0.5 * c2 * hh + d2 * t * w,
         ]
+        k = drag[i] if drag is not None else 0.0
+        if k != 0.0:  # Eq. D7
+            kv0, kv1, kv2 = k * v0[0], k * v0[1], k * v0[2]
+            v1 = [v1[0] - kv0 * dt, v1[1] - kv1 * dt, v1[2] - kv2 * dt]
+            p1 = [p1[0] - 0.5 * kv0 * hh, p1[1] - 0.5 * kv1 * hh, p1[2] - 0.5 * kv2 * hh]
         s1 = [c0, c1, c2]
         g = ground[i]
         below = p1[2] >= g

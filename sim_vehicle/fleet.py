@@ -28,7 +28,7 @@ _V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp", "vbias")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
-    "jerk_xy", "jerk_z", "lean",
+    "jerk_xy", "jerk_z", "lean", "drag",
 )  # fmt: skip
 _INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
 _I1 = ("seq", "sysid", "compid")
@@ -138,6 +138,7 @@ class Fleet:
             and tg.jerk_xy is prev.jerk_xy
             and tg.jerk_z is prev.jerk_z
             and tg.lean_acc is prev.lean_acc
+            and tg.drag is prev.drag
         ):
             return
         self.p_t[row] = tg.p_t
@@ -153,9 +154,10 @@ class Fleet:
         self.jerk_xy[row] = tg.jerk_xy
         self.jerk_z[row] = tg.jerk_z
         self.lean[row] = tg.lean_acc
+        self.drag[row] = tg.drag
 
     def step(self, dt: float) -> None:
-        """Advance every vehicle by ``dt`` s: Eq. D3 then ``dynamics.step`` (D1, D5, D6, D2, D4)."""
+        """Advance every vehicle by ``dt`` s: Eq. D3, then ``dynamics.step`` (D1, D5-7, D2, D4)."""
         if self.n == 0:
             return
         before = self.landed
@@ -189,7 +191,7 @@ class Fleet:
             pos, vel, acc, landed, shp = dynamics.advance_small(
                 self.pos.tolist(), self.vel.tolist(), self.acc.tolist(), tg,
                 self.acc_max.tolist(), self.ground.tolist(), lag[2], dt, KP_1_S, KV_1_S,
-                shaping,
+                shaping, self.drag.tolist(),
             )  # fmt: skip
         except ValueError:
             return False
@@ -215,7 +217,8 @@ class Fleet:
                     self.vmax_xy, self.vmax_up, self.vmax_dn, self.acc_lim,
                 ),
                 DynParams(
-                    self.tau, self.acc_max, self.ground, self.jerk_xy, self.jerk_z, self.lean
+                    self.tau, self.acc_max, self.ground, self.jerk_xy, self.jerk_z, self.lean,
+                    self.drag,
                 ),
             )  # fmt: skip
         tg, params = self._views

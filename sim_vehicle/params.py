@@ -48,6 +48,7 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "FENCE_MARGIN": (2.0, _R32, "m, distance the autopilot keeps from the fence (stored only)"),
     "SIM_ACC_MAX": (5.0, _R32, "m/s/s, norm clamp of the acceleration command"),
     "SIM_ACC_TAU": (0.2, _R32, "s, first-order lag on the acceleration (0 = ideal)"),
+    "SIM_DRAG": (0.0, _R32, "1/s, drag on raw acceleration setpoints (Eq. D7; PX4 SIH 1.0)"),
     "SIM_BRAKE_ACC": (2.0, _R32, "m/s/s braking unshaped (fits 18.7 m); shaped: WPNAV_ACCEL"),
     "SIM_TKOFF_DLY": (3.3, _R32, "s spool-up before a takeoff climbs (fits the sheet's 9.4 s)"),
     "SIM_EKF_DELAY": (2.0, _R32, "s after boot before the EKF/GPS are ready and arming passes"),

@@ -115,7 +115,9 @@ PX4_PARAMS: dict[str, tuple[float, int, str]] = {
 """PX4 v1.14's names and defaults (parameter metadata), in PX4's units."""
 _TABLE = {**PARAM_TABLE, **PX4_PARAMS}
 _VISIBLE = frozenset(PX4_PARAMS) | {n for n in PARAM_TABLE if n.startswith("SIM_")}
-PX4_OVERRIDES: dict[str, float] = {"SIM_ACC_TAU": 0.3, "SIM_ACC_SHAPE": 0.0, "SIM_BOOT_S": 0.0}
+PX4_OVERRIDES: dict[str, float] = {
+    "SIM_ACC_TAU": 0.3, "SIM_ACC_SHAPE": 0.0, "SIM_BOOT_S": 0.0, "SIM_DRAG": 1.0,
+}  # fmt: skip
 """The emulator's own settings for a PX4 (measured lag, no shaping, no end of boot)."""
 
 

@@ -57,6 +57,27 @@ def test_lagged_step_matches_first_order_solution() -> None:
     assert abs(st.pos_ned_m[0, 0] - c * (t * t / 2 - tau * t + tau * tau * (1 - e))) < 1e-9
 
 
+def test_drag_gives_the_first_order_velocity_of_a_dragged_point_mass() -> None:
+    """Eq. D7 with no lag: dv/dt = c - k v from rest gives v = c/k (1 - exp(-k t)),
+    PX4 SIH's terminal speed c/k under a held acceleration setpoint (measured on PX4
+    SITL: 1.0 m/s under 1 m/s^2 east, docs/sitl.md). Explicit drag at h = 0.02 s and
+    k = 1/s: the error is about k h / 2 = 1 % of the velocity change, hence 0.01 c/k."""
+    k, c, steps = 1.0, 0.5, 300
+    st = _airborne(1)
+    par = DynParams(np.zeros(1), np.full(1, 50.0), np.zeros(1), drag_1_s=np.full(1, k))
+    for _ in range(steps):
+        st = step(st, np.array([[c, 0.0, 0.0]]), DT, par)
+    t = steps * DT
+    want = c / k * (1 - math.exp(-k * t))
+    assert abs(st.vel_ned_m_s[0, 0] - want) < 0.01 * c / k
+    assert st.vel_ned_m_s[0, 0] < c / k  # never past the terminal speed
+    undragged = DynParams(np.zeros(1), np.full(1, 50.0), np.zeros(1), drag_1_s=np.zeros(1))
+    st0 = _airborne(1)
+    for _ in range(steps):
+        st0 = step(st0, np.array([[c, 0.0, 0.0]]), DT, undragged)
+    assert abs(st0.vel_ned_m_s[0, 0] - c * t) < 1e-9  # k = 0: Eq. D2 untouched
+
+
 def test_command_norm_is_clamped() -> None:
     st = _airborne(1)
     st = step(st, np.array([[30.0, 40.0, 0.0]]), DT, _params(1, 0.0, acc_max=5.0))
@@ -190,6 +211,7 @@ def _random_fleet(rng: np.random.Generator, n: int) -> Fleet:
         v = rng.uniform(0.0, hi, n)
         pick = rng.integers(0, 4, n)  # unlimited (the ideal preset), zero, or a limit
         setattr(f, name, np.where(pick == 0, np.inf, np.where(pick == 1, 0.0, v)))
+    f.drag = np.where(rng.integers(0, 2, n) == 0, 0.0, rng.uniform(0.0, 2.0, n))  # Eq. D7
     f.ground = np.where(rng.integers(0, 3, n) == 0, f.pos[:, 2], rng.uniform(-1, 1, n))
     f.pos[:, 2] = np.where(rng.integers(0, 4, n) == 0, f.ground + 1e-3, f.pos[:, 2])
     return f
@@ -198,8 +220,9 @@ def _random_fleet(rng: np.random.Generator, n: int) -> Fleet:
 def test_small_step_is_bit_identical_to_numpy() -> None:
     """advance_small (the Fleet path below _SMALL_STEP vehicles) against the numpy path:
     the same bits on 3000 random fleets of 1 to _SMALL_STEP - 1 vehicles, several steps
-    each, with zeros of both signs, ties, landings, ideal (tau <= 0) vehicles and jerk /
-    lean limits (Eqs. D5-D6) infinite, zero or finite, including the shaped command."""
+    each, with zeros of both signs, ties, landings, ideal (tau <= 0) vehicles, jerk /
+    lean limits (Eqs. D5-D6) infinite, zero or finite, including the shaped command,
+    and drag (Eq. D7) zero or not."""
     rng = np.random.default_rng(8)
     small_runs = 0
     for case in range(3000):
