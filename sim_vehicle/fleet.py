@@ -47,6 +47,7 @@ class Fleet:
     jerk_xy: NDArray[np.float64]
     jerk_z: NDArray[np.float64]
     lean: NDArray[np.float64]
+    drag: NDArray[np.float64]  # Eq. D7, 1/s
     a_ff: NDArray[np.float64]
     p_t: NDArray[np.float64]
     v_t: NDArray[np.float64]
