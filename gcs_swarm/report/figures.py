@@ -26,6 +26,10 @@ from gcs_swarm.report.record import FlightRecord
 __all__ = ["SUMMARY_FORMAT", "Series", "series", "summarize_record"]
 
 SUMMARY_FORMAT = "gcs-swarm-summary/1"
+HOLD_WINDOW_S = 20.0
+"""The trailing window of ``final_radius_window_m``: a real vehicle's position wanders
+(PX4 SIH in OFFBOARD acceleration: 0.2-0.7 m std over 20 s), so its last sample alone
+says little about where the formation holds; the window's mean and std do."""
 F64 = npt.NDArray[np.float64]
 
 
@@ -176,8 +180,10 @@ def summarize_record(rec: FlightRecord, *, form_tol: float = 0.01) -> dict[str, 
                                       for i, k in enumerate(others)}  # fmt: skip
             cols = np.hstack([ser.radius_m[first:, j : j + 1], dists[first:]])
             v["time_to_form_s"] = time_to_form(t[first:], cols, rel_tol=form_tol)
+            v["final_radius_window_m"] = _window(t[first:], ser.radius_m[first:, j])
         else:
             v["final_radius_m"] = v["final_distances_m"] = v["time_to_form_s"] = None
+            v["final_radius_window_m"] = None
         near = _argmin(ser.nearest_m[:, j : j + 1])
         v["min_separation_m"] = None if near is None else float(ser.nearest_m[near[0], j])
         v["min_separation_at_s"] = None if near is None else float(t[near[0]])
@@ -199,6 +205,8 @@ def summarize_record(rec: FlightRecord, *, form_tol: float = 0.01) -> dict[str, 
 
     sep = _argmin(ser.nearest_m)
     peak = _argmin(-ser.accel_mps2)
+    windows = [v["final_radius_window_m"] for v in vehicles.values()]
+    held = np.array([w["mean"] for w in windows if w is not None])
     overall: dict[str, Any] = {
         "vehicles_seen": ids,
         "vehicles_flown": [
@@ -207,6 +215,7 @@ def summarize_record(rec: FlightRecord, *, form_tol: float = 0.01) -> dict[str, 
         "vehicles_final": final_ids,
         "time_to_form_s": _num(swarm.time_to_form_s),
         "final_radius_m": _stats(swarm.final_radii_m),
+        "final_radius_window_m": _stats(held),
         "final_pairwise_distances_m": [float(d) for d in pairwise_distances(rec.pos_m[-1, final])],
         "distance_groups": [{"distance_m": d, "count": c} for d, c in swarm.distance_groups],
         "min_separation_m": _num(swarm.min_separation_m),
@@ -230,6 +239,19 @@ def summarize_record(rec: FlightRecord, *, form_tol: float = 0.01) -> dict[str, 
     out["overall"] = overall
     out["vehicles"] = vehicles
     return out
+
+
+def _window(t: F64, radius: F64) -> dict[str, float] | None:
+    """Mean, std, min and max of ``radius`` over the last ``HOLD_WINDOW_S`` of ``t``
+    (less when the stretch is shorter; ``window_s`` says how much)."""
+    if t.size == 0:
+        return None
+    inside = t >= t[-1] - HOLD_WINDOW_S
+    r = radius[inside]
+    return {
+        "window_s": float(t[-1] - t[inside][0]), "mean": float(r.mean()),
+        "std": float(r.std()), "min": float(r.min()), "max": float(r.max()),
+    }  # fmt: skip
 
 
 def _stats(x: F64) -> dict[str, float] | None:

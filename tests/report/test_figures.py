@@ -63,6 +63,23 @@ def test_octahedron_distances_radius_and_time_to_form() -> None:
     assert [e["action"] for e in o["events"]] == ["join"] * 6
 
 
+def test_final_radius_window_is_the_last_20_s_of_the_radius() -> None:
+    """R(t) = R6 (1 + 0.5 exp(-t/2)) over 0..40 s: the window is t in [20, 40] s,
+    its mean the integral of R over it / 20 (to the 50 Hz sampling's rectangle-rule
+    error, e^-10 R6 / 4 ~ 3e-5 m: bound 1e-4 m), its max the first sample's R(20)."""
+    s = summarize_record(_octahedron_run(steps=2001).record())
+    e10, e20 = math.exp(-10.0), math.exp(-20.0)
+    mean = R6 * (1.0 + 0.5 * 2.0 * (e10 - e20) / 20.0)
+    for v in s["vehicles"].values():
+        w = v["final_radius_window_m"]
+        assert w["window_s"] == pytest.approx(20.0, abs=1e-9)
+        assert w["mean"] == pytest.approx(mean, abs=1e-4)
+        assert w["max"] == pytest.approx(R6 * (1 + 0.5 * e10), abs=1e-5)
+        assert w["min"] == pytest.approx(R6 * (1 + 0.5 * e20), abs=1e-5)
+        assert 0.0 < w["std"] < w["max"] - w["min"]
+    assert s["overall"]["final_radius_window_m"]["mean"] == pytest.approx(mean, abs=1e-4)
+
+
 def test_trajectory_entering_a_box_has_negative_clearance_at_the_right_time() -> None:
     # Vehicle 1 flies along x through a box (centre 0, half-extents 1) at 1 m/s:
     # clearance |x| - 1 outside, max(|x|, |y|, |z|) - 1 inside: -1 at x = 0.

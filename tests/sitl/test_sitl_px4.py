@@ -133,11 +133,21 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
         s, folder, _ = _fly(mission, tmp_path / "runs")
     o = s["overall"]
     radii = [v["final_radius_m"] for v in s["vehicles"].values()]
+    # A PX4 in OFFBOARD acceleration wanders (0.16-0.24 m std over 20 s measured):
+    # the figure is each vehicle's mean radius over the last 20 s (the last sample too).
+    held = [None if v["final_radius_window_m"] is None else v["final_radius_window_m"]["mean"]
+            for v in s["vehicles"].values()]  # fmt: skip
     e, _, _ = _fly(_emulator_twin(mission), tmp_path / "emu")
     twin = compare(s, e)
     figures = {
         "equilibrium_radius_m": r_eq, "radii_m": radii,
         "radius_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq for r in radii],
+        "radii_last_20s_mean_m": held,
+        "radii_last_20s_std_m": [None if v["final_radius_window_m"] is None else
+                                 v["final_radius_window_m"]["std"]
+                                 for v in s["vehicles"].values()],
+        "radius_last_20s_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq
+                                          for r in held],
         "min_separation_m": o["min_separation_m"],
         "separation_configured_m": mission.law.safety.separation,
         "time_to_form_s": o["time_to_form_s"],
@@ -151,12 +161,13 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     assert o["min_separation_m"] >= mission.law.safety.separation
     # The figures: radii within 1 % of the law's equilibrium; the emulator's
     # PX4 personality within 10 % on the time to form and 1 % on the final radii.
-    np.testing.assert_allclose(radii, r_eq, rtol=0.01)
+    assert None not in held
+    np.testing.assert_allclose(held, r_eq, rtol=0.01)
     t_sitl, t_emu = twin["sitl"]["time_to_form_s"], twin["emulator"]["time_to_form_s"]
     assert t_sitl is not None and t_emu is not None
     assert abs(t_emu - t_sitl) <= 0.10 * t_sitl, (t_emu, t_sitl)
-    emu_radii = [v["final_radius_m"] for v in e["vehicles"].values()]
-    np.testing.assert_allclose(emu_radii, radii, rtol=0.01)
+    emu_held = [v["final_radius_window_m"]["mean"] for v in e["vehicles"].values()]
+    np.testing.assert_allclose(emu_held, held, rtol=0.01)
 
 
 def test_px4_station_killed_every_vehicle_lands(
