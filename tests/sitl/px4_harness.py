@@ -137,7 +137,8 @@ def px4_swarm(
     binary: Path, n: int, workdir: Path, *, first: int = 0, spacing_m: float = 5.0
 ) -> Iterator[Px4Swarm]:
     """Start instances ``first .. first + n - 1`` from default parameters in
-    ``workdir``, homes ``spacing_m`` apart due east; stop them on exit."""
+    ``workdir``, instance ``i``'s home ``i spacing_m`` east of SIH's default; stop
+    them on exit."""
     etc = binary.resolve().parent.parent / "etc"
     if not etc.is_dir():
         pytest.fail(f"no etc/ (ROMFS) beside {binary}")
@@ -156,7 +157,7 @@ def px4_swarm(
             for stale in (lock, Path(f"/tmp/px4-sock-{i}")):
                 with contextlib.suppress(OSError):
                     stale.unlink()  # left by a killed instance (start-px4-swarm.sh does this)
-            lat, lon = home_of(k, spacing_m)
+            lat, lon = home_of(i, spacing_m)  # by instance: a mixed swarm's homes stay apart
             # PX4_HOME_LAT/LON go to SIH_LOC_LAT0/LON0, INT32 parameters in degE7.
             env = dict(os.environ, PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT=str(round(lat * 1e7)),
                        PX4_HOME_LON=str(round(lon * 1e7)))  # fmt: skip

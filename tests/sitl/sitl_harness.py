@@ -73,6 +73,7 @@ class SitlSwarm:
     workdir: Path
     first: int = 0
     spacing_m: float = 5.0
+    home: tuple[float, float, float] = HOME
     procs: dict[int, subprocess.Popen[bytes]] = field(default_factory=dict)
 
     def sysid(self, k: int) -> int:
@@ -92,7 +93,7 @@ class SitlSwarm:
 
     def start(self) -> None:
         parm = defaults_file(self.binary)
-        lat, lon, alt = HOME
+        lat, lon, alt = self.home
         for k in range(self.count):
             inst = self.first + k
             if _port_busy(tcp_port(inst)):
@@ -139,10 +140,13 @@ class SitlSwarm:
 
 
 @contextlib.contextmanager
-def sitl_swarm(count: int, workdir: Path, *, first: int = 0) -> Iterator[SitlSwarm]:
+def sitl_swarm(
+    count: int, workdir: Path, *, first: int = 0, home: tuple[float, float, float] = HOME
+) -> Iterator[SitlSwarm]:
     """Fresh instances (default parameters: the station sets what it needs) for
-    one test; always stopped afterwards."""
-    swarm = SitlSwarm(binary_or_skip(), count, workdir, first=first)
+    one test, instance ``i``'s home ``5 i`` m east of ``home``; always stopped
+    afterwards."""
+    swarm = SitlSwarm(binary_or_skip(), count, workdir, first=first, home=home)
     try:
         swarm.start()
         yield swarm
