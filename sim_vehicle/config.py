@@ -144,7 +144,8 @@ class EmulatorConfig:
     address from the start (like SITL ``--out``), in addition to peers heard.
     ``signing_key``: 32 bytes turn MAVLink 2 signing on: every frame sent is
     signed, and unsigned, wrongly signed or replayed frames received are
-    dropped and counted (``LinkStats.signature_rejected``); never shown.
+    dropped and counted (``LinkStats.signature_rejected``); only an address (or TCP
+    client) that sent a well-signed frame is sent anything; never shown.
     """
 
     vehicles: tuple[VehicleSpec, ...] = ()

@@ -453,9 +453,12 @@ class Emulator:
 
     def _on_tcp_peer(self, ep: Endpoint, addr: Addr, up: bool) -> None:
         """A TCP client connected (a new peer: HEARTBEAT at once, lockstep rule 1, as SITL
-        starts when something connects) or went away."""
+        starts when something connects) or went away. With signing, a connection is no
+        peer yet: its first well-signed frame makes it one, as on UDP (``_receive_msgs``)."""
         if not up:
             ep.peers.pop(addr, None)
+            return
+        if ep.signing_key is not None:
             return
         ep.peers[addr] = None
         for sysid in sorted(ep.sysids):

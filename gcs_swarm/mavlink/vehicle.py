@@ -628,9 +628,10 @@ class VehicleProtocol:
         self.vehicle_params.start(now, self._commands, c)  # reads first: the old values
         for name, value, why in pers.station_sets(cfg):
             make = partial(pers.params.param_set, s, c, name, value)
-            self._commands.push(
-                now, f"PARAM_SET {name}", make, partial(self._param_set, name, why), param=name
-            )
+            self._commands.push(  # only its echo answers it, not a late copy of the read
+                now, f"PARAM_SET {name}", make, partial(self._param_set, name, why),
+                param=name, expect=value,
+            )  # fmt: skip
         self._request_origin(now)
 
     def _refused_if(self, what: str, result: int, now: float) -> None:

@@ -269,6 +269,36 @@ def test_a_late_answer_to_the_read_is_not_the_echo_of_the_set() -> None:
     assert nxt.name == "PARAM_SET" and nxt["param_id"] == "GUID_TIMEOUT"
 
 
+def test_a_late_answer_to_the_read_is_not_the_echo_of_the_stations_own_set() -> None:
+    # The same for the station's own sets (GUID_TIMEOUT 0.5, WP_YAW_BEHAVIOR 0),
+    # read first too. Before: any PARAM_VALUE of the name answered their
+    # PARAM_SET, so on a duplicating link the read's late copy (3) passed for
+    # the echo of a PARAM_SET the vehicle never got, and the vehicle kept
+    # braking 3 s, not 0.5 s, after the setpoints stop.
+    vp, copter = make(), Copter(ARDUCOPTER_DEFAULTS)
+    t = 10.0
+    vp.handle_message(hb(STABILIZE), t)
+    for _ in range(100):
+        out = vp.take_outbound()
+        gt_set = [m for m in out if m.name == "PARAM_SET" and m["param_id"] == "GUID_TIMEOUT"]
+        if gt_set:
+            break
+        for m in out:
+            copter.answer(vp, m, t)
+    assert gt_set and gt_set[0]["param_value"] == 0.5  # lost on its way: the vehicle keeps 3
+    vp.handle_message(ParamValue(SYS, 1, "GUID_TIMEOUT", 3.0), t)  # the read's late copy
+    assert vp.take_outbound() == [] and vp.phase is Phase.CONFIGURING
+    t += vp.config.command_timeout_s  # no echo: sent again (attempt 2)
+    vp.handle_timer(t)
+    (again,) = vp.take_outbound()
+    assert again.name == "PARAM_SET" and again["param_id"] == "GUID_TIMEOUT"
+    copter.answer(vp, again, t)  # its echo (0.5) answers it; WP_YAW_BEHAVIOR next
+    (nxt,) = vp.take_outbound()
+    assert nxt.name == "PARAM_SET" and nxt["param_id"] == "WP_YAW_BEHAVIOR"
+    assert copter.params["GUID_TIMEOUT"] == 0.5
+    assert "vehicle 2: GUID_TIMEOUT = 0.5 s: when setpoints stop it brakes after this" in texts(vp)
+
+
 def test_a_vehicle_that_answers_no_read_starts_with_the_missions_envelope() -> None:
     fallback = Envelope(accel_xy=2.0, accel_z=1.0)
     vp = make(ParamSettings(read_envelope=True, fallback=fallback))

@@ -15,7 +15,22 @@ The emulator runs in lockstep (sim time advances once each delivered
 telemetry is answered, or after ``LOCKSTEP_TIMEOUT_S``); the station is told
 it is not, so a step waits for missing telemetry half a period, not 0.2 s.
 Duplicated and reordered telemetry is dropped by the protocol (not newer than
-the last), so each telemetry is answered once."""
+the last), so each telemetry is answered once.
+
+Start-up risk (issue 15: this test failed once in a full-suite run, "no
+answer to PARAM_SET GUID_TIMEOUT after 10 attempts"): a command round trip
+fails with q = 1 - 0.8 * (0.9 * 0.8 + 0.1 * 0.96) = 0.347 (measured in
+process, 28 seeds: 0.31, 530 of 1,706 sends), so one of the 42 start-up
+commands fails all 10 attempts (ProtocolConfig.command_attempts) with
+42 * q^10 = 3e-4..1e-3 per run over seeds. Seed 9 fixes the uplink losses:
+vehicle 2's PARAM_SET GUID_TIMEOUT goes out as its 7th uplink datagram
+(unless an earlier command was resent) and again every second between two
+HEARTBEATs, and the 7th, 9th, 17th, 19th and 25th are lost; the other five
+attempts fail only if each reply is lost (0.2): 0.2^5 = 3.2e-4 per run, most
+of the start-up's 5e-4 with this seed, and the failure seen. Chance at the
+retry budget's own rate, no retry bug: a late echo of attempt k answers
+attempt k+1, and the round trip is 10-30 ms of the 1 s timeout.
+"""
 
 from __future__ import annotations
 

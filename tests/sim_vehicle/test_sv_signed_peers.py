@@ -68,3 +68,68 @@ def test_an_unsigned_radio_status_registers_no_peer_and_draws_no_telemetry() -> 
         ids, stray = asyncio.run(main())
     assert mav.MAVLINK_MSG_ID_HEARTBEAT in ids
     assert stray == 0
+
+
+def test_a_tcp_client_is_served_only_after_a_well_signed_frame() -> None:
+    """Item 8 over TCP: the UDP rule holds for the emulator's TCP server too.
+
+    Before: a TCP client was a peer from its connection on, so an unsigned one
+    got a HEARTBEAT at once and then the telemetry stream. Now it is served
+    only once it has sent a well-signed frame. Real TCP on 127.0.0.1 (port 0),
+    the real emulator (real time).
+
+    Proof without a timed read: the server serves one client at a time and
+    closes the old connection (after flushing what it wrote) when a new one
+    connects, so the unsigned client reads to EOF exactly what it was ever
+    sent. Its window: from connecting, through its three frames (a RADIO_STATUS,
+    an unsigned HEARTBEAT, a wrong-key HEARTBEAT; the two HEARTBEATs counted as
+    rejected), and 50 more physics steps (1 s at 50 Hz: 10 LOCAL_POSITION_NED
+    at the configured 10 Hz and a HEARTBEAT, if it were served), until the
+    signed client replaces it.
+    """
+    lpn = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+    cfg = EmulatorConfig(
+        vehicles=(VehicleSpec(sysid=1, origin=(47.0, 8.0, 400.0)),),
+        signing_key=KEY,
+        tcp_base_port=0,
+        ekf_ready_s=0.0,
+        streams={lpn: 10.0},
+    )
+
+    async def main() -> tuple[bytes, int, list[int]]:
+        async with asyncio.timeout(20), Emulator(cfg) as emu:
+            addr = emu.tcp_endpoints[1]
+            rejected = emu.stats.link.signature_rejected
+            reader, writer = await asyncio.open_connection(*addr)
+            plain = mav.MAVLink(None, 255, 190)
+            radio = plain.radio_status_encode(200, 190, 100, 100, 100, 0, 0)
+            hb = plain.heartbeat_encode(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            wrong = signing.mavlink(255, 190, bytes(32))
+            writer.write(bytes(radio.pack(plain)) + bytes(hb.pack(plain)))
+            writer.write(bytes(hb.pack(wrong)))
+            await writer.drain()
+            # TCP keeps the order: both rejections counted = all three frames handled.
+            await emu.wait_until(lambda: emu.stats.link.signature_rejected >= rejected + 2)
+            await emu.wait_steps(50)
+            # The genuine station, well signed, on the same server: it replaces the client.
+            r2, w2 = await asyncio.open_connection(*addr)
+            signer = signing.mavlink(255, 190, KEY)
+            w2.write(bytes(hb.pack(signer)))
+            heard = await reader.read()  # to EOF: all the unsigned client was ever sent
+            writer.close()
+            parser = signing.mavlink(0, 0, KEY)
+            ids: list[int] = []
+            while not {mav.MAVLINK_MSG_ID_HEARTBEAT, lpn} <= set(ids):
+                data = await r2.read(65536)
+                assert data, "connection closed"
+                ids += [m.get_msgId() for m in parser.parse_buffer(data) or []]
+            w2.close()
+            return heard, emu.stats.link.signature_rejected - rejected, ids
+
+    heard, rejected, ids = asyncio.run(main())
+    assert rejected == 2  # the unsigned and the wrong-key HEARTBEAT; RADIO_STATUS may pass
+    # not one byte to the client that never signed (before: HEARTBEAT, then LOCAL_POSITION_NED)
+    assert [m.get_type() for m in signing.mavlink(0, 0, KEY).parse_buffer(heard) or []] == []
+    assert heard == b""
+    assert ids[0] == mav.MAVLINK_MSG_ID_HEARTBEAT  # rule 1: HEARTBEAT first, then telemetry
+    assert lpn in ids
