@@ -321,6 +321,12 @@ SETTINGS = Obj(
                         "read each vehicle's WPNAV_*, PSC_JERK_*, ANGLE_MAX at start-up; "
                         "null: ardupilot vehicles only",
                     ),
+                    Key(
+                        "command_attempts",
+                        Int(1, 100),
+                        _ST.command_attempts,
+                        "each command sent at most this many times, 1 s apart",
+                    ),
                 ),
             ),
             Startup,

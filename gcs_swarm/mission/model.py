@@ -101,7 +101,9 @@ class Startup:
     at its start (READY) within this distance of it and below this speed;
     read_envelope: read each vehicle's position-controller limits
     (WPNAV_*, PSC_JERK_*, ANGLE_MAX) at start-up; None: for ``ardupilot``
-    vehicles, not for ``sim`` ones.
+    vehicles, not for ``sim`` ones; command_attempts: each command is sent at
+    most this many times, 1 s apart, before the vehicle fails (the station's
+    ``ProtocolConfig.command_attempts``; a test keeps the two equal).
     """
 
     takeoff_alt: float = 5.0
@@ -110,6 +112,7 @@ class Startup:
     start_tolerance: float = 0.3
     start_speed_tolerance: float = 0.3
     read_envelope: bool | None = None
+    command_attempts: int = 10
 
 
 @dataclass(frozen=True)

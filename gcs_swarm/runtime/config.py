@@ -61,6 +61,8 @@ class StationConfig:
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
     velocity_bias: BiasSettings = field(default_factory=BiasSettings)
     """The reported velocity's bias: estimated, and corrected (docs/velocity-bias.md)."""
+    command_attempts: int = ProtocolConfig.command_attempts
+    """Each command sent at most this many times (``mission.startup.command_attempts``)."""
     allow_rebind: bool = False
     """A well-signed new address may take over a vehicle silent for
     ``links.REBIND_S`` (needs ``signing_key``; ``mission.signing.allow_rebind``)."""
@@ -76,4 +78,5 @@ class StationConfig:
             end_mode=self.end_mode,
             mission_origin=self.mission_origin,
             velocity_bias=self.velocity_bias,
+            command_attempts=self.command_attempts,
         )

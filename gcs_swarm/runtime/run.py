@@ -174,6 +174,7 @@ def station_config(
         stale_timeout_s=s.stale_timeout,
         ready_timeout_s=s.startup.ready_timeout,
         guid_timeout_s=s.startup.guid_timeout,
+        command_attempts=s.startup.command_attempts,
         takeoff_alt_m=s.startup.takeoff_alt,
         start_tolerance_m=s.startup.start_tolerance,
         start_speed_tolerance_mps=s.startup.start_speed_tolerance,

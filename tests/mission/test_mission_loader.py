@@ -70,6 +70,19 @@ def test_defaults_are_the_dataclass_defaults() -> None:
     assert all(v.q == LawConfig().gains.q_default and v.autopilot == "sim" for v in m.vehicles)
 
 
+def test_command_attempts_reach_the_station_and_default_to_its_own() -> None:
+    from gcs_swarm.mavlink.states import ProtocolConfig
+    from gcs_swarm.runtime.run import station_config
+
+    assert parse_mission(TWO).settings.startup.command_attempts == ProtocolConfig.command_attempts
+    m = parse_mission("mission: {startup: {command_attempts: 20}}\n" + TWO)
+    links = {1: "sim", 2: "sim"}
+    assert station_config(m, links).protocol_config().command_attempts == 20
+    assert problems("mission: {startup: {command_attempts: 0}}\n" + TWO) == [
+        "m.yaml:1: mission.startup.command_attempts: expected an integer 1..100, got 0"
+    ]
+
+
 def test_vehicle_charge_defaults_to_gains_q() -> None:
     m = parse_mission("gains: {q: 3}\n" + TWO + "  - {sysid: 3, start: [5, 5, 5], q: 7}\n")
     assert [v.q for v in m.vehicles] == [3, 3, 7]

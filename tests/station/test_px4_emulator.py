@@ -20,12 +20,13 @@ R_TETRA = 2.33359
 
 @pytest.mark.slow
 def test_four_emulated_px4_form_the_tetrahedron() -> None:
-    mission = mission_from("px4_tetrahedron.yaml", duration=40.0)
+    mission = mission_from("px4_tetrahedron.yaml", duration=50.0)
     flown = asyncio.run(fly(mission, lockstep_config(mission, airborne=False), timeout_s=300))
     s = flown.ok
     assert s.outcome == "completed" and flown.emu.stats.lockstep_timeouts == 0
-    # Measured 2.33358-2.33362 at 60 s; 1e-3 at 40 s (the slowest mode decays
-    # ~0.08 1/s at time_scale 1, slower here: tolerance from a 40 s run, 3e-4).
+    # The slowest mode decays ~0.08 1/s at time_scale 1, slower here, and SIH's
+    # drag (Eq. D7, 1/s on top of D + k) slows it further: measured 2.33242 m at
+    # 40 s, 2.33315-2.33383 at 50 s, 2.33343-2.33368 at 60 s; 1e-3 at 50 s.
     np.testing.assert_allclose(list(radii(s).values()), R_TETRA, atol=1e-3)
     d = pairwise_distances(np.array(list(s.positions().values())))
     # The edges re-arrange along the slow tangential mode: within 1 % at 40 s.
@@ -41,7 +42,7 @@ def test_four_emulated_px4_form_the_tetrahedron() -> None:
 
 @pytest.mark.slow
 def test_mixed_arducopter_and_px4_form_one_formation() -> None:
-    mission = mission_from("px4_tetrahedron.yaml", duration=40.0)
+    mission = mission_from("px4_tetrahedron.yaml", duration=50.0)
     # Vehicles 1 and 3 become the emulator's ArduCopter (GUIDED).
     vehicles = tuple(
         dataclasses.replace(v, autopilot="sim") if v.sysid in (1, 3) else v
