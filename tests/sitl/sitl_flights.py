@@ -138,5 +138,20 @@ def compare(sitl: dict[str, Any], emu: dict[str, Any]) -> dict[str, Any]:
     return {"sitl": fig(sitl), "emulator": fig(emu)}
 
 
+def held_radii(summary: dict[str, Any], r_eq: float) -> dict[str, Any]:
+    """Each vehicle's radius over the summary's last 20 s (``final_radius_window_m``:
+    mean, std) and the mean's error against ``r_eq`` [%]; None for a vehicle that
+    left."""
+    wins = [v["final_radius_window_m"] for v in summary["vehicles"].values()]
+    means = [None if w is None else w["mean"] for w in wins]
+    return {
+        "radii_last_20s_mean_m": means,
+        "radii_last_20s_std_m": [None if w is None else w["std"] for w in wins],
+        "radius_last_20s_error_percent": [
+            None if m is None else 100 * (m - r_eq) / r_eq for m in means
+        ],
+    }
+
+
 def load(name: str) -> Mission:
     return load_mission(MISSIONS / name)

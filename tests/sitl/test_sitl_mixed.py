@@ -22,7 +22,7 @@ import pytest
 from gcs_swarm.mission import Mission
 from tests.sitl import sitl_harness
 from tests.sitl.px4_harness import HOME, binary_or_skip, in_private_namespace_or_rerun, px4_swarm
-from tests.sitl.sitl_flights import compare, load, write_figures
+from tests.sitl.sitl_flights import compare, held_radii, load, write_figures
 from tests.sitl.test_sitl_px4 import _equilibrium_radius, _fly
 
 pytestmark = [pytest.mark.px4_sitl, pytest.mark.sitl, pytest.mark.slow]
@@ -64,16 +64,11 @@ def test_mixed_arducopter_and_px4_form_one_tetrahedron(
     o = s["overall"]
     vehicles = s["vehicles"]
     radii = [v["final_radius_m"] for v in vehicles.values()]
-    held = [None if v["final_radius_window_m"] is None else v["final_radius_window_m"]["mean"]
-            for v in vehicles.values()]  # fmt: skip
+    window = held_radii(s, r_eq)
+    held = window["radii_last_20s_mean_m"]
     e, _, _ = _fly(mixed_twin(mission), tmp_path / "emu")
     figures = {
-        "equilibrium_radius_m": r_eq, "radii_m": radii, "radii_last_20s_mean_m": held,
-        "radii_last_20s_std_m": [None if v["final_radius_window_m"] is None
-                                 else v["final_radius_window_m"]["std"]
-                                 for v in vehicles.values()],
-        "radius_last_20s_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq
-                                          for r in held],
+        "equilibrium_radius_m": r_eq, "radii_m": radii, **window,
         "min_separation_m": o["min_separation_m"],
         "separation_configured_m": mission.law.safety.separation,
         "formation_started_after_s": started, "time_to_form_s": o["time_to_form_s"],

@@ -37,7 +37,15 @@ from tests.sitl.px4_harness import (
     in_private_namespace_or_rerun,
     px4_swarm,
 )
-from tests.sitl.sitl_flights import MISSIONS, ROOT, compare, load, summary_of, write_figures
+from tests.sitl.sitl_flights import (
+    MISSIONS,
+    ROOT,
+    compare,
+    held_radii,
+    load,
+    summary_of,
+    write_figures,
+)
 
 pytestmark = [pytest.mark.px4_sitl, pytest.mark.slow]
 
@@ -135,19 +143,14 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     radii = [v["final_radius_m"] for v in s["vehicles"].values()]
     # A PX4 in OFFBOARD acceleration wanders (0.16-0.24 m std over 20 s measured):
     # the figure is each vehicle's mean radius over the last 20 s (the last sample too).
-    held = [None if v["final_radius_window_m"] is None else v["final_radius_window_m"]["mean"]
-            for v in s["vehicles"].values()]  # fmt: skip
+    window = held_radii(s, r_eq)
+    held = window["radii_last_20s_mean_m"]
     e, _, _ = _fly(_emulator_twin(mission), tmp_path / "emu")
     twin = compare(s, e)
     figures = {
         "equilibrium_radius_m": r_eq, "radii_m": radii,
         "radius_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq for r in radii],
-        "radii_last_20s_mean_m": held,
-        "radii_last_20s_std_m": [None if v["final_radius_window_m"] is None else
-                                 v["final_radius_window_m"]["std"]
-                                 for v in s["vehicles"].values()],
-        "radius_last_20s_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq
-                                          for r in held],
+        **window,
         "min_separation_m": o["min_separation_m"],
         "separation_configured_m": mission.law.safety.separation,
         "time_to_form_s": o["time_to_form_s"],
