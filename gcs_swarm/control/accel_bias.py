@@ -20,11 +20,17 @@ in mission time (the vehicles' clocks),
 where ``a_sent`` is what the station sent, held from one control step to the
 next. It is the mean of (flown - sent) acceleration over the window: exact
 for a constant bias whatever the law commands; with a drag ``-k v`` it also
-holds ``-k`` times the window's mean velocity (the drift), and nothing else
-of the drag. The estimate does not depend on itself: it is computed from
-what was sent, compensation included, so taking it out closes no loop (but
-for the autopilot's delay d, which couples it with weight d / W, 0.03 for
-0.3 s in 10 s). Checkpoints every ``window_s / 20``; the estimate is refreshed
+holds ``-k`` times the window's mean velocity. Taking that part out would
+cancel the drag with a velocity feedback delayed by ~W / 2, which the law's
+damping does not survive: measured on the emulator's PX4 (drag 1/s), the
+17 m sitl_px4 tetrahedron grew to 40 m in 10 s while it formed from 12 m. So
+the estimate is refreshed only over windows whose mean velocity is below
+``still_mps`` (0.05 m/s: at most 0.05 k of drag in it), i.e. while the vehicle
+holds its place in the formation; otherwise the last estimate is kept.
+The estimate does not depend on itself: it is computed from what was sent,
+compensation included, so taking it out closes no loop (but for the
+autopilot's delay d, which couples it with weight d / W, 0.03 for 0.3 s in
+10 s). Checkpoints every ``window_s / 20``; the estimate is refreshed
 at each, once the window spans ``min_span_s``. A gap longer than ``max_gap_s``
 or time going backwards restarts the window and zeroes the estimate. An
 estimate longer than ``max_mps2`` is held at that length and flagged.
@@ -56,12 +62,13 @@ class AccelBiasSettings:
     max_mps2: float = 0.5
     min_span_s: float = 2.0
     max_gap_s: float = 0.5
+    still_mps: float = 0.05
 
     def __post_init__(self) -> None:
         if not (self.window_s > 0.0 and self.min_span_s > 0.0 and self.max_gap_s > 0.0):
             raise ValueError("window_s, min_span_s and max_gap_s must be > 0")
-        if not self.max_mps2 >= 0.0:
-            raise ValueError("max_mps2 must be >= 0")
+        if not (self.max_mps2 >= 0.0 and self.still_mps >= 0.0):
+            raise ValueError("max_mps2 and still_mps must be >= 0")
 
     def applies(self, autopilot: str) -> bool:
         """Whether a vehicle of ``autopilot`` gets the correction."""
@@ -77,10 +84,10 @@ class AccelBiasObserver:
     def __init__(self, settings: AccelBiasSettings | None = None) -> None:
         self.settings = settings if settings is not None else AccelBiasSettings()
         self._every_s = self.settings.window_s / 20.0
-        # (t, v, integral of a_sent dt up to t) at each checkpoint, oldest first.
-        self._checkpoints: deque[tuple[float, Vec3, Vec3]] = deque()
+        # (t, v, integrals of a_sent dt and of v dt up to t) at each checkpoint, oldest first.
+        self._checkpoints: deque[tuple[float, Vec3, tuple[float, ...]]] = deque()
         self._last: tuple[float, Vec3] | None = None
-        self._int: list[float] = [0.0, 0.0, 0.0]
+        self._int: list[float] = [0.0] * 6
         self._sent: Vec3 = _ZERO
         self.bias: Vec3 = _ZERO
         """The estimate applied [m/s^2], flown minus sent; zeros until a window is long enough."""
@@ -91,7 +98,7 @@ class AccelBiasObserver:
 
     def _restart(self) -> None:
         self._checkpoints.clear()
-        self._int = [0.0, 0.0, 0.0]
+        self._int = [0.0] * 6
         self.bias = _ZERO
         self.saturated = False
 
@@ -107,19 +114,21 @@ class AccelBiasObserver:
                 self.resets += 1
                 self._restart()
             else:
-                a, i = self._sent, self._int
-                i[0] += a[0] * dt
-                i[1] += a[1] * dt
-                i[2] += a[2] * dt
+                a, i, u = self._sent, self._int, last[1]
+                for k in range(3):
+                    i[k] += a[k] * dt
+                    i[3 + k] += 0.5 * (u[k] + v[k]) * dt  # trapezoid
         cks = self._checkpoints
         if not cks or t_s - cks[-1][0] >= self._every_s:
-            cks.append((t_s, v, (self._int[0], self._int[1], self._int[2])))
+            cks.append((t_s, v, tuple(self._int)))
             while len(cks) > 1 and t_s - cks[1][0] >= s.window_s:
                 cks.popleft()
             t0, v0, i0 = cks[0]
             span = t_s - t0
-            if span >= s.min_span_s:
-                i = self._int
+            i = self._int
+            mv = [(i[3 + k] - i0[3 + k]) / span for k in range(3)] if span > 0.0 else [0.0] * 3
+            still = math.sqrt(mv[0] * mv[0] + mv[1] * mv[1] + mv[2] * mv[2]) <= s.still_mps
+            if span >= s.min_span_s and still:
                 b = tuple(((v[k] - v0[k]) - (i[k] - i0[k])) / span for k in range(3))
                 n = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
                 self.saturated = n > s.max_mps2

@@ -15,7 +15,8 @@ DT = 0.02
 
 
 def test_a_constant_bias_is_found_exactly_whatever_is_commanded() -> None:
-    """v' = a_sent + b, a_sent a swept sine held per step: the window's
+    """v' = a_sent + b, a_sent three sines (up to 2 m/s^2) less b held per step,
+    so that the vehicle stays in place (|mean v| < still_mps): the window's
     (dv - integral of a_sent) / W is b to rounding (1e-12 m/s^2)."""
     b = (0.21, -0.13, 0.07)
     obs = AccelBiasObserver()
@@ -23,12 +24,30 @@ def test_a_constant_bias_is_found_exactly_whatever_is_commanded() -> None:
     for k in range(1500):
         t = k * DT
         est = obs.update(t, (v[0], v[1], v[2]))
-        a = (math.sin(0.7 * t) * 2, math.cos(1.3 * t), 0.5 * math.sin(3.1 * t))
+        wave = (
+            0.02 * 0.7 * math.cos(0.7 * t),
+            0.02 * 13 * math.cos(13 * t),
+            0.01 * math.sin(3.1 * t),
+        )
+        a = (wave[0] - b[0], wave[1] - b[1], wave[2] - b[2])
         obs.sent(a)
         for i in range(3):
             v[i] += (a[i] + b[i]) * DT
     np.testing.assert_allclose(est, b, atol=1e-12)
     assert not obs.saturated and obs.resets == 0
+
+
+def test_the_estimate_is_held_while_the_vehicle_moves() -> None:
+    """A vehicle cruising at 1 m/s against a drag of 1/s (sent +1 m/s^2): the
+    window's flown - sent is -1 m/s^2, the drag, not a bias; with the vehicle
+    not holding still (mean |v| 1 m/s > still_mps) no estimate is made."""
+    obs = AccelBiasObserver()
+    v = 1.0
+    for k in range(1500):
+        obs.update(k * DT, (v, 0.0, 0.0))
+        obs.sent((1.0, 0.0, 0.0))
+        v += (1.0 - 1.0 * v) * DT
+    assert obs.bias == (0.0, 0.0, 0.0) and obs.estimate == (0.0, 0.0, 0.0)
 
 
 def _fly(correct: bool, bias: tuple[float, float, float], steps: int = 6000) -> np.ndarray:
@@ -62,7 +81,7 @@ def test_taking_the_bias_out_holds_the_point_where_the_law_puts_it() -> None:
 
 
 def test_a_gap_restarts_the_window_and_a_large_estimate_is_capped() -> None:
-    obs = AccelBiasObserver(AccelBiasSettings(max_mps2=0.5))
+    obs = AccelBiasObserver(AccelBiasSettings(max_mps2=0.5, still_mps=100.0))
     v = 0.0
     for k in range(300):
         obs.update(k * DT, (v, 0.0, 0.0))
