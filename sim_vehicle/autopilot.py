@@ -140,7 +140,6 @@ class Autopilot:
         self.target = ControlTarget()
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
         self._drag = 0.0  # SIM_DRAG as of the cached base target
-        self._abias: Vec3 = ZERO  # SIM_ABIAS_N/E/D likewise
         self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
@@ -362,8 +361,6 @@ class Autopilot:
         )  # fmt: skip
         self._base = (p.generation, base)
         self._drag = p["SIM_DRAG"]  # the same float object while unchanged (Fleet.set_target)
-        ab = (p["SIM_ABIAS_N"], p["SIM_ABIAS_E"], p["SIM_ABIAS_D"])
-        self._abias = ZERO if ab == (0.0, 0.0, 0.0) else ab
         return base
 
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
@@ -377,12 +374,8 @@ class Autopilot:
         # The streamed kinds build their target field by field: ``replace`` costs
         # several times more, 50 times a second per vehicle.
         if ctl == "accel":
-            a = sp["a"]
-            ab = self._abias
-            if ab is not ZERO:  # Eq. D8: an airframe error the autopilot does not see
-                a = (a[0] + ab[0], a[1] + ab[1], a[2] + ab[2])
             tg = ControlTarget(
-                a, ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
+                sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
                 b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self._drag,
             )  # fmt: skip
         elif ctl == "vel":

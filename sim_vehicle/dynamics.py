@@ -44,9 +44,6 @@ Equations (named where used):
   adds to D2, evaluated at the step's start velocity:
   ``v1 -= k v0 h``, ``p1 -= k v0 h^2 / 2`` (explicit; ``k h`` <= 0.02 at 50 Hz).
   ``a`` stays the lagged thrust acceleration. ``k = 0`` rows are untouched.
-- (D8) acceleration bias (``SIM_ABIAS_N/E/D``, applied by the autopilot to raw
-  acceleration setpoints before D3): a constant the airframe adds to what it
-  is sent and the autopilot does not see (PX4 SITL: 0.1-0.3 m/s^2 per axis).
 
 ``advance_small`` is D3 then D1, D5, D6, D2, D7, D4 for a few vehicles in plain Python floats:
 the same operations in the same order as ``tracking_accel`` then ``step``, so

@@ -43,7 +43,6 @@ from gcs_swarm.mission.fields import (
 )
 from gcs_swarm.mission.law_format import GAINS, LEADER, LIMITS, OBSTACLES, READINGS
 from gcs_swarm.mission.model import (
-    AccelBias,
     Emulator,
     Event,
     Failsafe,
@@ -65,7 +64,6 @@ _IMP = Impairments()
 _ST = Startup()
 _FS = Failsafe()
 _VB = VelocityBias()
-_AB = AccelBias()
 _SET = Settings(name="")
 
 LINK_SCHEMES = ("udpin", "udpout", "tcp", "tcpin")
@@ -370,35 +368,6 @@ SETTINGS = Obj(
             VelocityBias,
             "a constant bias in the reported velocity, estimated from the positions "
             "(docs/velocity-bias.md)",
-        ),
-        Key(
-            "accel_bias",
-            Obj(
-                name="accel_bias",
-                cls=AccelBias,
-                keys=(
-                    Key(
-                        "correct",
-                        Bool(nullable=True),
-                        _AB.correct,
-                        "take the estimated bias out of what is sent; null: px4 vehicles only",
-                    ),
-                    Key(
-                        "window",
-                        Num(lo=1.0, hi=600.0),
-                        _AB.window,
-                        "seconds of each vehicle's telemetry per estimate [s]",
-                    ),
-                    Key(
-                        "max",
-                        Num(lo=0.0, hi=5.0),
-                        _AB.max,
-                        "largest bias taken out; a longer estimate is held here [m/s^2]",
-                    ),
-                ),
-            ),
-            AccelBias,
-            "the bias between the acceleration sent and the one flown (PX4 flies it open loop)",
         ),
     ),
 )

@@ -15,14 +15,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from gcs_swarm.control.accel_bias import AccelBiasSettings
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.control.velocity_bias import BiasSettings
 
 __all__ = [
     "DEFAULT_SIM_HOME",
     "EARTH_RADIUS_M",
-    "AccelBias",
     "Autopilot",
     "Dynamics",
     "Emulator",
@@ -131,19 +129,6 @@ class VelocityBias:
 
 
 @dataclass(frozen=True)
-class AccelBias:
-    """The ``mission.accel_bias`` block (control/accel_bias.py): estimate each
-    vehicle's acceleration bias (flown minus sent) over ``window`` [s] of its
-    telemetry and take it out of what it is sent; ``correct`` None: on ``px4``
-    vehicles only; estimates longer than ``max`` [m/s^2] are held at ``max``
-    and reported. Defaults: the estimator's own."""
-
-    correct: bool | None = AccelBiasSettings.correct
-    window: float = AccelBiasSettings.window_s
-    max: float = AccelBiasSettings.max_mps2
-
-
-@dataclass(frozen=True)
 class Failsafe:
     """The ``mission.failsafe`` block: what the station sets on each vehicle
     itself, so that a vehicle that loses the station comes down on its own
@@ -196,8 +181,7 @@ class Settings:
     will land, from TIMESYNC round trips (for real-time radio links);
     signing: where the MAVLink 2 signing key is (None: no signing);
     failsafe: what the station sets on the vehicles themselves;
-    velocity_bias: the reported velocity's bias, estimated and corrected;
-    accel_bias: the flown acceleration's bias, estimated and taken out.
+    velocity_bias: the reported velocity's bias, estimated and corrected.
     """
 
     name: str
@@ -212,7 +196,6 @@ class Settings:
     signing: Signing | None = None
     failsafe: Failsafe = field(default_factory=Failsafe)
     velocity_bias: VelocityBias = field(default_factory=VelocityBias)
-    accel_bias: AccelBias = field(default_factory=AccelBias)
 
 
 @dataclass(frozen=True)

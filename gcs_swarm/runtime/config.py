@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from gcs_swarm.control.accel_bias import AccelBiasSettings
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink import builders as b
@@ -61,9 +60,6 @@ class StationConfig:
     signing_key: bytes | None = field(default=None, repr=False)
     """MAVLink 2 signing key (32 bytes) of every link; never shown."""
     velocity_bias: BiasSettings = field(default_factory=BiasSettings)
-    accel_bias: AccelBiasSettings = field(default_factory=AccelBiasSettings)
-    """The acceleration bias taken out of what is sent (control/accel_bias.py;
-    by default for PX4 vehicles only)."""
     """The reported velocity's bias: estimated, and corrected (docs/velocity-bias.md)."""
     command_attempts: int = ProtocolConfig.command_attempts
     """Each command sent at most this many times (``mission.startup.command_attempts``)."""

@@ -28,7 +28,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.control.accel_bias import AccelBiasObserver, AccelBiasSettings
 from gcs_swarm.control.envelope import CommandShaper
 from gcs_swarm.control.law import ControlOutput, SwarmController
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
@@ -66,18 +65,9 @@ class ControlLoop:
     """The law plus limits, stepped on telemetry in vehicle time."""
 
     def __init__(
-        self,
-        law: LawConfig,
-        charges: Mapping[int, float],
-        rate_hz: float,
-        *,
-        defer: bool = True,
-        accel_bias: Mapping[int, AccelBiasSettings] | None = None,
+        self, law: LawConfig, charges: Mapping[int, float], rate_hz: float, *, defer: bool = True
     ) -> None:
         self.config = law
-        self.accel_bias = {i: AccelBiasObserver(st) for i, st in (accel_bias or {}).items()}
-        """Per vehicle whose acceleration bias is taken out of what it is sent
-        (control/accel_bias.py: PX4 in OFFBOARD flies accelerations open loop)."""
         self.charges = dict(charges)
         self.controller = SwarmController(law, t0=0.0, defer_lookahead=defer)
         self.rate_hz = rate_hz
@@ -148,14 +138,10 @@ class ControlLoop:
         return env
 
     def forget(self, sysid: int) -> None:
-        """A vehicle left: its next telemetry maps its clock afresh, its
-        next command starts from hover (``CommandShaper.forget``), and its
-        acceleration bias is estimated afresh."""
+        """A vehicle left: its next telemetry maps its clock afresh, and its
+        next command starts from hover (``CommandShaper.forget``)."""
         self._boot_ms.pop(sysid, None)
         self.shaper.forget(sysid)
-        obs = self.accel_bias.get(sysid)
-        if obs is not None:
-            obs.forget()
 
     def step(self, ids: Sequence[int], pos_m: FloatArray, vel_mps: FloatArray) -> StepResult:
         """The limited accelerations for ``ids`` at their mission-frame states:
@@ -178,20 +164,7 @@ class ControlLoop:
                 pos_m, vel_mps, out.accel_mps2, ids=ids, prev_accel_mps2=prev
             )
             self.safety_stats.update(report)
-        observers = self.accel_bias
-        if not observers:
-            return out, self.shaper.shape(ids, accel), report
-        rows = [(j, observers[i]) for j, i in enumerate(ids) if i in observers]
-        if rows:  # the estimated bias out of what is sent (control/accel_bias.py)
-            accel = accel.copy()
-            for j, obs in rows:
-                v = vel_mps[j]
-                accel[j] -= obs.update(self.t_s, (float(v[0]), float(v[1]), float(v[2])))
-        sent = self.shaper.shape(ids, accel)
-        for j, obs in rows:
-            a = sent[j]
-            obs.sent((float(a[0]), float(a[1]), float(a[2])))
-        return out, sent, report
+        return out, self.shaper.shape(ids, accel), report
 
     def account(
         self,

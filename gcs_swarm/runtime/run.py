@@ -25,7 +25,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gcs_swarm.control.accel_bias import AccelBiasSettings
 from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
@@ -187,11 +186,6 @@ def station_config(
             correct=s.velocity_bias.correct,
             window_s=s.velocity_bias.window,
             max_mps=s.velocity_bias.max,
-        ),
-        accel_bias=AccelBiasSettings(
-            correct=s.accel_bias.correct,
-            window_s=s.accel_bias.window,
-            max_mps2=s.accel_bias.max,
         ),
         signing_key=signing_key(mission),
         allow_rebind=s.signing is not None and s.signing.allow_rebind,
@@ -479,14 +473,6 @@ async def _write_run_report(
                     "at_cap": v.velocity_bias_saturated,
                 }
                 for v in summary.vehicles
-            },
-            "accel_bias": {
-                str(v.sysid): {
-                    "estimate_mps2": list(v.accel_bias_mps2),
-                    "at_cap": v.accel_bias_saturated,
-                }
-                for v in summary.vehicles
-                if v.accel_bias_mps2 is not None
             },
         },
     }

@@ -114,11 +114,8 @@ class Station:
             )
             for p in config.vehicles
         }
-        bias = config.accel_bias
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
-                                   config.rate_hz,
-                                   accel_bias={p.sysid: bias for p in config.vehicles
-                                               if bias.applies(p.autopilot)})  # fmt: skip
+                                   config.rate_hz)  # fmt: skip
         self.members = {p.sysid for p in config.vehicles if not p.reserve}
         self.flying: set[int] = set()
         self.flown: set[int] = set()

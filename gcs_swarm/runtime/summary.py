@@ -42,10 +42,6 @@ class VehicleSummary:
     """Lowest LOCAL_POSITION_NED rate over a 2 s window in flight (vehicle time)."""
     rate_requests: int = 0
     """Times the station asked for the mission rate again because it was low."""
-    accel_bias_mps2: Vec3 | None = None
-    """The acceleration bias taken out of what it was sent [m/s^2, mission frame]
-    (control/accel_bias.py), None when it is not corrected on this vehicle."""
-    accel_bias_saturated: bool = False
 
 
 @dataclass(frozen=True)
@@ -103,7 +99,6 @@ class RunSummary:
             for i, sysid in enumerate(last.ids):
                 p = last.pos_m[i]
                 at[sysid] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
-        ab = station.control.accel_bias
         vehicles = tuple(
             VehicleSummary(
                 sysid=s,
@@ -124,8 +119,6 @@ class RunSummary:
                     vp.telemetry_rate_min_hz if math.isfinite(vp.telemetry_rate_min_hz) else None
                 ),
                 rate_requests=vp.rate_requests,
-                accel_bias_mps2=ab[s].estimate if s in ab else None,
-                accel_bias_saturated=ab[s].saturated if s in ab else False,
             )
             for s, vp in sorted(station.vehicles.items())
         )
@@ -198,11 +191,6 @@ class RunSummary:
                 how = "corrected" if v.velocity_bias_corrected else "not corrected"
                 cap = ", at its cap" if v.velocity_bias_saturated else ""
                 bias = f", velocity bias ({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f}) m/s {how}{cap}"
-            if v.accel_bias_mps2 is not None:
-                a = v.accel_bias_mps2
-                cap = ", at its cap" if v.accel_bias_saturated else ""
-                bias += (f", acceleration bias ({a[0]:+.3f}, {a[1]:+.3f}, {a[2]:+.3f}) m/s^2"
-                         f" taken out{cap}")  # fmt: skip
             if v.rate_requests:
                 why += (f" [telemetry as low as {v.telemetry_rate_min_hz:.1f} Hz; "
                         f"rate asked again {v.rate_requests} times]")  # fmt: skip

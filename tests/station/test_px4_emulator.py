@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-from typing import Any
 
 import numpy as np
 import pytest
@@ -58,38 +57,3 @@ def test_mixed_arducopter_and_px4_form_one_formation() -> None:
     assert modes == {1: "BRAKE", 2: "AUTO.LOITER", 3: "BRAKE", 4: "AUTO.LOITER"}
     assert flown.states[2].params["COM_OBL_RC_ACT"] == 4.0
     assert "GUID_TIMEOUT" in flown.states[1].params  # an ArduCopter's own table
-
-
-BIAS = {"SIM_ABIAS_N": 0.2, "SIM_ABIAS_E": -0.15, "SIM_ABIAS_D": 0.1}
-"""An acceleration bias on every emulated PX4 (Eq. D8), PX4 SITL's size."""
-
-
-def _biased(correct: bool | None) -> tuple[dict[int, Any], dict[int, float]]:
-    mission = mission_from("px4_tetrahedron.yaml", duration=50.0)
-    ab = dataclasses.replace(mission.settings.accel_bias, correct=correct)
-    mission = dataclasses.replace(
-        mission, settings=dataclasses.replace(mission.settings, accel_bias=ab)
-    )
-    cfg = lockstep_config(mission, airborne=False, params=BIAS)
-    flown = asyncio.run(fly(mission, cfg, timeout_s=300))
-    s = flown.ok
-    assert s.outcome == "completed" and flown.emu.stats.lockstep_timeouts == 0
-    return {v.sysid: v for v in s.vehicles}, radii(s)
-
-
-@pytest.mark.slow
-def test_the_acceleration_bias_of_a_px4_is_taken_out() -> None:
-    """With a 0.27 m/s^2 bias on every PX4 (Eq. D8) the station, by default
-    (accel_bias.correct null: PX4 vehicles), estimates it and takes it out:
-    radii within the 1e-3 m of the unbiased run (test above) and the estimate
-    within 0.01 m/s^2 of the bias in the mission frame (x east, y north, z up:
-    (E, N, -D) = (-0.15, 0.2, -0.1)). Without the correction the springs hold
-    the bias: radii off by more than 0.02 m."""
-    vehicles, r = _biased(None)
-    np.testing.assert_allclose(list(r.values()), R_TETRA, atol=1e-3)
-    for v in vehicles.values():
-        assert v.accel_bias_mps2 is not None and not v.accel_bias_saturated
-        np.testing.assert_allclose(v.accel_bias_mps2, (-0.15, 0.2, -0.1), atol=0.01)
-    vehicles, r = _biased(False)
-    assert all(v.accel_bias_mps2 is None for v in vehicles.values())
-    assert max(abs(x - R_TETRA) for x in r.values()) > 0.02
