@@ -29,6 +29,7 @@ __all__ = [
     "MSG_ID_SYS_STATUS",
     "TYPE_MASK_ACCEL",
     "TYPE_MASK_POSITION",
+    "TYPE_MASK_VEL_ACCEL",
     "accel_setpoint",
     "arm",
     "command_long",
@@ -42,6 +43,7 @@ __all__ = [
     "set_mode_main_sub",
     "takeoff",
     "takeoff_amsl",
+    "vel_accel_setpoint",
 ]
 
 # MAV_CMD values (MAVLink common.xml).
@@ -69,6 +71,12 @@ TYPE_MASK_ACCEL = 3135
 """0x0C3F: ignore position (1|2|4), velocity (8|16|32), yaw (1024) and yaw
 rate (2048); acceleration bits and FORCE_SET (512) clear
 (mavlink-protocol.md, "The acceleration setpoint")."""
+
+TYPE_MASK_VEL_ACCEL = 3079
+"""0x0C07: velocity with the acceleration as its feed-forward; ignore
+position (1|2|4), yaw (1024) and yaw rate (2048). PX4 v1.14 hands both to
+its velocity PID (docs/setpoints.md, Eq. V1); ArduCopter 4.5 flies it as
+its guided velocity sub-mode, and echoes 3079."""
 
 TYPE_MASK_POSITION = 3576
 """0x0DF8: position only; ignore velocity (8|16|32), acceleration
@@ -246,6 +254,7 @@ def _local_ned_target(
     type_mask: int,
     pos_ned_m: tuple[float, float, float],
     accel_ned_mps2: tuple[float, float, float],
+    vel_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> MessageSpec:
     return MessageSpec(
         "SET_POSITION_TARGET_LOCAL_NED",
@@ -258,9 +267,9 @@ def _local_ned_target(
             "x": float(pos_ned_m[0]),
             "y": float(pos_ned_m[1]),
             "z": float(pos_ned_m[2]),
-            "vx": 0.0,
-            "vy": 0.0,
-            "vz": 0.0,
+            "vx": float(vel_ned_mps[0]),
+            "vy": float(vel_ned_mps[1]),
+            "vz": float(vel_ned_mps[2]),
             "afx": float(accel_ned_mps2[0]),
             "afy": float(accel_ned_mps2[1]),
             "afz": float(accel_ned_mps2[2]),
@@ -287,6 +296,27 @@ def accel_setpoint(
         TYPE_MASK_ACCEL,
         (0.0, 0.0, 0.0),
         accel_ned_mps2,
+    )
+
+
+def vel_accel_setpoint(
+    target_system: int,
+    target_component: int,
+    time_boot_ms: int,
+    vel_ned_mps: tuple[float, float, float],
+    accel_ned_mps2: tuple[float, float, float],
+) -> MessageSpec:
+    """Velocity SET_POSITION_TARGET_LOCAL_NED with the acceleration as its
+    feed-forward: type_mask 3079, MAV_FRAME_LOCAL_NED, (vx, vy, vz) [m/s] and
+    (afx, afy, afz) [m/s^2] NED (Eq. V1 of docs/setpoints.md)."""
+    return _local_ned_target(
+        target_system,
+        target_component,
+        time_boot_ms,
+        TYPE_MASK_VEL_ACCEL,
+        (0.0, 0.0, 0.0),
+        accel_ned_mps2,
+        vel_ned_mps,
     )
 
 

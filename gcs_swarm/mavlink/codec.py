@@ -225,12 +225,14 @@ class Codec:
         time_boot_ms: Sequence[int],
         accel_ned: npt.NDArray[np.float64],
         *,
-        type_mask: int,
+        type_mask: int | Sequence[int],
         coordinate_frame: int,
+        vel_ned: npt.NDArray[np.float64] | None = None,
     ) -> tuple[bytes, int]:
         """Many SET_POSITION_TARGET_LOCAL_NED at once: row k addressed to
         ``targets[k]`` (system, component), acceleration ``accel_ned[k]``
-        [m/s^2], position, velocity and yaw fields zero. Returns the frames
+        [m/s^2], velocity ``vel_ned[k]`` [m/s] (None: zero), position and yaw
+        fields zero, ``type_mask`` one for all or one per row. Returns the frames
         back to back and the length of one (all the same): exactly what k
         ``encode_setpoint`` calls would give, sequence numbers included.
 
@@ -240,7 +242,9 @@ class Codec:
         a zero ``coordinate_frame`` (MAVLink 2 would trim the payload) or an
         acceleration float32 cannot hold take the one-frame path."""
         k = len(targets)
-        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX)) if k else True
+        vel = np.zeros((k, 3)) if vel_ned is None else vel_ned
+        masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
+        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX) and np.all(np.abs(vel) <= _F32_MAX))
         if (
             k < _BATCH_FROM
             or self._mav.signing.sign_outgoing
@@ -249,12 +253,10 @@ class Codec:
             or not fits
         ):
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
-            rows = zip(targets, time_boot_ms, accel_ned.tolist(), strict=True)
+            rows = zip(targets, time_boot_ms, vel.tolist(), accel_ned.tolist(), masks, strict=True)
             frames = [
-                self.encode_setpoint(
-                    (t & 0xFFFFFFFF, *zero, *zero, *a, 0.0, 0.0, type_mask, ts, tc, frame)
-                )
-                for (ts, tc), t, a in rows
+                self.encode_setpoint((t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame))
+                for (ts, tc), t, v, a, m in rows
             ]
             return b"".join(frames), (len(frames[0]) if frames else 0)
         mav = self._mav
@@ -269,7 +271,9 @@ class Codec:
         arr["afx"] = accel_ned[:, 0]
         arr["afy"] = accel_ned[:, 1]
         arr["afz"] = accel_ned[:, 2]
-        arr["type_mask"] = type_mask
+        if vel_ned is not None:
+            arr["vel"] = vel_ned
+        arr["type_mask"] = type_mask if isinstance(type_mask, int) else masks
         arr["target"] = targets
         arr["coordinate_frame"] = coordinate_frame
         size = _SP_FRAME.itemsize

@@ -396,6 +396,9 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
     if not ok:
         return INVALID
     q = v["q"] if v["q"] is not None else ctx.defaults.get("q", Gains().q_default)
+    setpoint = v["setpoint"]
+    if setpoint is None:  # PX4's velocity loop takes out its drag and bias (docs/setpoints.md)
+        setpoint = "velocity+acceleration" if autopilot == "px4" else "acceleration"
     return Vehicle(
         sysid=v["sysid"],
         link=link,
@@ -404,6 +407,7 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
         q=q,
         reserve=v["reserve"],
         origin=v["origin"],
+        setpoint=setpoint,
     )
 
 
@@ -429,6 +433,14 @@ VEHICLE = Obj(
             None,
             "ardupilot, px4 (OFFBOARD) or sim (the emulator's ArduCopter; px4 on link sim is "
             "the emulator's PX4); default: sim for link sim, else ardupilot",
+        ),
+        Key(
+            "setpoint",
+            Enum(choices=("acceleration", "velocity+acceleration")),
+            None,
+            "acceleration (type_mask 3135) or velocity+acceleration (3079: the velocity the "
+            "law's accelerations integrate to, Eq. V1); default: velocity+acceleration for "
+            "px4, else acceleration",
         ),
         Key("start", Vec3(), REQUIRED, "start position, mission frame [m]"),
         Key("q", Pos(hi=GAIN_MAX), None, "charge of Eq. 9 [C]; default: gains.q"),

@@ -44,6 +44,7 @@ __all__ = [
 ]
 
 Autopilot = Literal["ardupilot", "sim", "px4"]
+Setpoint = Literal["acceleration", "velocity+acceleration"]
 EndAction = Literal["hold", "land", "rtl"]
 EmulatorMode = Literal["lockstep", "realtime"]
 Dynamics = Literal["ideal", "ardupilot-like"]
@@ -209,6 +210,8 @@ class Vehicle:
     for ``sim`` vehicles, the vehicle's EKF origin (its home, on the ground)
     either as an offset [m] in the mission frame or as a geodetic point.
     After loading, every sim vehicle has an origin (defaults filled in).
+    setpoint: what its setpoints carry, the law's acceleration alone or with
+    the velocity it integrates to (Eq. V1, docs/setpoints.md).
     """
 
     sysid: int
@@ -218,6 +221,7 @@ class Vehicle:
     q: float
     reserve: bool = False
     origin: Vec3 | GeoPoint | None = None
+    setpoint: Setpoint = "acceleration"
 
     @property
     def is_sim(self) -> bool:

@@ -6,8 +6,9 @@ origin, ``p = (e, n, -d) + o_i`` (formation-law.md s1, the station's own
 conversion in ``gcs_swarm.mavlink.frames``). The mission origin is the
 mission file's, or (``first-vehicle`` with a real first vehicle) that
 vehicle's GPS_GLOBAL_ORIGIN, as the station does. Commanded accelerations:
-the acceleration-only SET_POSITION_TARGET_LOCAL_NED (type_mask 3135) the
-station (system 255) sent, NED -> mission frame.
+the acceleration of each SET_POSITION_TARGET_LOCAL_NED the station (system
+255) sent, acceleration-only (type_mask 3135) or with its velocity
+(3079, Eq. V1), NED -> mission frame.
 
 Two ways to find the control steps, the leader and the behaviour:
 
@@ -37,7 +38,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.control.safety import filter_acts
-from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL
+from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
 from gcs_swarm.mavlink.frames import GeoPoint, origin_offset_m, vector_ned_to_mission
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.notes import parse_note
@@ -127,8 +128,8 @@ class _State:
 
 
 def _accel(msg: Any) -> F64 | None:
-    if int(msg.type_mask) != TYPE_MASK_ACCEL:
-        return None
+    if int(msg.type_mask) not in (TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL):
+        return None  # not the law's (a position setpoint: the go-to of the start-up)
     return vector_ned_to_mission((float(msg.afx), float(msg.afy), float(msg.afz)))
 
 

@@ -29,6 +29,9 @@ class VehiclePlan:
     params: ParamSettings = field(default_factory=ParamSettings)
     autopilot: str = "ardupilot"
     """The mission's ``autopilot`` (ardupilot, sim or px4): its personality."""
+    setpoint: str = "acceleration"
+    """The mission's ``setpoint``: ``acceleration`` (type_mask 3135) or
+    ``velocity+acceleration`` (3079, Eq. V1 of docs/setpoints.md)."""
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,11 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.errors import LinkError
-from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL
+from gcs_swarm.mavlink.builders import (
+    MAV_FRAME_LOCAL_NED,
+    TYPE_MASK_ACCEL,
+    TYPE_MASK_VEL_ACCEL,
+)
 from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawPosition
 from gcs_swarm.runtime.endpoints import Endpoint, LatencyRing, LinkStats, parse_connection
 from gcs_swarm.runtime.lifetime import close_task_group
@@ -250,12 +254,22 @@ class Link:
         time_boot_ms: Sequence[int],
         accel_ned: npt.NDArray[np.float64],
         since_s: Sequence[float | None],
+        vel_ned: npt.NDArray[np.float64] | None = None,
     ) -> None:
         """One control step's acceleration setpoints (``builders.accel_setpoint``'s
         message), row k to vehicle ``sysids[k]``, written now (after whatever
         was queued before them). A setpoint still queued for one of these
         vehicles is replaced, and counted as dropped, as ``send`` would.
-        ``since_s[k]``: arrival of the telemetry row k answers (latency)."""
+        ``since_s[k]``: arrival of the telemetry row k answers (latency).
+        ``vel_ned``: a velocity setpoint per row [m/s] NED, NaN rows none; a
+        row with one goes out with the acceleration as its feed-forward
+        (``TYPE_MASK_VEL_ACCEL``, Eq. V1 of docs/setpoints.md)."""
+        masks: int | list[int] = TYPE_MASK_ACCEL
+        vel: npt.NDArray[np.float64] | None = None
+        if vel_ned is not None:
+            has = np.asarray(np.isfinite(vel_ned).all(axis=1))
+            masks = np.where(has, TYPE_MASK_VEL_ACCEL, TYPE_MASK_ACCEL).tolist()
+            vel = np.where(has[:, None], vel_ned, 0.0)
         for sysid in sysids:
             if self._setpoints.pop(sysid, None) is not None:
                 self.stats.setpoints_dropped += 1
@@ -273,8 +287,9 @@ class Link:
                     [(sysids[k], compids[k]) for k in idx],
                     time_boot_ms if whole else [time_boot_ms[k] for k in idx],
                     accel_ned if whole else accel_ned[idx],
-                    type_mask=TYPE_MASK_ACCEL,
+                    type_mask=masks if isinstance(masks, int) or whole else [masks[k] for k in idx],
                     coordinate_frame=MAV_FRAME_LOCAL_NED,
+                    vel_ned=vel if vel is None or whole else vel[idx],
                 )
             except (struct.error, OverflowError, ValueError, TypeError) as err:
                 self.stats.unencodable += len(idx)

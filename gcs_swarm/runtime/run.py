@@ -164,6 +164,7 @@ def station_config(
                 v.reserve,
                 param_settings(mission, v),
                 autopilot=v.autopilot,
+                setpoint=v.setpoint,
             )
             for v in mission.vehicles
         ),

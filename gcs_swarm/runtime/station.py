@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import Envelope
+from gcs_swarm.control.tracking import VelocityReference
 from gcs_swarm.errors import StartupError, SwarmError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.batch import accel_ned, mission_states
@@ -117,6 +118,11 @@ class Station:
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
                                    config.rate_hz)  # fmt: skip
         self.members = {p.sysid for p in config.vehicles if not p.reserve}
+        self.velocity_tracked = {
+            p.sysid for p in config.vehicles if p.setpoint == "velocity+acceleration"
+        }
+        """Vehicles sent a velocity setpoint with the acceleration (Eq. V1)."""
+        self.reference = VelocityReference()
         self.flying: set[int] = set()
         self.flown: set[int] = set()
         """Vehicles that have flown in the formation: if one comes back after
@@ -408,6 +414,7 @@ class Station:
             self.flying.discard(sysid)
             self._fresh.pop(sysid, None)
             self.control.forget(sysid)
+            self.reference.forget(sysid)
             if self.recorder is not None:
                 self.recorder.member(self.control.t_s, sysid, False)
             self._note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
@@ -522,7 +529,7 @@ class Station:
                                    out.episode, accel_mps2=accel, sent=fresh.keys(),
                                    correction_mps2=cor)  # fmt: skip
             rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-            self._answer([ids[i] for i in rows], accel[rows], now)
+            self._answer([ids[i] for i in rows], accel[rows], now, t, vel[rows])
             self.control.account(ids, pos, out, accel, report)
             job = self.control.pending_lookahead()
             if job is not None:
@@ -553,12 +560,28 @@ class Station:
             return "failed"
         return "degraded" if gone else "completed"
 
-    def _answer(self, sysids: list[int], accel: FloatArray, now: float) -> None:
+    def _answer(
+        self, sysids: list[int], accel: FloatArray, now: float, t: float, vel: FloatArray
+    ) -> None:
         """Write one acceleration setpoint (mission frame ``accel (K, 3)``) to
         each of ``sysids`` now, each link all of its vehicles' at once, before
-        the step's bookkeeping."""
+        the step's bookkeeping. A velocity-tracked vehicle's goes with its
+        velocity setpoint (Eq. V1, from ``vel``, the velocity the law saw, at
+        mission time ``t``)."""
         vps = [self.vehicles[s] for s in sysids]
         ned = accel_ned(vps, accel)
+        vel_ned: FloatArray | None = None
+        tracked = [k for k, s in enumerate(sysids) if s in self.velocity_tracked]
+        if tracked:
+            # What was sent (the NED rows, clipped) back in the mission frame: V1 integrates it.
+            sent = np.stack([ned[tracked, 1], ned[tracked, 0], -ned[tracked, 2]], axis=1)
+            ref = self.reference.setpoints([sysids[k] for k in tracked], t, vel[tracked], sent)
+            vel_ned = np.full((len(sysids), 3), np.nan)
+            bias = np.array([vps[k].vel_correction_ned for k in tracked], dtype=np.float64)
+            # The vehicle flies its own (biased) velocity estimate to the setpoint.
+            vel_ned[tracked, 0] = ref[:, 1] + bias[:, 0]
+            vel_ned[tracked, 1] = ref[:, 0] + bias[:, 1]
+            vel_ned[tracked, 2] = -ref[:, 2] + bias[:, 2]
         rows: dict[Link, list[int]] = {}
         for k, sysid in enumerate(sysids):
             rows.setdefault(self._link_of[sysid], []).append(k)
@@ -573,6 +596,7 @@ class Station:
                 [vps[k].boot_ms() for k in idx],
                 ned if len(idx) == len(sysids) else ned[idx],
                 [self._arrival.get(sysids[k]) for k in idx],
+                vel_ned=None if vel_ned is None or len(idx) == len(sysids) else vel_ned[idx],
             )
         if self.delay is not None:
             for k, sysid in enumerate(sysids):

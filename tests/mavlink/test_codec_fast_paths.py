@@ -161,6 +161,50 @@ def test_setpoint_values_encode_to_the_same_bytes_as_the_spec() -> None:
     assert {k: getattr(msg, k) for k in want} == dict(want)
 
 
+def test_velocity_rows_are_the_same_bytes_as_one_frame_at_a_time_and_as_pymavlink() -> None:
+    """Rows with a velocity (type_mask 3079, Eq. V1) mixed with acceleration-only
+    rows (3135) in one call: the same bytes as ``encode_setpoint`` of
+    ``vel_accel_setpoint``/``accel_setpoint`` frame by frame, below and above
+    the batch size; and one such frame decodes in pymavlink to the fields sent."""
+    rng = random.Random(11)
+    for k in (1, 5, 8, 9, 40):
+        for _ in range(10):
+            one, many = Codec(), Codec()
+            one._mav.seq = many._mav.seq = rng.randrange(256)
+            targets = [(rng.randrange(1, 255), 1) for _ in range(k)]
+            boot = [rng.randrange(2**32) for _ in range(k)]
+            acc = np.array([[rng.uniform(-5, 5) for _ in range(3)] for _ in range(k)])
+            vel = np.array([[rng.uniform(-9, 9) for _ in range(3)] for _ in range(k)])
+            with_vel = [rng.random() < 0.5 for _ in range(k)]
+            masks = [b.TYPE_MASK_VEL_ACCEL if w else b.TYPE_MASK_ACCEL for w in with_vel]
+            sent_vel = np.where(np.array(with_vel)[:, None], vel, 0.0)
+            want = b"".join(
+                one.encode_setpoint(_values(
+                    b.vel_accel_setpoint(ts, tc, t, tuple(v), tuple(a)) if w
+                    else b.accel_setpoint(ts, tc, t, tuple(a))
+                ))
+                for (ts, tc), t, v, a, w in zip(targets, boot, vel.tolist(), acc.tolist(),
+                                                with_vel, strict=True)
+            )  # fmt: skip
+            got, size = many.encode_accel_setpoints(
+                targets, boot, acc, type_mask=masks, coordinate_frame=b.MAV_FRAME_LOCAL_NED,
+                vel_ned=sent_vel,
+            )  # fmt: skip
+            assert got == want and size * k == len(want), k
+            assert many._mav.seq == one._mav.seq and many.stats == one.stats
+    frame, _ = Codec().encode_accel_setpoints(
+        [(3, 1)] * 9, [1234] * 9, np.tile([0.5, -0.25, 1.0], (9, 1)),
+        type_mask=b.TYPE_MASK_VEL_ACCEL, coordinate_frame=b.MAV_FRAME_LOCAL_NED,
+        vel_ned=np.tile([1.5, -2.0, 0.25], (9, 1)),
+    )  # fmt: skip
+    msgs = mav.MAVLink(None).parse_buffer(frame)
+    assert msgs is not None and len(msgs) == 9
+    m = msgs[0]
+    assert (m.type_mask, m.coordinate_frame, m.target_system) == (3079, 1, 3)
+    assert (m.vx, m.vy, m.vz, m.afx, m.afy, m.afz) == (1.5, -2.0, 0.25, 0.5, -0.25, 1.0)
+    assert (m.x, m.y, m.z, m.yaw, m.yaw_rate) == (0.0,) * 5
+
+
 def test_accel_setpoint_batch_is_the_same_bytes_as_one_frame_at_a_time() -> None:
     """``encode_accel_setpoints`` (column-wise, for a formation) against
     ``encode_setpoint`` frame by frame: same bytes, sequence numbers and

@@ -264,3 +264,31 @@ def test_delay_compensation_needs_real_time_for_sim_vehicles() -> None:
     assert problems(fast) == [
         "m.yaml:1: mission.delay_compensation: needs real time: emulator.speedup 1, got 5"
     ]
+
+
+def test_setpoint_defaults_by_autopilot_and_can_be_chosen() -> None:
+    m = parse_mission(
+        "mission:\n  origin: {lat: 47.0, lon: 8.0, alt: 500}\n"
+        "vehicles:\n"
+        "  - {sysid: 1, start: [0, 0, 5], link: 'udpin:127.0.0.1:14550'}\n"
+        "  - {sysid: 2, start: [3, 0, 5], link: 'udpout:127.0.0.1:18571', autopilot: px4}\n"
+        "  - {sysid: 3, start: [0, 3, 5], autopilot: px4}\n"
+        "  - {sysid: 4, start: [3, 3, 5], link: 'udpout:127.0.0.1:18573', autopilot: px4,"
+        " setpoint: acceleration}\n"
+        "  - {sysid: 5, start: [6, 3, 5], setpoint: velocity+acceleration}\n"
+    )
+    got = {v.sysid: v.setpoint for v in m.vehicles}
+    assert got == {
+        1: "acceleration",  # ArduCopter: measured with the acceleration alone
+        2: "velocity+acceleration",  # PX4 (docs/setpoints.md)
+        3: "velocity+acceleration",  # the emulator's PX4
+        4: "acceleration",
+        5: "velocity+acceleration",
+    }
+
+
+def test_a_bad_setpoint_names_the_line_and_the_choices() -> None:
+    lines = problems("vehicles:\n  - {sysid: 1, start: [0, 0, 5],\n     setpoint: velocity}\n")
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("m.yaml:3: vehicles[0].setpoint: "), lines
+    assert "acceleration" in lines[0] and "velocity+acceleration" in lines[0]

@@ -56,7 +56,7 @@ def test_every_px4_lands_com_of_loss_t_after_the_station_is_killed(tmp_path: Pat
             )  # fmt: skip
             try:
                 flying = lambda: all(  # noqa: E731
-                    emu.vehicle_state(s).control == "accel"
+                    emu.vehicle_state(s).control == "vel"  # velocity+acceleration, PX4's default
                     and emu.vehicle_state(s).mode_name == "OFFBOARD"
                     for s in STARTS
                 )
