@@ -138,6 +138,37 @@ def compare(sitl: dict[str, Any], emu: dict[str, Any]) -> dict[str, Any]:
     return {"sitl": fig(sitl), "emulator": fig(emu)}
 
 
+def formation_series(folder: Path, mission: Mission) -> tuple[np.ndarray, np.ndarray]:
+    """(mission times [s], (T, M) every radius then every pairwise distance [m]),
+    from the run's tlog: the columns ``time_to_form`` judges in the summary."""
+    rec = record_from_tlog(folder / "flight.tlog", mission)
+    pos = rec.pos_m
+    radii = np.linalg.norm(pos - rec.leader_pos_m[:, None, :], axis=-1)
+    i, j = np.triu_indices(pos.shape[1], k=1)
+    dists = np.linalg.norm(pos[:, i] - pos[:, j], axis=-1)
+    return rec.times_s, np.hstack([radii, dists])
+
+
+def wander(times_s: np.ndarray, series: np.ndarray, *, window_s: float = 20.0) -> float:
+    """How much a held formation wanders: the largest relative standard
+    deviation of any column over the last ``window_s`` [s]."""
+    win = series[times_s >= times_s[-1] - window_s]
+    return float(np.nanmax(np.nanstd(win, axis=0) / np.abs(np.nanmean(win, axis=0))))
+
+
+def time_to_enter(
+    times_s: np.ndarray, series: np.ndarray, band: float, *, window_s: float = 20.0
+) -> float | None:
+    """The first time [s] every column is within a relative ``band`` of its
+    mean over the last ``window_s`` [s] (None: never). On a vehicle that wanders
+    by more than the summary's 1 % (PX4 SITL) the formation never stays inside
+    it: this is the time to form that can be compared (docs/sitl.md)."""
+    mean = np.nanmean(series[times_s >= times_s[-1] - window_s], axis=0)
+    inside = np.all(np.abs(series - mean) <= band * np.abs(mean), axis=1)
+    k = np.flatnonzero(inside)
+    return float(times_s[k[0]]) if k.size else None
+
+
 def held_radii(summary: dict[str, Any], r_eq: float) -> dict[str, Any]:
     """Each vehicle's radius over the summary's last 20 s (``final_radius_window_m``:
     mean, std) and the mean's error against ``r_eq`` [%]; None for a vehicle that

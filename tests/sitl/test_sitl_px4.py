@@ -41,9 +41,12 @@ from tests.sitl.sitl_flights import (
     MISSIONS,
     ROOT,
     compare,
+    formation_series,
     held_radii,
     load,
     summary_of,
+    time_to_enter,
+    wander,
     write_figures,
 )
 
@@ -141,12 +144,25 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
         s, folder, _ = _fly(mission, tmp_path / "runs")
     o = s["overall"]
     radii = [v["final_radius_m"] for v in s["vehicles"].values()]
-    # A PX4 in OFFBOARD acceleration wanders (0.16-0.24 m std over 20 s measured):
+    # A PX4 in OFFBOARD wanders (0.11-0.30 m std over 20 s measured):
     # the figure is each vehicle's mean radius over the last 20 s (the last sample too).
     window = held_radii(s, r_eq)
     held = window["radii_last_20s_mean_m"]
-    e, _, _ = _fly(_emulator_twin(mission), tmp_path / "emu")
+    twin_mission = _emulator_twin(mission)
+    e, e_folder, _ = _fly(twin_mission, tmp_path / "emu")
     twin = compare(s, e)
+    # Time to form: a PX4 SIH's position wanders (periods of 13-40 s; a relative
+    # std of up to 2.5 % on a distance over the last 20 s), so the summary's "stays
+    # within 1 % of the last sample" is never met on SITL. Compared instead: the
+    # first time every radius and distance enters a band of twice that wander
+    # (at least 1 %) around its held mean, the same band on both (docs/sitl.md).
+    t_s, series = formation_series(folder, mission)
+    band = max(0.01, 2.0 * wander(t_s, series))
+    twin["band_relative"] = band
+    twin["sitl"]["time_to_enter_band_s"] = time_to_enter(t_s, series, band)
+    twin["emulator"]["time_to_enter_band_s"] = time_to_enter(
+        *formation_series(e_folder, twin_mission), band
+    )
     figures = {
         "equilibrium_radius_m": r_eq, "radii_m": radii,
         "radius_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq for r in radii],
@@ -166,7 +182,8 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     # PX4 personality within 10 % on the time to form and 1 % on the final radii.
     assert None not in held
     np.testing.assert_allclose(held, r_eq, rtol=0.01)
-    t_sitl, t_emu = twin["sitl"]["time_to_form_s"], twin["emulator"]["time_to_form_s"]
+    t_sitl = twin["sitl"]["time_to_enter_band_s"]
+    t_emu = twin["emulator"]["time_to_enter_band_s"]
     assert t_sitl is not None and t_emu is not None
     assert abs(t_emu - t_sitl) <= 0.10 * t_sitl, (t_emu, t_sitl)
     emu_held = [v["final_radius_window_m"]["mean"] for v in e["vehicles"].values()]
