@@ -151,7 +151,7 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     twin_mission = _emulator_twin(mission)
     e, e_folder, _ = _fly(twin_mission, tmp_path / "emu")
     twin = compare(s, e)
-    # Time to form: a PX4 SIH's position wanders (periods of 13-40 s; a relative
+    # Time to form: a PX4 SIH's position wanders (periods of 13-48 s; a relative
     # std of up to 2.5 % on a distance over the last 20 s), so the summary's "stays
     # within 1 % of the last sample" is never met on SITL. Compared instead: the
     # first time every radius and distance enters a band of twice that wander
