@@ -123,7 +123,7 @@ class ProtocolConfig:
     guided_attempts: int = 8
     ground_height_m: float = 1.0
     origin_request_interval_s: float = 2.0
-    takeoff_min_alt_m: float = 2.0
+    takeoff_min_alt_m: float = 5.0
     takeoff_timeout_s: float = 40.0
     goto_tolerance_m: float = 0.3
     goto_speed_tolerance_mps: float = 0.3

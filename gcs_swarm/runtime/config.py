@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.control.velocity_bias import BiasSettings
-from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.mavlink.states import ProtocolConfig
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
@@ -38,20 +37,23 @@ class VehiclePlan:
 class StationConfig:
     """What the station needs from a mission. Times in seconds: ``duration_s``
     and event times are mission (vehicle) time from the formation start;
-    ``ready_timeout_s`` and ``end_timeout_s`` are station (wall) time."""
+    ``ready_timeout_s`` and ``end_timeout_s`` are station (wall) time.
+    What it shares with ``ProtocolConfig`` defaults to ``ProtocolConfig``'s
+    value (one place); the mission's own defaults are kept equal to these by
+    ``tests/mission/test_defaults_agree.py``."""
 
     vehicles: tuple[VehiclePlan, ...]
     law: LawConfig
-    rate_hz: float = 50.0
+    rate_hz: float = ProtocolConfig.control_rate_hz
     duration_s: float = 60.0
-    end_mode: int = b.COPTER_MODES["BRAKE"]
-    stale_timeout_s: float = 1.0
+    end_mode: int = ProtocolConfig.end_mode
+    stale_timeout_s: float = ProtocolConfig.stale_timeout_s
     ready_timeout_s: float = 90.0
     end_timeout_s: float = 15.0
-    guid_timeout_s: float = 0.5
-    takeoff_alt_m: float = 5.0
-    start_tolerance_m: float = 0.3
-    start_speed_tolerance_mps: float = 0.3
+    guid_timeout_s: float = ProtocolConfig.guid_timeout_s
+    takeoff_alt_m: float = ProtocolConfig.takeoff_min_alt_m
+    start_tolerance_m: float = ProtocolConfig.goto_tolerance_m
+    start_speed_tolerance_mps: float = ProtocolConfig.goto_speed_tolerance_mps
     """At its start (READY) within this distance [m] and below this speed [m/s]."""
     mission_origin: GeoPoint | None = None
     events: tuple[tuple[float, str, int], ...] = ()
