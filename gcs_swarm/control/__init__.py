@@ -13,7 +13,10 @@ See ``shared/spec/formation-law.md`` for the equations and readings. Modules:
 - ``law``: the continuous law and ``SwarmController``;
 - ``limits``, ``safety``, ``safety_stats``: the safety filter and its reports;
 - ``envelope``, ``reaction``: the vehicle envelope (the command shaper, the
-  demand check, the braking barrier of a jerk-limited, lagged vehicle).
+  demand check, the braking barrier of a jerk-limited, lagged vehicle);
+- ``loop``: one control step of the station in vehicle time (law, safety
+  filter, shaper), the core the station and the replay both drive;
+- ``tracking``: Eq. V1, the velocity setpoint beside the acceleration.
 """
 
 from __future__ import annotations

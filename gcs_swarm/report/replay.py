@@ -24,7 +24,7 @@ Two ways to find the control steps, the leader and the behaviour:
   mode other than GUIDED, a landing or a disarm, or after ``stale_timeout``
   of log time without a setpoint; the
   leader, behaviour and safety corrections are recomputed by running the
-  station's own control loop (``gcs_swarm.runtime.control.ControlLoop``,
+  station's own control loop (``gcs_swarm.control.loop.ControlLoop``,
   the mission's law in vehicle time) on the logged states.
 """
 
@@ -37,13 +37,14 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
+from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.safety import filter_acts
 from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
 from gcs_swarm.mavlink.frames import GeoPoint, origin_offset_m, vector_ned_to_mission
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.notes import parse_note
 from gcs_swarm.report.record import F64, FlightRecord, FlightRecorder
-from gcs_swarm.runtime.tlog import TlogRecord, TlogStats, read_tlog
+from gcs_swarm.report.tlog import TlogRecord, TlogStats, read_tlog
 
 __all__ = ["ReplayStats", "record_from_tlog", "safety_applied"]
 
@@ -229,8 +230,6 @@ def _replay_law(
     st: ReplayStats,
     mission: Mission,
 ) -> None:
-    from gcs_swarm.runtime.control import ControlLoop
-
     px4 = {v.sysid for v in mission.vehicles if v.autopilot == "px4"}
     loop = ControlLoop(mission.law, {v.sysid: v.q for v in mission.vehicles},
                        mission.settings.rate, defer=False)  # fmt: skip

@@ -5,7 +5,7 @@ the control loop in vehicle time, the status line and summary, and
 
 from __future__ import annotations
 
-from gcs_swarm.runtime.control import ControlLoop, StepResult
+from gcs_swarm.control.loop import ControlLoop, StepResult
 from gcs_swarm.runtime.links import Endpoint, Link, LinkStats, parse_connection
 from gcs_swarm.runtime.run import (
     END_MODES,

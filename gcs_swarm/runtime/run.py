@@ -40,17 +40,16 @@ from gcs_swarm.mission.source import (
     signing_key_bytes,
 )
 from gcs_swarm.missionsim import demand_report, envelope_demand
+from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
+from gcs_swarm.report.replay import safety_applied
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.tlog import TlogWriter
 from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
 
 if TYPE_CHECKING:
-    # gcs_swarm.report reads logs with gcs_swarm.runtime.tlog: imported lazily
-    # below so that importing either package first works.
     from gcs_swarm.control.envelope import Demand
-    from gcs_swarm.report.artefacts import RunFolder
 
 __all__ = [
     "END_MODES",
@@ -307,9 +306,6 @@ async def run_mission(
     recorder: FlightRecorder | None = None
     tlog: TlogWriter | None = None
     if log_dir is not None:
-        from gcs_swarm.report.artefacts import create_run_folder
-        from gcs_swarm.report.replay import safety_applied
-
         folder = create_run_folder(mission, base_dir=log_dir)
         if on_folder is not None:
             on_folder(folder)
@@ -413,8 +409,6 @@ async def run_mission(
 def _write_vehicle_params(folder: RunFolder, station: Station) -> None:
     """``vehicle_params.json``: each vehicle's envelope and every parameter the
     station changed on it (old, new, read-back, restored)."""
-    from gcs_swarm.report.artefacts import write_json
-
     records = [vp.vehicle_params.record() for _, vp in sorted(station.vehicles.items())]
     try:
         write_json({"vehicles": records}, folder.vehicle_params)
@@ -477,8 +471,6 @@ async def _write_run_report(
             },
         },
     }
-    from gcs_swarm.report.artefacts import write_report
-
     rec = recorder.record()
     try:
         await asyncio.shield(

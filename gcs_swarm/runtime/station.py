@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob
+from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.control.tracking import VelocityReference
 from gcs_swarm.errors import StartupError, SwarmError
@@ -54,7 +55,6 @@ from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, ProtocolEvent
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.config import StationConfig, VehiclePlan
-from gcs_swarm.runtime.control import ControlLoop
 from gcs_swarm.runtime.delay import DelayCompensator
 from gcs_swarm.runtime.lifetime import close_task_group
 from gcs_swarm.runtime.links import Link, OnFrame

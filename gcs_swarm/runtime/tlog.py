@@ -1,10 +1,5 @@
-"""Telemetry logs: an append-only ``.tlog`` writer and a raw reader.
-
-The ``.tlog`` format (written by MAVProxy and Mission Planner, read by
-pymavlink's ``mavlogdump.py`` and MAVExplorer) is a plain sequence of records,
-each an 8-byte big-endian unsigned timestamp in microseconds since the Unix
-epoch followed by one raw MAVLink frame (v1 ``0xFE`` or v2 ``0xFD``, with its
-signature if signed). There is no file header and no direction flag.
+"""Telemetry logs: the append-only ``.tlog`` writer (the format and the
+reader are ``gcs_swarm.report.tlog``).
 
 ``TlogWriter`` (station side) never blocks the event loop for long: ``write``
 appends to an in-memory buffer bounded by ``max_buffer_bytes`` (a frame that
@@ -18,14 +13,6 @@ and counted. As an
 ``async with`` lifetime it owns one ``asyncio.TaskGroup`` (the flusher); a
 plain ``with`` (tools, tests, no event loop) writes synchronously at the
 same thresholds. Closing writes everything still buffered.
-
-``read_tlog`` yields ``TlogRecord(t_us, frame, direction)``. Direction comes
-from the frame's source: system 255 is the station (mavlink-protocol.md,
-"Identity"), so its frames are ``"out"``, except those of component 155
-(MAV_COMP_ID_LOG), the station's own annotations written to the log only and
-never sent (``"note"``, see ``gcs_swarm.report.notes``); every other source
-is ``"in"``. Damaged records are skipped by scanning for the next plausible
-one (counted in ``TlogStats.skipped_bytes``).
 """
 
 from __future__ import annotations
@@ -34,81 +21,19 @@ import asyncio
 import contextlib
 import logging
 import os
-import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO, Literal
+from typing import BinaryIO
 
-__all__ = [
-    "LOG_COMPID",
-    "STATION_SYSID",
-    "Direction",
-    "FrameHeader",
-    "TlogRecord",
-    "TlogStats",
-    "TlogWriter",
-    "WriterStats",
-    "frame_header",
-    "read_tlog",
-]
+from gcs_swarm.report.tlog import RECORD_TIMESTAMP
+
+__all__ = ["TlogWriter", "WriterStats"]
 
 _log = logging.getLogger("gcs_swarm.tlog")
-
-STATION_SYSID = 255
-"""Source system id of the ground station (mavlink-protocol.md, Identity)."""
-LOG_COMPID = 155
-"""MAV_COMP_ID_LOG: source component of the station's log-only annotations."""
-
-_TS = struct.Struct(">Q")
-_V1, _V2 = 0xFE, 0xFD
-_SIGNED = 0x01  # MAVLink 2 incompat flag: 13-byte signature follows the CRC
-_MAX_SKEW_US = 3 * 24 * 3600 * 10**6  # as pymavlink: a timestamp this far off is garbage
-
-Direction = Literal["in", "out", "note"]
-
-
-@dataclass(frozen=True, slots=True)
-class FrameHeader:
-    """The header fields of one raw MAVLink frame; ``length`` is the whole
-    frame in bytes (header, payload, CRC and signature)."""
-
-    version: int
-    length: int
-    seq: int
-    sysid: int
-    compid: int
-    msgid: int
-
-    @property
-    def direction(self) -> Direction:
-        if self.sysid != STATION_SYSID:
-            return "in"
-        return "note" if self.compid == LOG_COMPID else "out"
-
-
-def frame_header(buf: bytes | bytearray | memoryview, offset: int = 0) -> FrameHeader | None:
-    """Parse the frame header at ``offset``; None if it is not a complete
-    MAVLink 1 or 2 header (the payload is not checked)."""
-    n = len(buf) - offset
-    if n < 6:
-        return None
-    magic = buf[offset]
-    plen = buf[offset + 1]
-    if magic == _V2:
-        if n < 10:
-            return None
-        sig = 13 if buf[offset + 2] & _SIGNED else 0
-        msgid = buf[offset + 7] | buf[offset + 8] << 8 | buf[offset + 9] << 16
-        seq, sysid, compid = buf[offset + 4], buf[offset + 5], buf[offset + 6]
-        return FrameHeader(2, 12 + plen + sig, seq, sysid, compid, msgid)
-    if magic == _V1:
-        seq, sysid, compid = buf[offset + 2], buf[offset + 3], buf[offset + 4]
-        return FrameHeader(1, 8 + plen, seq, sysid, compid, buf[offset + 5])
-    return None
 
 
 # ----------------------------------------------------------------------- writer
@@ -176,7 +101,7 @@ class TlogWriter:
             self.stats.dropped_frames += 1
             return False
         stamp = int(self._clock() * 1e6) if t_us is None else int(t_us)
-        self._buf += _TS.pack(stamp & 0xFFFFFFFFFFFFFFFF)
+        self._buf += RECORD_TIMESTAMP.pack(stamp & 0xFFFFFFFFFFFFFFFF)
         self._buf += frame
         self.stats.frames += 1
         self.stats.bytes += need
@@ -325,56 +250,3 @@ class TlogWriter:
                 self._report()
                 assert self._flushed is not None
                 self._flushed.set()
-
-
-# ----------------------------------------------------------------------- reader
-@dataclass(frozen=True, slots=True)
-class TlogRecord:
-    """One record: timestamp [us since the Unix epoch], the raw frame and its
-    direction as seen by the station (see the module docstring)."""
-
-    t_us: int
-    frame: bytes
-    header: FrameHeader
-
-    @property
-    def direction(self) -> Direction:
-        return self.header.direction
-
-
-@dataclass
-class TlogStats:
-    """What ``read_tlog`` skipped: bytes of damaged records and a truncated tail."""
-
-    records: int = 0
-    skipped_bytes: int = 0
-    truncated: bool = False
-
-
-def read_tlog(path: str | os.PathLike[str], stats: TlogStats | None = None) -> Iterator[TlogRecord]:
-    """Yield every record of a ``.tlog`` file in order (the CRC is not checked
-    here; the decoder does that). A record whose timestamp is more than three
-    days from the previous one, or whose frame does not start with a MAVLink
-    magic byte, is damaged: bytes are skipped one at a time until a plausible
-    record starts (counted in ``stats`` when given), as pymavlink does."""
-    st = stats if stats is not None else TlogStats()
-    data = Path(path).read_bytes()
-    pos, end = 0, len(data)
-    last_t: int | None = None
-    while pos + 8 < end:
-        (t_us,) = _TS.unpack_from(data, pos)
-        hdr = frame_header(data, pos + 8)
-        if hdr is None or (last_t is not None and abs(t_us - last_t) > _MAX_SKEW_US):
-            pos += 1
-            st.skipped_bytes += 1
-            continue
-        stop = pos + 8 + hdr.length
-        if stop > end:
-            break
-        st.records += 1
-        last_t = t_us
-        yield TlogRecord(t_us, data[pos + 8 : stop], hdr)
-        pos = stop
-    if pos < end:
-        st.truncated = True
-        st.skipped_bytes += end - pos

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from gcs_swarm.control.envelope import ARDUCOPTER
+from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope, LawConfig, Limits, Safety
-from gcs_swarm.runtime.control import ControlLoop
 
 STARTS = np.array([[2, 1, 2], [-1, -1, -1], [3, 4, 2], [4, 2, 2]], dtype=np.float64)
 

@@ -42,3 +42,29 @@ def test_exported_names(package: object) -> None:
     public = {n for n in vars(module) if not n.startswith("_")}
     submodules = {n for n in public if type(getattr(module, n)).__name__ == "module"}
     assert public - submodules - {"annotations"} == set(exported)
+
+
+def _gcs_imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    out: set[str] = set()
+    for node in ast.walk(tree):  # lazy imports inside functions too
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module)
+        elif isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+    return {m for m in out if m.startswith("gcs_swarm.")}
+
+
+@pytest.mark.parametrize(
+    ("package", "below"),
+    [("report", "gcs_swarm.runtime"), ("control", "gcs_swarm.runtime"),
+     ("control", "gcs_swarm.report"), ("mavlink", "gcs_swarm.report")],
+)  # fmt: skip
+def test_lower_layers_never_import_the_runtime(package: str, below: str) -> None:
+    """Imports go one way (issue 16): the runtime uses report, mavlink and
+    control; report reads logs and replays the law without the runtime."""
+    root = Path(gcs_swarm.mavlink.__file__).parent.parent / package
+    files = sorted(root.glob("*.py"))
+    assert len(files) >= 5
+    bad = {f.name: sorted(m for m in _gcs_imports(f) if m.startswith(below)) for f in files}
+    assert {k: v for k, v in bad.items() if v} == {}

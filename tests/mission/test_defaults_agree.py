@@ -57,10 +57,14 @@ def test_a_mission_that_says_nothing_flies_the_station_defaults() -> None:
         assert getattr(cfg, name) == station[name], name
     s, st = Settings(name=""), Startup()
     assert (s.rate, END_MODES[s.end], s.stale_timeout) == (
-        station["rate_hz"], station["end_mode"], station["stale_timeout_s"]
+        station["rate_hz"],
+        station["end_mode"],
+        station["stale_timeout_s"],
     )
     assert (st.takeoff_alt, st.guid_timeout, st.ready_timeout) == (
-        station["takeoff_alt_m"], station["guid_timeout_s"], station["ready_timeout_s"]
+        station["takeoff_alt_m"],
+        station["guid_timeout_s"],
+        station["ready_timeout_s"],
     )
     assert (s.duration, st.start_tolerance, st.start_speed_tolerance, st.command_attempts) == (
         station["duration_s"], station["start_tolerance_m"],

@@ -7,7 +7,8 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass, field
 
-from gcs_swarm.runtime.tlog import TlogWriter, frame_header
+from gcs_swarm.report.tlog import frame_header
+from gcs_swarm.runtime.tlog import TlogWriter
 
 
 def split_frames(data: bytes) -> list[bytes]:

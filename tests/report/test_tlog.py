@@ -13,7 +13,8 @@ import pytest
 
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import Codec, MessageSpec
-from gcs_swarm.runtime.tlog import TlogStats, TlogWriter, frame_header, read_tlog
+from gcs_swarm.report.tlog import TlogStats, frame_header, read_tlog
+from gcs_swarm.runtime.tlog import TlogWriter
 
 T0_US = 1_700_000_000_000_000  # 2023-11-14, microseconds since the Unix epoch
 

@@ -17,8 +17,9 @@ from report_tap import Tap, TapCounts
 
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.report import report_from_tlog
+from gcs_swarm.report.tlog import read_tlog
 from gcs_swarm.runtime import RunSummary, emulator_config, run_mission
-from gcs_swarm.runtime.tlog import TlogWriter, read_tlog
+from gcs_swarm.runtime.tlog import TlogWriter
 from sim_vehicle import Emulator
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gcs_swarm.control import ConstantForce, LawConfig, Leader, Limits
+from gcs_swarm.control.loop import MAX_CLOCK_JUMP_S
 from gcs_swarm.runtime import ControlLoop
-from gcs_swarm.runtime.control import MAX_CLOCK_JUMP_S
 
 
 def test_mission_clock_follows_vehicle_time_not_the_wall() -> None:
