@@ -11,7 +11,7 @@ exactly.
 
 When the mission states ``limits.envelope`` the reference models the vehicle
 (docs/vehicle-envelope.md): the station's command path of
-``gcs_swarm.runtime.control.ControlLoop`` (filter planning within the
+``gcs_swarm.control.loop.ControlLoop`` (filter planning within the
 envelope, then ``CommandShaper``) once per control period, flown by the
 envelope's jerk-limited, lagged vehicle (``simulation.vehicle_step``), so the
 step is the control period whatever ``dt_s`` says. ``envelope_demand`` and

@@ -251,7 +251,7 @@ class Limits:
     envelope: what the vehicles' own position controllers can deliver (the
     mission's ``limits.envelope``; unbounded by default, the paper's point
     mass). The station may tighten it with what it reads from the vehicles
-    (``gcs_swarm.runtime.control.ControlLoop.set_envelope``).
+    (``gcs_swarm.control.loop.ControlLoop.set_envelope``).
     """
 
     a_max: float = math.inf
