@@ -11,6 +11,7 @@
      +-- VehicleError               a vehicle refused or did not answer (names the
      |    |                          vehicle and carries its own STATUSTEXT)
      |    +-- StartupError          the swarm could not be readied in time
+     +-- ReportError(OSError)       a run folder, summary, picture or log failed
      +-- InfeasibleError            the safety filter cannot satisfy its constraints
 
 The command line (``gcs_swarm.cli``) catches ``SwarmError``, prints ``str(err)``
@@ -22,11 +23,14 @@ traceback.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 __all__ = [
     "ExpressionError",
     "InfeasibleError",
     "LinkError",
     "MissionError",
+    "ReportError",
     "StartupError",
     "SwarmError",
     "UsageError",
@@ -68,13 +72,29 @@ class LinkError(SwarmError, OSError):
 class VehicleError(SwarmError):
     """A vehicle refused a command or stopped answering.
 
+    ``reasons`` maps each vehicle it is about (system id) to what happened to
+    it, in the vehicle's own words where it gave any (its STATUSTEXT or PX4
+    EVENT); ``sysids`` lists them.
+
     The message names the vehicle (system id) and, where there is one, quotes
     the vehicle's own STATUSTEXT.
     """
 
+    def __init__(self, message: str, reasons: Mapping[int, str] | None = None) -> None:
+        super().__init__(message)
+        self.reasons: dict[int, str] = dict(reasons) if reasons else {}
+
+    @property
+    def sysids(self) -> tuple[int, ...]:
+        return tuple(sorted(self.reasons))
+
 
 class StartupError(VehicleError):
     """The swarm could not be readied within the start-up timeout."""
+
+
+class ReportError(SwarmError, OSError):
+    """A run folder, summary, picture or log could not be created, written or read."""
 
 
 class InfeasibleError(SwarmError):

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from gcs_swarm.errors import SwarmError
+from gcs_swarm.errors import ReportError
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.report.figures import summarize_record
 from gcs_swarm.report.record import FlightRecord
@@ -126,7 +126,7 @@ def create_run_folder(
         elif source.is_file():
             shutil.copyfile(source, folder.mission)
     except OSError as err:
-        raise SwarmError(f"{base}: cannot create the run folder: {err.strerror or err}") from None
+        raise ReportError(f"{base}: cannot create the run folder: {err.strerror or err}") from None
     return folder
 
 
@@ -181,7 +181,7 @@ def write_report(
 
             save_picture(build_figure(rec, summary), picture_path)
     except OSError as err:
-        raise SwarmError(f"cannot write the report: {err.strerror or err}") from None
+        raise ReportError(f"cannot write the report: {err.strerror or err}") from None
     return summary
 
 
@@ -194,7 +194,7 @@ def report_from_tlog(
     try:
         rec = record_from_tlog(tlog_path, mission, stats=stats)
     except OSError as err:
-        raise SwarmError(f"{tlog_path}: cannot read the log: {err.strerror or err}") from None
+        raise ReportError(f"{tlog_path}: cannot read the log: {err.strerror or err}") from None
     summary = summarize_record(rec)
     summary["log"] = {
         "records": stats.records,
@@ -241,15 +241,15 @@ def report_command(
     ``.tlog``), print the figures and the paths. Nothing is overwritten
     unless ``force``: when a summary or picture is there already (a run's own
     ``summary.json`` and ``report.png``), they go to ``summary-<n>.json`` and
-    ``report-<n>.png``, n the first free number. ``SwarmError`` when a file
+    ``report-<n>.png``, n the first free number. ``ReportError`` when a file
     is missing or unreadable (``MissionError`` for the mission file)."""
     tlog, mission_file, summary_path, picture_path = _paths(Path(path), mission_path)
     if not force:
         summary_path, picture_path = _free_pair(summary_path, picture_path)
     if not tlog.is_file():
-        raise SwarmError(f"{tlog}: no such telemetry log")
+        raise ReportError(f"{tlog}: no such telemetry log")
     if not mission_file.is_file():
-        raise SwarmError(
+        raise ReportError(
             f"{mission_file}: no mission file; give the one that was flown with --mission FILE"
         )
     mission = load_mission(mission_file)
@@ -365,5 +365,5 @@ def write_simulation_report(
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise SwarmError(f"{out}: cannot create the folder: {err.strerror or err}") from None
+        raise ReportError(f"{out}: cannot create the folder: {err.strerror or err}") from None
     return write_report(rec, out / SUMMARY_NAME, out / PICTURE_NAME if picture else None)

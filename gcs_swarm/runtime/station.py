@@ -232,14 +232,16 @@ class Station:
                 while True:
                     failed = [vp for vp in everyone if vp.phase is Phase.FAILED]
                     if failed:
-                        raise StartupError(self._not_ready("could not be readied", failed))
+                        raise StartupError(
+                            self._not_ready("could not be readied", failed), _reasons(failed)
+                        )
                     if all(vp.phase is Phase.READY for vp in everyone):
                         return
                     await self._wait_change()
         except TimeoutError:
             late = [vp for vp in everyone if vp.phase is not Phase.READY]
             what = f"not ready after {self.config.ready_timeout_s:g} s"
-            raise StartupError(self._not_ready(what, late)) from None
+            raise StartupError(self._not_ready(what, late), _reasons(late)) from None
 
     def apply_envelope(self) -> Envelope:
         """Plan and shape every command within the tightest envelope of the
@@ -757,3 +759,8 @@ class Station:
 
     def final(self) -> bool:
         return all(vp.phase in FINAL_PHASES for vp in self.vehicles.values())
+
+
+def _reasons(vps: list[VehicleProtocol]) -> dict[int, str]:
+    """``StartupError.reasons``: each vehicle's phase, and its failure in its own words."""
+    return {vp.sysid: vp.phase.value + (f" ({vp.failure})" if vp.failure else "") for vp in vps}
