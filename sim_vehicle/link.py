@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.crc import frame_crc
 from sim_vehicle import signing
-from sim_vehicle.codec import crc16
 from sim_vehicle.config import Impairment
 
 __all__ = ["MAX_DATAGRAM", "TCP_PREFIX", "Endpoint", "Impairer", "LinkStats", "TcpPort"]
@@ -345,7 +345,7 @@ def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | Non
     if data[i + 7] != 84 or data[i + 8] or data[i + 9] or plen > _SP_SIZE:
         return None
     end = i + 10 + plen
-    if crc16(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
+    if frame_crc(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
         return None
     if plen == _SP_SIZE:  # the usual case (coordinate_frame, the last byte, is not 0)
         f = _SP_UNPACK_FROM(data, i + 10)
