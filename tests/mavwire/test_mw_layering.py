@@ -1,7 +1,7 @@
 """``mavwire`` is plumbing under both ends: it imports neither the station
 (``gcs_swarm``) nor the emulator (``sim_vehicle``), does no I/O, and its
 ``__all__`` is what it exports; the emulator still never imports the
-station."""
+station; and the plumbing is written once (neither end keeps its own copy)."""
 
 from __future__ import annotations
 
@@ -75,3 +75,19 @@ def test_exported_names() -> None:
     for name in exported:  # each name is its submodule's, listed there too
         owner = next(m for m in submodules if name in getattr(mavwire, m).__all__)
         assert getattr(getattr(mavwire, owner), name) is getattr(mavwire, name)
+
+
+@pytest.mark.parametrize(
+    "needle",
+    ["def check_signature", "mcrf4xx", "x25crc", "MAX_DATAGRAM =", "MAX_DATAGRAM_BYTES =",
+     "allow_unsigned_callback", "0x8408"],
+)  # fmt: skip
+def test_the_plumbing_is_written_once(needle: str) -> None:
+    """Neither end keeps its own signing set-up, CRC selection or datagram limit."""
+    found = [
+        str(path.relative_to(_ROOT))
+        for pkg in ("gcs_swarm", "sim_vehicle")
+        for path in sorted((_ROOT / pkg).rglob("*.py"))
+        if needle in path.read_text()
+    ]
+    assert found == []
