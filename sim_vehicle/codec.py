@@ -11,20 +11,20 @@ cost outweighs the work. Frame layout (MAVLink 2, unsigned)::
 
 ``len`` is the payload with trailing zero bytes removed (minimum 1), as
 MAVLink 2 requires; the CRC is CRC-16/MCRF4XX over bytes 1..9+len followed by
-the message's CRC_EXTRA (185). No I/O.
+the message's CRC_EXTRA (185), ``mavwire.crc``'s (shared with the station). No I/O.
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pymavlink.dialects.v20 import ardupilotmega as mav
 
-__all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "crc16", "encode_local_position_ned", "lpn_frames_small"]
+from mavwire.crc import CRC_INIT, crc_step, frame_crc
+
+__all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "encode_local_position_ned", "lpn_frames_small"]
 
 LPN_MSGID = 32
 LPN_CRC_EXTRA = 185
@@ -43,50 +43,11 @@ _PAY_DTYPE = np.dtype(
 )
 
 
-def _crc_table() -> NDArray[np.uint32]:
-    table = np.zeros(256, dtype=np.uint32)
-    for i in range(256):
-        crc = i
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0x8408 if crc & 1 else crc >> 1
-        table[i] = crc
-    return table
-
-
-_CRC_TABLE = _crc_table()
-"""CRC-16/MCRF4XX (X.25, reflected 0x1021) of each byte value from 0."""
-_CRC_LIST = [int(x) for x in _CRC_TABLE]
 _SMALL_N = 64
 """Below this many frames the CRC runs per frame over bytes (a numpy step per
 byte costs more than the whole frame in plain Python)."""
 _LPN_PAYLOAD = struct.Struct("<Iffffff")
 _LPN_EXTRA = bytes((LPN_CRC_EXTRA,))
-_MCRF4XX: Any = getattr(mav, "mcrf4xx", None)  # fastcrc's C function, when pymavlink found it
-
-
-def crc16(body: bytes, extra: bytes) -> int:
-    """CRC-16/MCRF4XX of ``body`` then ``extra`` (a message's CRC_EXTRA byte), as pymavlink."""
-    if _MCRF4XX is not None:
-        crc: int = _MCRF4XX(extra, _MCRF4XX(body, 0xFFFF))
-        return crc
-    x = mav.x25crc(body)
-    x.accumulate(extra)
-    return int(x.crc)
-
-
-def _crc_step(crc: NDArray[Any], byte: NDArray[Any]) -> NDArray[Any]:
-    """One byte of CRC-16/MCRF4XX (X.25) for every row at once."""
-    out: NDArray[Any] = (crc >> 8) ^ _CRC_TABLE[(crc ^ byte) & 0xFF]
-    return out
-
-
-def _crc_bytes(data: bytes) -> int:
-    """CRC-16/MCRF4XX of ``data`` followed by LOCAL_POSITION_NED's CRC_EXTRA."""
-    crc = 0xFFFF
-    table = _CRC_LIST
-    for byte in data:
-        crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
-    return (crc >> 8) ^ table[(crc ^ LPN_CRC_EXTRA) & 0xFF]
 
 
 def encode_local_position_ned(
@@ -125,18 +86,18 @@ def encode_local_position_ned(
     rows = np.arange(n)
     if n < _SMALL_N:
         for i, e in enumerate(end.tolist()):
-            crc_i = _crc_bytes(buf[i, 1:e].tobytes())
+            crc_i = frame_crc(buf[i, 1:e].tobytes(), _LPN_EXTRA)
             buf[i, e] = crc_i & 0xFF
             buf[i, e + 1] = crc_i >> 8
         return buf, end + 2
-    crc = np.full(n, 0xFFFF, dtype=np.uint32)
+    crc = np.full(n, CRC_INIT, dtype=np.uint32)
     b32 = buf.astype(np.uint32)
     for j in range(1, _HDR):
-        crc = _crc_step(crc, b32[:, j])
+        crc = crc_step(crc, b32[:, j])
     for j in range(_PAYLOAD):
         col = _HDR + j
-        crc = np.where(j < plen, _crc_step(crc, b32[:, col]), crc)
-    crc = _crc_step(crc, np.full(n, LPN_CRC_EXTRA, dtype=np.uint32))
+        crc = np.where(j < plen, crc_step(crc, b32[:, col]), crc)
+    crc = crc_step(crc, np.full(n, LPN_CRC_EXTRA, dtype=np.uint32))
     buf[rows, end] = crc & 0xFF
     buf[rows, end + 1] = crc >> 8
     return buf, end + 2
@@ -161,7 +122,7 @@ def lpn_frames_small(
             payload = pack(t & 0xFFFFFFFF, p[0], p[1], p[2], v[0], v[1], v[2]).rstrip(b"\x00")
             body = bytes((len(payload) or 1, 0, 0, s & 0xFF, sid, cid, LPN_MSGID, 0, 0))
             body += payload or b"\x00"
-            out.append(b"\xfd" + body + crc16(body, _LPN_EXTRA).to_bytes(2, "little"))
+            out.append(b"\xfd" + body + frame_crc(body, _LPN_EXTRA).to_bytes(2, "little"))
     except OverflowError:
         return None
     return out

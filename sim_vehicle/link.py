@@ -7,7 +7,8 @@ parser) and ``TcpPort`` (the same vehicle also served as a MAVLink TCP
 server, one client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
 go straight to the non-blocking socket (a full socket buffer drops the
 datagram and counts it, as a radio would); receives come through asyncio.
-Datagrams are batched per peer up to ``MAX_DATAGRAM`` bytes. A TCP client is
+Datagrams are batched per peer up to ``mavwire.MAX_DATAGRAM_BYTES`` (the
+station's limit too). A TCP client is
 one more peer of its endpoint, under the address ``("tcp:HOST", PORT)``
 (``TCP_PREFIX``): everything sent to the endpoint's peers goes to it too, as
 a byte stream.
@@ -23,13 +24,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.crc import frame_crc
+from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import signing
-from sim_vehicle.codec import crc16
 from sim_vehicle.config import Impairment
 
-__all__ = ["MAX_DATAGRAM", "TCP_PREFIX", "Endpoint", "Impairer", "LinkStats", "TcpPort"]
+__all__ = ["TCP_PREFIX", "Endpoint", "Impairer", "LinkStats", "TcpPort"]
 
-MAX_DATAGRAM = 1200
 TCP_PREFIX = "tcp:"
 Addr = tuple[str, int]
 
@@ -168,21 +169,21 @@ class Endpoint(asyncio.DatagramProtocol):
         parser.have_prefix_error = False
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
-        """Join frames into datagrams of at most MAX_DATAGRAM bytes; each with its LPN sysids."""
+        """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
+        (``datagram_bounds``); each datagram with the nonzero keys of its frames
+        (the vehicles whose LOCAL_POSITION_NED it carries)."""
+        if not frames:
+            return []
+        datas, keys = zip(*frames, strict=True)
+        bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
+        if len(bounds) == 1:  # the usual case
+            return [(b"".join(datas), [k for k in keys if k])]
+        data = b"".join(datas)
         out: list[tuple[bytes, list[int]]] = []
-        cur: list[bytes] = []
-        lpn: list[int] = []
-        size = 0
-        for frame, sysid in frames:
-            if cur and size + len(frame) > MAX_DATAGRAM:
-                out.append((b"".join(cur), lpn))
-                cur, lpn, size = [], [], 0
-            cur.append(frame)
-            size += len(frame)
-            if sysid:
-                lpn.append(sysid)
-        if cur:
-            out.append((b"".join(cur), lpn))
+        first = start = 0
+        for stop, end in bounds:
+            out.append((data[start:end], [k for k in keys[first:stop] if k]))
+            first, start = stop, end
         return out
 
     def sendto(self, data: bytes, addr: Addr) -> None:
@@ -345,7 +346,7 @@ def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | Non
     if data[i + 7] != 84 or data[i + 8] or data[i + 9] or plen > _SP_SIZE:
         return None
     end = i + 10 + plen
-    if crc16(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
+    if frame_crc(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
         return None
     if plen == _SP_SIZE:  # the usual case (coordinate_frame, the last byte, is not 0)
         f = _SP_UNPACK_FROM(data, i + 10)

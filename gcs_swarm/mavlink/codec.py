@@ -17,7 +17,8 @@ received frame is accepted only if its signature is good and its timestamp
 newer than the last of its stream (link id, system, component): unsigned,
 wrongly signed and replayed frames are counted in ``signature_rejected`` and
 dropped. Only RADIO_STATUS may come unsigned, as on ArduPilot. The key is
-never logged or shown (``repr`` hides it). Nothing here does I/O.
+never logged or shown (``repr`` hides it). The signing set-up and the CRC
+are ``mavwire``'s, shared with the emulator. Nothing here does I/O.
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
+from mavwire.crc import MCRF4XX as _MCRF4XX
+from mavwire.crc import frame_crc as _frame_crc
+from mavwire.signing import SIGNING_KEY_BYTES, mavlink
 
 _register_event()  # PX4's EVENT (410) is not in pymavlink's dialect (events.py)
 
@@ -44,8 +48,6 @@ __all__ = [
     "CodecStats",
     "MessageSpec",
     "RawPosition",
-    "setup_signing",
-    "signing_timestamp",
 ]
 
 STATION_SYSID = 255
@@ -54,52 +56,6 @@ STATION_COMPID = 190
 """Component id of the ground station (MAV_COMP_ID_MISSIONPLANNER)."""
 
 FieldValue = int | float | str | bytes | tuple[int, ...]
-
-SIGNING_KEY_BYTES = 32
-"""Length of a MAVLink 2 signing secret key."""
-_SIGNING_EPOCH_S = 1420070400.0  # 2015-01-01T00:00:00Z, the signing timestamp's origin
-_UNSIGNED_OK = frozenset({_dialect.MAVLINK_MSG_ID_RADIO_STATUS})
-
-
-def signing_timestamp(unix_s: float) -> int:
-    """The signing timestamp of Unix time ``unix_s``: 10 us units since 2015."""
-    return max(0, int((unix_s - _SIGNING_EPOCH_S) * 1e5))
-
-
-def _allow_unsigned(mav: Any, msg_id: int) -> bool:
-    return msg_id in _UNSIGNED_OK
-
-
-class _MAVLink(_dialect.MAVLink):  # type: ignore[misc]
-    """pymavlink's parser, except that a frame whose signature is wrong does not
-    move its stream's timestamp: pymavlink records the timestamp before it
-    checks the signature, so one forged frame stamped far in the future would
-    make every genuine frame after it look replayed."""
-
-    def check_signature(self, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
-        key = (msgbuf[-13], src_system, src_component)
-        before = self.signing.stream_timestamps.get(key)
-        ok: bool = super().check_signature(msgbuf, src_system, src_component)
-        if not ok:
-            if before is None:
-                self.signing.stream_timestamps.pop(key, None)
-            else:
-                self.signing.stream_timestamps[key] = before
-        return ok
-
-
-def setup_signing(mav: Any, key: bytes, unix_s: float, *, link_id: int = 0) -> None:
-    """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends with ``key``,
-    timestamps starting at Unix time ``unix_s`` (the caller's clock: this
-    layer has none), and accept only well-signed, fresh frames (RADIO_STATUS
-    may be unsigned)."""
-    if len(key) != SIGNING_KEY_BYTES:
-        raise ValueError(f"a MAVLink signing key has {SIGNING_KEY_BYTES} bytes, not {len(key)}")
-    mav.signing.secret_key = bytes(key)
-    mav.signing.link_id = link_id
-    mav.signing.timestamp = signing_timestamp(unix_s)
-    mav.signing.sign_outgoing = True
-    mav.signing.allow_unsigned_callback = _allow_unsigned
 
 
 @dataclass(frozen=True, eq=True)
@@ -174,14 +130,9 @@ class Codec:
     unix_s: float | None = None
 
     def __post_init__(self) -> None:
-        self._mav: Any = _MAVLink(None, self.sysid, self.compid)
-        self._mav.robust_parsing = True
-        if self.signing_key is not None:
-            if self.unix_s is None:
-                raise ValueError("a signing codec needs unix_s, the time now")
-            setup_signing(self._mav, self.signing_key, self.unix_s)
-            if self.streams is not None:
-                self._mav.signing.stream_timestamps = self.streams
+        self._mav: Any = mavlink(self.sysid, self.compid, self.signing_key, unix_s=self.unix_s)
+        if self.signing_key is not None and self.streams is not None:
+            self._mav.signing.stream_timestamps = self.streams
 
     @property
     def signing(self) -> bool:
@@ -397,19 +348,6 @@ _LPN_UNPACK = _LPN.unpacker.unpack
 
 _SKIP = object()
 """``_decode_frame``'s answer for a frame counted and dropped."""
-_MCRF4XX = getattr(_dialect, "mcrf4xx", None)
-"""pymavlink's C CRC-16/MCRF4XX (the fastcrc package) when installed."""
-
-
-def _frame_crc(buf: bytes | memoryview, extra: bytes) -> int:
-    """The MAVLink checksum of ``buf`` (a frame without its magic byte and
-    CRC) followed by the message's CRC_EXTRA byte ``extra``: the value
-    pymavlink's ``x25crc`` computes, with one call less per frame."""
-    if _MCRF4XX is not None:
-        return int(_MCRF4XX(extra, _MCRF4XX(buf)))
-    crc = _dialect.x25crc(bytes(buf))
-    crc.accumulate(extra)
-    return int(crc.crc)
 
 
 def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:

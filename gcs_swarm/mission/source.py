@@ -43,7 +43,7 @@ __all__ = [
 MAX_NESTING = 64
 
 _TAG = "tag:yaml.org,2002:"
-#: MAVLink 2's signing key length (``gcs_swarm.mavlink.codec``; a test keeps them equal).
+#: MAVLink 2's signing key length (``mavwire.signing``; a test keeps them equal).
 SIGNING_KEY_BYTES = 32
 #: A key file holds 32 bytes, or 64 hex digits and a newline: anything over this is refused unread.
 KEY_FILE_MAX_BYTES = 4096

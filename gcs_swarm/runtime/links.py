@@ -58,6 +58,7 @@ from gcs_swarm.mavlink.builders import (
 from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawPosition
 from gcs_swarm.runtime.endpoints import Endpoint, LatencyRing, LinkStats, parse_connection
 from gcs_swarm.runtime.lifetime import close_task_group
+from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 
 __all__ = [
     "MESSAGE_QUEUE_SIZE",
@@ -72,13 +73,6 @@ _log = logging.getLogger("gcs_swarm.link")
 
 MESSAGE_QUEUE_SIZE = 256
 """Bound of a link's FIFO of non-setpoint messages."""
-MAX_DATAGRAM_BYTES = 1472
-"""Largest UDP datagram the link writes when it joins the setpoints of one
-control step that go to the same peer (Ethernet's 1500-byte MTU less the IP
-and UDP headers: never fragmented). A MAVLink receiver reads UDP as a byte
-stream, so several whole frames in one datagram are what it would read from
-a serial port; a lost datagram loses all of them, as it would the frames of
-a lost serial burst."""
 REBIND_S = 5.0
 """Silence [s] of a system id's peer after which another, well-signed, peer
 may take it over when the link allows rebinding (signed links only)."""
@@ -352,17 +346,14 @@ class Link:
         self, peer: Peer, data: bytes, sizes: list[int], since: list[float | None]
     ) -> None:
         """Frames to ``peer`` (back to back in ``data``, ``sizes[k]`` bytes each)
-        joined into datagrams of at most ``MAX_DATAGRAM_BYTES``; frame k
-        answering a telemetry that arrived at ``since[k]`` adds its latency
+        joined into datagrams of at most ``mavwire.MAX_DATAGRAM_BYTES`` (one
+        control step's setpoints to one peer; the emulator's limit too); frame
+        k answering a telemetry that arrived at ``since[k]`` adds its latency
         when its datagram is written."""
-        start = end = first = 0
-        for k, size in enumerate(sizes):
-            if end > start and end + size - start > MAX_DATAGRAM_BYTES:
-                self._send_chunk(peer, data[start:end], since[first:k])
-                start, first = end, k
-            end += size
-        if end > start:
-            self._send_chunk(peer, data[start:end], since[first:])
+        first = start = 0
+        for stop, end in datagram_bounds(sizes, MAX_DATAGRAM_BYTES):
+            self._send_chunk(peer, data[start:end], since[first:stop])
+            first, start = stop, end
 
     def _send_chunk(self, peer: Peer, datagram: bytes, since: list[float | None]) -> None:
         self._transmit(peer, datagram)

@@ -161,3 +161,28 @@ def test_multi_frame_datagrams_decode_as_pymavlink_does() -> None:
         sock.close()
     # the fast path did decode setpoints out of multi-frame datagrams (about 7000 here)
     assert fast_in_batches > 3000
+
+
+def test_batch_joins_frames_into_datagrams_of_the_shared_limit() -> None:
+    """``Endpoint.batch``: 70 LOCAL_POSITION_NED-sized frames (40 bytes) and a
+    HEARTBEAT-sized one (key 0: no telemetry) cut as ``mavwire.datagram_bounds``
+    says, 30 per 1200-byte datagram, bytes in order, each with its frames'
+    nonzero keys; one frame is one datagram; nothing gives nothing."""
+    sock = bind_udp("127.0.0.1", 0)
+    imp = Impairer(Impairment(), np.random.default_rng(0))
+    ep = Endpoint(sock, False, imp, imp, lambda _e, _d, _a: None, LinkStats())
+    try:
+        frames = [(bytes([k]) * 40, k + 1) for k in range(70)]
+        frames.insert(35, (b"\xfd" * 21, 0))
+        out = ep.batch(frames)
+        assert [len(d) for d, _ in out] == [1200, 1181, 440]
+        assert b"".join(d for d, _ in out) == b"".join(f for f, _ in frames)
+        assert [keys for _, keys in out] == [
+            list(range(1, 31)),
+            list(range(31, 60)),
+            list(range(60, 71)),
+        ]
+        assert ep.batch(frames[:1]) == [(frames[0][0], [1])]
+        assert ep.batch([]) == []
+    finally:
+        sock.close()

@@ -13,7 +13,8 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import Codec, RawPosition
-from gcs_swarm.runtime.links import MAX_DATAGRAM_BYTES, Link, parse_connection
+from gcs_swarm.runtime.links import Link, parse_connection
+from mavwire import MAX_DATAGRAM_BYTES
 
 
 def _frame(sysid: int, t_ms: int = 1) -> bytes:
@@ -101,10 +102,10 @@ def test_setpoint_slot_is_newest_wins_and_counts_drops() -> None:
     asyncio.run(main())
 
 
-def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes() -> None:
+def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1200_bytes() -> None:
     """60 vehicles behind one peer: their reports come to ``on_position`` as
     one run of ``RawPosition``; the 60 answers go out in the fewest datagrams that each
-    fit an Ethernet MTU, every frame whole, and each adds one latency sample."""
+    fit ``MAX_DATAGRAM_BYTES``, every frame whole, and each adds one latency sample."""
 
     async def main() -> None:
         raws: list[RawPosition] = []
@@ -142,7 +143,7 @@ def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1472_bytes()
                     got += pr.parser.parse_buffer(data)
                 assert [(m.target_system, m.afx) for m in got] == [(s, float(s)) for s in ids]
                 frame = len(Codec().encode(spec))  # every setpoint frame: 65 bytes
-                per = MAX_DATAGRAM_BYTES // frame  # 22
+                per = MAX_DATAGRAM_BYTES // frame  # 18
                 assert sizes == [per * frame] * (60 // per) + [60 % per * frame]
                 assert link.latency.count == 60 and link.stats.sent == 60
             tr.close()
@@ -154,7 +155,7 @@ def test_a_steps_setpoint_batch_replaces_queued_ones_and_follows_queued_messages
     """``send_accel_setpoints`` for 30 vehicles behind one peer: written at
     once, after the FIFO message queued before it; a setpoint still queued
     for one of them is replaced (counted as dropped); the frames are the
-    ones ``accel_setpoint`` gives, in datagrams of at most 1472 bytes."""
+    ones ``accel_setpoint`` gives, in datagrams of at most 1200 bytes."""
 
     async def main() -> None:
         async with asyncio.timeout(5):
@@ -177,7 +178,7 @@ def test_a_steps_setpoint_batch_replaces_queued_ones_and_follows_queued_messages
                 pairs = zip(got[1:], want, strict=True)
                 assert [{k: getattr(m, k) for k in w} for m, w in pairs] == want
                 assert link.stats.setpoints_dropped == 1 and link.stats.sent == 31
-                assert max(sizes) <= MAX_DATAGRAM_BYTES and len(sizes) == 1 + 2  # 22 + 8
+                assert max(sizes) <= MAX_DATAGRAM_BYTES and len(sizes) == 1 + 2  # 18 + 12
                 assert link.latency.count == 0  # no telemetry answered: no sample
             tr.close()
 

@@ -1,0 +1,42 @@
+"""MAVLink wire plumbing shared by the station (``gcs_swarm``) and the
+emulator (``sim_vehicle``): byte-level rules both ends must apply alike,
+and nothing of either end's state machines or message semantics.
+
+- ``mavwire.signing``: MAVLink 2 signing set-up (``mavlink``,
+  ``setup_signing``, ``signing_timestamp``) and a parser whose failed
+  signature checks do not move a stream's timestamp (``SigningMAVLink``);
+- ``mavwire.crc``: the MAVLink checksum, pymavlink's C CRC when installed
+  (``frame_crc``, ``MCRF4XX``), and its column-wise numpy step (``crc_step``);
+- ``mavwire.datagrams``: frames joined into UDP datagrams of at most
+  ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``).
+
+Imports only the standard library, numpy and pymavlink's generated dialect
+(a test says so); does no I/O and reads no clock.
+"""
+
+from __future__ import annotations
+
+from mavwire.crc import CRC_INIT, CRC_TABLE, MCRF4XX, crc_step, frame_crc
+from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
+from mavwire.signing import (
+    SIGNING_KEY_BYTES,
+    SigningMAVLink,
+    mavlink,
+    setup_signing,
+    signing_timestamp,
+)
+
+__all__ = [
+    "CRC_INIT",
+    "CRC_TABLE",
+    "MAX_DATAGRAM_BYTES",
+    "MCRF4XX",
+    "SIGNING_KEY_BYTES",
+    "SigningMAVLink",
+    "crc_step",
+    "datagram_bounds",
+    "frame_crc",
+    "mavlink",
+    "setup_signing",
+    "signing_timestamp",
+]
