@@ -7,7 +7,7 @@ A façade over the layers, with the command line's defaults::
     mission = gcs_swarm.load_mission("config/missions/example1_octahedron.yaml")
     summary = gcs_swarm.run(mission, log_dir="runs")   # blocks, as `gcs-swarm run`
     print(summary.format())                            # the text `gcs-swarm run` prints
-    print(summary.outcome, summary.final_radii_m)
+    print(summary.outcome, summary.min_separation_m)
 
     result = gcs_swarm.simulate(mission)               # the law alone, no MAVLink
     print(result.text())

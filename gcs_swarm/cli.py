@@ -62,7 +62,7 @@ _OUT_SUFFIXES = (".csv", ".npz")
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from gcs_swarm.mission import check_command
+    from gcs_swarm.commands import check_command
 
     code = EXIT_OK
     for path in args.mission:
@@ -164,7 +164,7 @@ def _check_leader_for(mission: Mission, duration_s: float) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from gcs_swarm.runtime import run_command
+    from gcs_swarm.commands import run_command
 
     return run_command(
         args.mission, status=not args.no_status, log_dir=args.log_dir, record=not args.no_log
@@ -172,7 +172,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from gcs_swarm.report import report_command
+    from gcs_swarm.commands import report_command
 
     return report_command(args.path, args.mission, force=args.force)
 

@@ -94,3 +94,25 @@ def test_a_bad_mission_path_is_a_mission_error_before_anything_flies(tmp_path: P
     result = gcs_swarm.simulate(ROOT / "config/missions/example1_tetrahedron.yaml",
                                 duration_s=5.0)  # fmt: skip
     assert result.result.summary().text()
+
+
+def test_library_code_does_not_print() -> None:
+    """Only the command line prints (``cli.py`` and ``commands.py``); the rest
+    returns or logs what it has to say (issue 16)."""
+    import ast
+
+    package = ROOT / "gcs_swarm"
+    calls: dict[str, int] = {}
+    for path in sorted(package.rglob("*.py")):
+        if path.name in ("cli.py", "commands.py"):
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        n = sum(
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id == "print"
+            for node in ast.walk(tree)
+        )
+        if n:
+            calls[str(path.relative_to(package))] = n
+    assert calls == {}

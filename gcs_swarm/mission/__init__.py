@@ -3,13 +3,13 @@
 ``load_mission(path)`` validates a file strictly (unknown keys, types, ranges
 and cross-checks) and raises ``MissionError`` with one line per problem,
 ``file:line: key.path: message``. ``schema()`` is the JSON Schema of the
-format; ``check_command(path)`` is ``gcs-swarm check``. The format is
+format; ``gcs-swarm check`` is ``gcs_swarm.commands.check_command``. The format is
 described in ``docs/mission-format.md``.
 """
 
 from __future__ import annotations
 
-from gcs_swarm.mission.loader import check_command, load_mission, parse_mission, summary
+from gcs_swarm.mission.loader import load_mission, parse_mission, summary
 from gcs_swarm.mission.model import (
     DEFAULT_SIM_HOME,
     Emulator,
@@ -41,7 +41,6 @@ __all__ = [
     "Signing",
     "Startup",
     "Vehicle",
-    "check_command",
     "enu_offset_m",
     "geodetic_at",
     "load_mission",

@@ -12,7 +12,6 @@ problems use the path ``(file)``, YAML syntax errors ``(syntax)``.
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,6 @@ from gcs_swarm.mission.source import (
 __all__ = [
     "MAX_FILE_BYTES",
     "MAX_PROBLEMS",
-    "check_command",
     "load_mission",
     "parse_mission",
     "summary",
@@ -278,20 +276,3 @@ def summary(mission: Mission) -> str:
         f"end {s.end}",
     ]
     return ", ".join(parts)
-
-
-def check_command(path: str) -> int:
-    """``gcs-swarm check FILE``: validate without flying.
-
-    Prints ``OK: FILE: <summary>`` on stdout and returns 0, or every problem on
-    stderr (one line each) and returns 2 (the command line's "refused").
-    Never raises for a bad file.
-    """
-    try:
-        mission = load_mission(path)
-    except MissionError as err:
-        for line in str(err).splitlines():
-            print(line, file=sys.stderr)
-        return 2
-    print(f"OK: {path}: {summary(mission)}")
-    return 0

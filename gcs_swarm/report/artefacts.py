@@ -14,7 +14,7 @@ holding:
   every parameter the station changed on it (old value, new, read-back,
   restored or not; ``gcs_swarm.mavlink.vehicle_params``).
 
-``report_command`` rebuilds the last two from a run folder or a ``.tlog``
+``rebuild_report`` rebuilds the last two from a run folder or a ``.tlog``
 alone (given the mission file); ``write_simulation_report`` writes them for
 ``gcs-swarm simulate``.
 """
@@ -49,7 +49,7 @@ __all__ = [
     "RunFolder",
     "create_run_folder",
     "from_sim_result",
-    "report_command",
+    "rebuild_report",
     "report_from_tlog",
     "run_folder_name",
     "summary_text",
@@ -232,13 +232,13 @@ def _free_pair(summary: Path, picture: Path) -> tuple[Path, Path]:
     return s, p
 
 
-def report_command(
+def rebuild_report(
     path: str | os.PathLike[str], mission_path: str | None = None, *, force: bool = False
-) -> int:
-    """``gcs-swarm report RUN_FOLDER_OR_TLOG [--mission FILE] [--force]``:
-    rebuild the summary and picture from the log (beside it: in a run
-    folder, or ``<name>-summary.json`` and ``<name>.png`` for another
-    ``.tlog``), print the figures and the paths. Nothing is overwritten
+) -> tuple[dict[str, Any], Path, Path]:
+    """Rebuild the summary and picture of the run logged at ``path`` (a run
+    folder or a ``.tlog``) beside it: in a run folder, or
+    ``<name>-summary.json`` and ``<name>.png`` for another ``.tlog``. Returns
+    (the summary, its path, the picture's path). Nothing is overwritten
     unless ``force``: when a summary or picture is there already (a run's own
     ``summary.json`` and ``report.png``), they go to ``summary-<n>.json`` and
     ``report-<n>.png``, n the first free number. ``ReportError`` when a file
@@ -255,10 +255,7 @@ def report_command(
     mission = load_mission(mission_file)
     summary, rec = report_from_tlog(tlog, mission)
     write_report(rec, summary_path, picture_path, extra={"log": summary["log"]})
-    print(summary_text(summary))
-    print(f"summary written to {summary_path}")
-    print(f"picture written to {picture_path}")
-    return 0
+    return summary, summary_path, picture_path
 
 
 def _f(x: Any, unit: str, digits: int = 3) -> str:

@@ -1,6 +1,6 @@
 """The asyncio shell of the station: links (UDP/TCP), the station lifetime,
 the control loop in vehicle time, the status line and summary, and
-``run_mission`` / ``run_command`` behind ``gcs-swarm run``.
+``run_mission`` behind ``gcs-swarm run``.
 """
 
 from __future__ import annotations
@@ -10,7 +10,6 @@ from gcs_swarm.runtime.links import Endpoint, Link, LinkStats, parse_connection
 from gcs_swarm.runtime.run import (
     END_MODES,
     emulator_config,
-    run_command,
     run_mission,
     station_config,
 )
@@ -31,7 +30,6 @@ __all__ = [
     "VehicleSummary",
     "emulator_config",
     "parse_connection",
-    "run_command",
     "run_mission",
     "station_config",
 ]

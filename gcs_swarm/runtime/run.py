@@ -7,8 +7,8 @@ always ends every vehicle (zero acceleration, then the end action confirmed
 by heartbeat), also when it is cancelled or the start-up fails (then LAND
 for the airborne ones; those on the ground are disarmed and every pending
 retry is dropped).
-``run_command`` is the synchronous command-line wrapper: Ctrl-C or SIGTERM
-ends the run cleanly, a second Ctrl-C quits at once.
+The command line's wrapper (Ctrl-C, the status line, what is printed) is
+``gcs_swarm.commands.run_command``: nothing here prints.
 """
 
 from __future__ import annotations
@@ -18,8 +18,6 @@ import contextlib
 import logging
 import os
 import shutil
-import signal
-import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -32,7 +30,7 @@ from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
 from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
-from gcs_swarm.mission import Mission, Vehicle, load_mission
+from gcs_swarm.mission import Mission, Vehicle
 from gcs_swarm.mission.source import (
     KEY_FILE_MAX_BYTES,
     key_file_path,
@@ -56,7 +54,6 @@ __all__ = [
     "EXIT_CODES",
     "emulator_config",
     "param_settings",
-    "run_command",
     "run_mission",
     "signing_key",
     "station_config",
@@ -486,75 +483,3 @@ def _with_end_timeout(cfg: StationConfig, end_timeout_s: float) -> StationConfig
     from dataclasses import replace
 
     return replace(cfg, end_timeout_s=end_timeout_s)
-
-
-def run_command(
-    path: str, *, status: bool = True, log_dir: str | None = None, record: bool = True
-) -> int:
-    """``gcs-swarm run PATH``: exit 0 when the mission completed (every vehicle
-    that flew ended), 1 when it failed or was degraded (``EXIT_CODES``), 130
-    when it was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
-    for the command line to print as one line. With ``record`` the run
-    folder goes under ``log_dir`` (default the mission's ``log.dir``)."""
-    mission = load_mission(path)
-    base = (log_dir if log_dir is not None else mission.log.dir) if record else None
-    return asyncio.run(_main(mission, status=status, log_dir=base))
-
-
-async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
-    loop = asyncio.get_running_loop()
-    task = asyncio.current_task()
-    assert task is not None
-    hits = 0
-
-    def interrupt() -> None:
-        nonlocal hits
-        hits += 1
-        if hits == 1:
-            print("\nending: zero acceleration and the end action for every vehicle "
-                  "(Ctrl-C again to quit at once)", file=sys.stderr)  # fmt: skip
-        task.cancel()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, interrupt)
-    tty = sys.stderr.isatty()
-
-    lines = 0
-
-    def show(line: str) -> None:
-        nonlocal lines
-        lines += 1
-        if tty:
-            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
-        elif lines % 5 == 1:  # a log file gets one line every 5 s
-            print(line, file=sys.stderr)
-
-    def report(summary: RunSummary) -> None:
-        if tty:
-            print(file=sys.stderr)
-        print(summary.format())
-        for folder in folders:
-            for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
-                if path.is_file():
-                    print(f"written: {path}")
-
-    folders: list[RunFolder] = []
-
-    def announce(folder: RunFolder) -> None:
-        folders.append(folder)
-        print(f"run folder: {folder.path}", file=sys.stderr)
-
-    try:
-        summary = await run_mission(
-            mission,
-            on_status=show if status else None,
-            on_summary=report,
-            log_dir=log_dir,
-            on_folder=announce,
-        )
-    except asyncio.CancelledError:
-        return 130
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.remove_signal_handler(sig)
-    return EXIT_CODES.get(summary.outcome, 1)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gcs_swarm.commands import check_command
 from gcs_swarm.control.expr import compile_expression
 from gcs_swarm.control.formation import eq1_acceleration, formation_force
 from gcs_swarm.control.params import Gains, Readings
@@ -19,7 +20,7 @@ from gcs_swarm.errors import ExpressionError, MissionError
 from gcs_swarm.mavlink import inbound
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES
 from gcs_swarm.mavlink.vehicle import ACCEL_CEILING_MPS2
-from gcs_swarm.mission import check_command, load_mission, parse_mission
+from gcs_swarm.mission import load_mission, parse_mission
 from gcs_swarm.mission.checks import SAME_POINT_M
 
 LINE_RE = re.compile(r"^m\.yaml:(\d+): (\S+): (.+)$")

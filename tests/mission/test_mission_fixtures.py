@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from gcs_swarm.commands import check_command
 from gcs_swarm.errors import MissionError
-from gcs_swarm.mission import check_command, load_mission
+from gcs_swarm.mission import load_mission
 
 BAD = Path(__file__).parent / "fixtures" / "bad"
 FIXTURES = sorted(BAD.glob("*.yaml"))

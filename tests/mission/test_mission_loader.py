@@ -13,12 +13,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import gcs_swarm.mission as mission_pkg
+from gcs_swarm.commands import check_command
 from gcs_swarm.control.params import ExpressionForce, LawConfig
 from gcs_swarm.errors import MissionError
 from gcs_swarm.mission import (
     DEFAULT_SIM_HOME,
     GeoPoint,
-    check_command,
     enu_offset_m,
     geodetic_at,
     load_mission,

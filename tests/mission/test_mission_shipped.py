@@ -11,13 +11,14 @@ from pathlib import Path
 
 import pytest
 
+from gcs_swarm.commands import check_command
 from gcs_swarm.control.params import (
     ConstantForce,
     ExpressionForce,
     LawConfig,
     WaypointForce,
 )
-from gcs_swarm.mission import DEFAULT_SIM_HOME, check_command, enu_offset_m, load_mission
+from gcs_swarm.mission import DEFAULT_SIM_HOME, enu_offset_m, load_mission
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 SHIPPED = sorted(MISSIONS.glob("*.yaml"))

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from synthetic import LOST, STEPS, mission, write_run
 
+from gcs_swarm.commands import report_command
 from gcs_swarm.mavlink.frames import GeoPoint
 from gcs_swarm.report import (
     FlightRecord,
     record_from_tlog,
-    report_command,
     report_from_tlog,
     summarize_record,
 )

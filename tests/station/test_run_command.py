@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from gcs_swarm.commands import run_command
 from gcs_swarm.errors import LinkError
-from gcs_swarm.runtime import run_command
 
 MISSION = """
 mission:

@@ -1,0 +1,135 @@
+"""What the ``gcs-swarm`` commands that fly or rebuild a run print, and
+their exit codes: the command line's layer (``gcs_swarm.cli`` parses the
+arguments and maps errors to one line). The library below (``runtime``,
+``report``) prints nothing; these functions are where its results meet a
+terminal.
+
+``run_command`` wraps ``gcs_swarm.runtime.run_mission``: the status line
+(rewritten in place on a terminal, every 5th line into a log file), Ctrl-C
+or SIGTERM ends the run cleanly (zero acceleration, then the end action), a
+second Ctrl-C quits at once. ``report_command`` wraps
+``gcs_swarm.report.rebuild_report``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import sys
+from typing import TYPE_CHECKING
+
+from gcs_swarm.errors import MissionError
+from gcs_swarm.mission import Mission, load_mission, summary
+
+if TYPE_CHECKING:
+    from gcs_swarm.report.artefacts import RunFolder
+    from gcs_swarm.runtime.summary import RunSummary
+
+__all__ = ["check_command", "report_command", "run_command"]
+
+
+def check_command(path: str) -> int:
+    """``gcs-swarm check FILE``: validate without flying.
+
+    Prints ``OK: FILE: <summary>`` on stdout and returns 0, or every problem on
+    stderr (one line each) and returns 2 (the command line's "refused").
+    Never raises for a bad file. (It loads neither the station nor the
+    report, so that ``check`` answers at once.)
+    """
+    try:
+        mission = load_mission(path)
+    except MissionError as err:
+        for line in str(err).splitlines():
+            print(line, file=sys.stderr)
+        return 2
+    print(f"OK: {path}: {summary(mission)}")
+    return 0
+
+
+def run_command(
+    path: str, *, status: bool = True, log_dir: str | None = None, record: bool = True
+) -> int:
+    """``gcs-swarm run PATH``: exit 0 when the mission completed (every vehicle
+    that flew ended), 1 when it failed or was degraded (``EXIT_CODES``), 130
+    when it was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
+    for the command line to print as one line. With ``record`` the run
+    folder goes under ``log_dir`` (default the mission's ``log.dir``)."""
+    mission = load_mission(path)
+    base = (log_dir if log_dir is not None else mission.log.dir) if record else None
+    return asyncio.run(_main(mission, status=status, log_dir=base))
+
+
+async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
+    from gcs_swarm.runtime.run import EXIT_CODES, run_mission
+
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+    hits = 0
+
+    def interrupt() -> None:
+        nonlocal hits
+        hits += 1
+        if hits == 1:
+            print("\nending: zero acceleration and the end action for every vehicle "
+                  "(Ctrl-C again to quit at once)", file=sys.stderr)  # fmt: skip
+        task.cancel()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, interrupt)
+    tty = sys.stderr.isatty()
+
+    lines = 0
+
+    def show(line: str) -> None:
+        nonlocal lines
+        lines += 1
+        if tty:
+            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
+        elif lines % 5 == 1:  # a log file gets one line every 5 s
+            print(line, file=sys.stderr)
+
+    def report(summary: RunSummary) -> None:
+        if tty:
+            print(file=sys.stderr)
+        print(summary.format())
+        for folder in folders:
+            for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
+                if path.is_file():
+                    print(f"written: {path}")
+
+    folders: list[RunFolder] = []
+
+    def announce(folder: RunFolder) -> None:
+        folders.append(folder)
+        print(f"run folder: {folder.path}", file=sys.stderr)
+
+    try:
+        summary = await run_mission(
+            mission,
+            on_status=show if status else None,
+            on_summary=report,
+            log_dir=log_dir,
+            on_folder=announce,
+        )
+    except asyncio.CancelledError:
+        return 130
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+    return EXIT_CODES.get(summary.outcome, 1)
+
+
+def report_command(
+    path: str | os.PathLike[str], mission_path: str | None = None, *, force: bool = False
+) -> int:
+    """``gcs-swarm report RUN_FOLDER_OR_TLOG [--mission FILE] [--force]``:
+    ``rebuild_report``, then print the figures and the paths written."""
+    from gcs_swarm.report.artefacts import rebuild_report, summary_text
+
+    summary, summary_path, picture_path = rebuild_report(path, mission_path, force=force)
+    print(summary_text(summary))
+    print(f"summary written to {summary_path}")
+    print(f"picture written to {picture_path}")
+    return 0
