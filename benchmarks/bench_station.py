@@ -51,7 +51,7 @@ RATE_HZ = 50
 def mission_yaml(n: int) -> str:
     side = math.ceil(n ** (1 / 3))
     lines = [
-        "mission: {name: bench, duration: 100000, rate: 50, end: hold}",
+        "mission: {name: bench, duration: 14400, rate: 50, end: hold}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
