@@ -598,7 +598,7 @@ class Station:
                 [vps[k].boot_ms() for k in idx],
                 ned if len(idx) == len(sysids) else ned[idx],
                 [self._arrival.get(sysids[k]) for k in idx],
-                vel_ned=None if vel_ned is None or len(idx) == len(sysids) else vel_ned[idx],
+                vel_ned=vel_ned if vel_ned is None or len(idx) == len(sysids) else vel_ned[idx],
             )
         if self.delay is not None:
             for k, sysid in enumerate(sysids):

@@ -73,3 +73,23 @@ def test_mixed_arducopter_and_px4_form_one_formation() -> None:
     assert modes == {1: "BRAKE", 2: "AUTO.LOITER", 3: "BRAKE", 4: "AUTO.LOITER"}
     assert flown.states[2].params["COM_OBL_RC_ACT"] == 4.0
     assert "GUID_TIMEOUT" in flown.states[1].params  # an ArduCopter's own table
+
+
+@pytest.mark.slow
+def test_px4s_sharing_one_link_get_the_velocity_too() -> None:
+    """Every vehicle on one endpoint (one link carries the whole step): the
+    PX4s' setpoints still carry Eq. V1's velocity (type_mask 3079)."""
+    mission = mission_from("px4_tetrahedron.yaml", duration=10.0)
+    cfg = dataclasses.replace(lockstep_config(mission, airborne=True), shared_port=0)
+    kinds: dict[int, str] = {}
+
+    async def during(emu: Emulator, run: asyncio.Task[object]) -> None:
+        ids = [v.sysid for v in mission.vehicles]
+        assert len(set(emu.endpoints.values())) == 1  # one link for all four
+        await emu.wait_until(lambda: all(emu.vehicle_state(s).control in FLOWN for s in ids))
+        await emu.wait_steps(50)
+        kinds.update({s: emu.vehicle_state(s).control for s in ids})
+
+    flown = asyncio.run(fly(mission, cfg, timeout_s=300, during=during))
+    assert flown.ok.outcome == "completed"
+    assert kinds == {1: "vel", 2: "vel", 3: "vel", 4: "vel"}
