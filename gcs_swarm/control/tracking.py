@@ -33,7 +33,6 @@ Pure computation, no I/O; time is the caller's ``t``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -52,22 +51,22 @@ MAX_GAP_S = 0.5
 measured velocity (it left the formation, or its telemetry stopped)."""
 
 
-@dataclass
-class _Row:
-    t: float
-    v_ref: FloatArray
-    a_sent: FloatArray
+_UNKNOWN = (float("nan"),) * 7
+"""The state row of a vehicle with no reference: NaN time fails the gap test."""
 
 
 class VelocityReference:
-    """Eq. V1 for a set of vehicles keyed by system id."""
+    """Eq. V1 for a set of vehicles keyed by system id, one step's rows at once
+    (numpy over the rows: it runs for every velocity-tracked vehicle at the
+    control rate)."""
 
     def __init__(self, max_error_mps: float = MAX_ERROR_MPS, max_gap_s: float = MAX_GAP_S):
         if not max_error_mps > 0.0 or not max_gap_s > 0.0:
             raise ValueError("max_error_mps and max_gap_s must be positive")
         self.max_error_mps = max_error_mps
         self.max_gap_s = max_gap_s
-        self._rows: dict[int, _Row] = {}
+        self._rows: dict[int, tuple[float, ...]] = {}
+        """sysid -> (t, v_ref (3), a_sent (3)) of its last setpoint."""
         self.restarts = 0
         """How many times a known vehicle's reference started again (a gap)."""
         self.held = 0
@@ -83,27 +82,33 @@ class VelocityReference:
         """The velocity setpoints ``(K, 3)`` [m/s] (Eq. V1) for the vehicles
         ``sysids`` sent ``accel_mps2[k]`` at mission time ``t``, whose measured
         velocity is ``vel_mps[k]`` (mission frame, as the law saw it)."""
-        out = np.empty((len(sysids), 3))
+        rows = self._rows
+        known = [rows.get(s) for s in sysids]
+        state = np.array([r if r is not None else _UNKNOWN for r in known]).reshape(-1, 7)
+        v = np.asarray(vel_mps, dtype=np.float64)
+        dt = t - state[:, 0]
+        ok = np.asarray((dt >= 0.0) & (dt <= self.max_gap_s))  # False for NaN: unknown
+        self.restarts += sum(
+            1 for r, o in zip(known, ok.tolist(), strict=True) if r is not None and not o
+        )
+        ref = state[:, 1:4] + state[:, 4:7] * dt[:, None]
         e = self.max_error_mps
-        for k, sysid in enumerate(sysids):
-            v = vel_mps[k]
-            row = self._rows.get(sysid)
-            if row is None or not 0.0 <= t - row.t <= self.max_gap_s:
-                if row is not None:
-                    self.restarts += 1
-                ref = np.array(v, dtype=np.float64)
+        lo, hi = v - e, v + e
+        below, above = ref < lo, ref > hi  # False where v is NaN: not held
+        held = ok & (below | above).any(axis=1)
+        self.held += int(held.sum())
+        ref = np.where(below, lo, np.where(above, hi, ref))
+        ref = np.where(ok[:, None], ref, v)
+        # Only a non-finite first measurement leaves no reference: NaN, the
+        # acceleration goes out alone.
+        finite = np.asarray(np.isfinite(ref).all(axis=1))
+        out: FloatArray = np.where(finite[:, None], ref, np.nan)
+        a = np.asarray(accel_mps2, dtype=np.float64)
+        for s, good, r, acc in zip(sysids, finite.tolist(), ref.tolist(), a.tolist(), strict=True):
+            if good:
+                rows[s] = (t, *r, *acc)
             else:
-                ref = row.v_ref + row.a_sent * (t - row.t)
-                lo, hi = v - e, v + e
-                if ((ref < lo) | (ref > hi)).any():  # False where v is NaN: not held
-                    self.held += 1
-                    ref = np.clip(ref, lo, hi)
-            if not np.isfinite(ref).all():  # only from a non-finite first measurement
-                self._rows.pop(sysid, None)
-                out[k] = np.nan  # no velocity setpoint: the acceleration alone goes out
-                continue
-            self._rows[sysid] = _Row(t, ref, np.array(accel_mps2[k], dtype=np.float64))
-            out[k] = ref
+                rows.pop(s, None)
         return out
 
     def forget(self, sysid: int) -> None:
