@@ -193,9 +193,9 @@ class Codec:
         a zero ``coordinate_frame`` (MAVLink 2 would trim the payload) or an
         acceleration float32 cannot hold take the one-frame path."""
         k = len(targets)
-        vel = np.zeros((k, 3)) if vel_ned is None else vel_ned
-        masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
-        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX) and np.all(np.abs(vel) <= _F32_MAX))
+        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX))
+        if vel_ned is not None:
+            fits = fits and bool(np.all(np.abs(vel_ned) <= _F32_MAX))
         if (
             k < _BATCH_FROM
             or self._mav.signing.sign_outgoing
@@ -204,7 +204,9 @@ class Codec:
             or not fits
         ):
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
-            rows = zip(targets, time_boot_ms, vel.tolist(), accel_ned.tolist(), masks, strict=True)
+            vel = [zero] * k if vel_ned is None else vel_ned.tolist()
+            masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
+            rows = zip(targets, time_boot_ms, vel, accel_ned.tolist(), masks, strict=True)
             frames = [
                 self.encode_setpoint((t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame))
                 for (ts, tc), t, v, a, m in rows
@@ -224,7 +226,7 @@ class Codec:
         arr["afz"] = accel_ned[:, 2]
         if vel_ned is not None:
             arr["vel"] = vel_ned
-        arr["type_mask"] = type_mask if isinstance(type_mask, int) else masks
+        arr["type_mask"] = type_mask if isinstance(type_mask, int) else list(type_mask)
         arr["target"] = targets
         arr["coordinate_frame"] = coordinate_frame
         size = _SP_FRAME.itemsize
