@@ -80,7 +80,8 @@ class ControlTarget:
     jerk_z: float = _INF
     lean_acc: float = _INF
     drag: float = 0.0
-    """Eq. D7's drag over mass (1/s): only on raw acceleration setpoints (SIM_DRAG)."""
+    """Eq. D7's drag over mass (1/s): on raw acceleration setpoints (SIM_DRAG) and,
+    what a velocity loop leaves of it, on velocity setpoints (SIM_DRAG_VEL)."""
 
 
 class Autopilot:
@@ -140,6 +141,7 @@ class Autopilot:
         self.target = ControlTarget()
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
         self._drag = 0.0  # SIM_DRAG as of the cached base target
+        self._drag_vel = 0.0  # SIM_DRAG_VEL likewise
         self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
@@ -361,6 +363,7 @@ class Autopilot:
         )  # fmt: skip
         self._base = (p.generation, base)
         self._drag = p["SIM_DRAG"]  # the same float object while unchanged (Fleet.set_target)
+        self._drag_vel = p["SIM_DRAG_VEL"]
         return base
 
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
@@ -381,7 +384,7 @@ class Autopilot:
         elif ctl == "vel":
             tg = ControlTarget(
                 sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
+                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self._drag_vel,
             )  # fmt: skip
         elif ctl in ("pos", "posvel"):
             self.hold_ned = sp["p"]

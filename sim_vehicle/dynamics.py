@@ -44,6 +44,10 @@ Equations (named where used):
   adds to D2, evaluated at the step's start velocity:
   ``v1 -= k v0 h``, ``p1 -= k v0 h^2 / 2`` (explicit; ``k h`` <= 0.02 at 50 Hz).
   ``a`` stays the lagged thrust acceleration. ``k = 0`` rows are untouched.
+  An autopilot's velocity loop leaves part of it on velocity setpoints
+  (``SIM_DRAG_VEL``, fitted for PX4: docs/emulator.md); the row's ``k`` is then that part.
+  (D8, a PX4's setpoint dead time, lives in ``sim_vehicle/px4.py``: it delays targets,
+  not the motion.)
 
 ``advance_small`` is D3 then D1, D5, D6, D2, D7, D4 for a few vehicles in plain Python floats:
 the same operations in the same order as ``tracking_accel`` then ``step``, so

@@ -49,6 +49,16 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_ACC_MAX": (5.0, _R32, "m/s/s, norm clamp of the acceleration command"),
     "SIM_ACC_TAU": (0.2, _R32, "s, first-order lag on the acceleration (0 = ideal)"),
     "SIM_DRAG": (0.0, _R32, "1/s, drag on raw acceleration setpoints (Eq. D7; PX4 SIH 1.0)"),
+    "SIM_DRAG_VEL": (
+        0.0,
+        _R32,
+        "1/s, drag the velocity loop leaves on velocity setpoints (Eq. D7; PX4 fit 0.45)",
+    ),
+    "SIM_SP_DELAY": (
+        0.0,
+        _R32,
+        "s, dead time from a GUIDED/OFFBOARD setpoint's arrival to its effect (Eq. D8)",
+    ),
     "SIM_BRAKE_ACC": (2.0, _R32, "m/s/s braking unshaped (fits 18.7 m); shaped: WPNAV_ACCEL"),
     "SIM_TKOFF_DLY": (3.3, _R32, "s spool-up before a takeoff climbs (fits the sheet's 9.4 s)"),
     "SIM_EKF_DELAY": (2.0, _R32, "s after boot before the EKF/GPS are ready and arming passes"),

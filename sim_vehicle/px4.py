@@ -28,6 +28,9 @@ measured on PX4 SITL with its SIH quadrotor (docs/mavlink-protocol.md, PX4):
   hovers), flown through a first-order lag (SIM_ACC_TAU, 0.3 s measured)
   with no jerk limit (SIM_ACC_SHAPE 0: PX4's offboard acceleration bypasses
   its trajectory generator).
+- Eq. D8, the loop's dead time: a setpoint takes effect SIM_SP_DELAY after
+  it is heard (0.1 s in the preset, fitted to PX4 SITL: docs/emulator.md).
+  PX4's offboard-loss clock still starts when a setpoint is heard.
 - Parameters: PX4's names on the wire (ArduCopter's stay inside, hidden);
   INT32 values travel byte-wise in the float; a REAL32 PARAM_SET on an INT32
   parameter is ignored; SET_MESSAGE_INTERVAL of EKF_STATUS_REPORT is ACK 4;
@@ -38,6 +41,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -117,6 +121,7 @@ _TABLE = {**PARAM_TABLE, **PX4_PARAMS}
 _VISIBLE = frozenset(PX4_PARAMS) | {n for n in PARAM_TABLE if n.startswith("SIM_")}
 PX4_OVERRIDES: dict[str, float] = {
     "SIM_ACC_TAU": 0.3, "SIM_ACC_SHAPE": 0.0, "SIM_BOOT_S": 0.0, "SIM_DRAG": 1.0,
+    "SIM_DRAG_VEL": 0.45, "SIM_SP_DELAY": 0.1,
 }  # fmt: skip
 """The emulator's own settings for a PX4 (measured lag, no shaping, no end of boot)."""
 
@@ -192,6 +197,8 @@ class Px4Autopilot(Autopilot):
         streams: dict[int, float] | None = None,
     ) -> None:
         self._sp_times: tuple[float, float] = (-math.inf, -math.inf)
+        self._sp_queue: deque[tuple[float, str, dict[str, Any], int]] = deque()
+        """Setpoints heard, not yet in effect (Eq. D8): (due, kind, setpoint, echo mask)."""
         self._event_seq = 0
         self._refusal: int | None = None
         self.failsafe_at: float | None = None
@@ -327,6 +334,28 @@ class Px4Autopilot(Autopilot):
     def setpoint_heard(self, now: float) -> None:
         self._sp_times = (self._sp_times[1], now)
 
+    def apply_setpoint(
+        self, kind: str, sp: dict[str, Any], mask: int, now: float, kin: Kin
+    ) -> None:
+        """Eq. D8: a setpoint takes effect SIM_SP_DELAY after it is heard."""
+        delay = self.params["SIM_SP_DELAY"]
+        if delay <= 0.0:
+            super().apply_setpoint(kind, sp, mask, now, kin)
+            return
+        due = now + delay
+        self._sp_queue.append((due, kind, sp, mask))
+        self.deadline = min(self.deadline, due)
+
+    def _apply_due(self, now: float, kin: Kin) -> None:
+        """Eq. D8: the queued setpoints now due, in order, if OFFBOARD still flies them."""
+        q = self._sp_queue
+        while q and q[0][0] <= now + 1e-9:
+            _due, kind, sp, mask = q.popleft()
+            if self.mode == GUIDED and self.armed and not kin.landed:
+                super().apply_setpoint(kind, sp, mask, now, kin)
+        if q and self.mode != GUIDED:
+            q.clear()  # left OFFBOARD: what was on its way is never flown
+
     def _streaming_setpoints(self, now: float) -> bool:
         before, last = self._sp_times
         return now - last <= _STREAM_GAP_S + 1e-9 and last - before <= _STREAM_GAP_S + 1e-9
@@ -353,6 +382,8 @@ class Px4Autopilot(Autopilot):
                 p.set(inside, value)
 
     def poll(self, now: float, kin: Kin) -> list[mav.MAVLink_message]:
+        if self._sp_queue:
+            self._apply_due(now, kin)
         out = super().poll(now, kin)
         p = self.params
         if not self.prearm_ok and now - self.boot >= p["SIM_PREARM_S"] - 1e-9 and self.ekf_ready:
@@ -392,4 +423,6 @@ class Px4Autopilot(Autopilot):
             d = min(d, max(due, now))
         if self.mode == _TAKEOFF_IN:
             d = now
+        if self._sp_queue:
+            d = min(d, max(self._sp_queue[0][0], now))
         self.deadline = d

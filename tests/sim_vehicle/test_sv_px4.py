@@ -203,3 +203,60 @@ def test_sim_vehicle_autopilot_px4_defaults_to_18570() -> None:
     cfg = build_config(parse_args(["--autopilot", "px4", "--count", "3"]))
     assert cfg.base_port == 18570 and {v.autopilot for v in cfg.vehicles} == {"px4"}
     assert build_config(parse_args(["--count", "1"])).base_port == 5760  # ArduCopter's
+
+
+def _vel_sp(v: tuple[float, float, float], a: tuple[float, float, float]) -> Any:
+    return _decoded(mav.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, 1, 3079, 0.0, 0.0, 0.0, *v, *a, 0.0, 0.0))  # fmt: skip
+
+
+def test_a_setpoint_takes_effect_sim_sp_delay_after_it_is_heard() -> None:
+    """Eq. D8: the setpoint is flown SIM_SP_DELAY (0.1 s) after it is heard, not
+    before; the offboard-loss clock runs from when it was heard."""
+    ap = Px4Autopilot(1, DEFAULT_ORIGIN, Px4ParamStore({"SIM_SP_DELAY": 0.1}), 0.0,
+                      airborne_at=HOVER.pos)  # fmt: skip
+    t = _in_offboard(ap, 0.0)
+    ap.poll(t + 0.2, HOVER)  # the pre-switch stream has taken effect
+    ap.handle(_sp((1.0, -0.5, 0.0)), t + 0.2, HOVER)
+    assert ap.target.a_ff == (0.0, 0.0, 0.0)
+    assert ap.deadline <= t + 0.3 + 1e-9  # it asks to be polled when the setpoint is due
+    ap.poll(t + 0.28, HOVER)
+    assert ap.target.a_ff == (0.0, 0.0, 0.0)
+    ap.poll(t + 0.3, HOVER)
+    assert ap.control == "accel" and ap.target.a_ff == (1.0, -0.5, 0.0)
+    ap.poll(t + 0.2 + 1.01, HOVER)  # COM_OF_LOSS_T after it was heard, not after its effect
+    assert ap.heartbeat().custom_mode == PX4_MODES["POSCTL"]
+
+
+def test_setpoints_on_their_way_are_dropped_when_offboard_is_left() -> None:
+    ap = Px4Autopilot(1, DEFAULT_ORIGIN, Px4ParamStore({"SIM_SP_DELAY": 0.1}), 0.0,
+                      airborne_at=HOVER.pos)  # fmt: skip
+    t = _in_offboard(ap, 0.0)
+    ap.handle(_sp((2.0, 0.0, 0.0)), t, HOVER)
+    ap.handle(_mode(HOLD), t + 0.02, HOVER)
+    ap.poll(t + 0.2, HOVER)
+    assert ap.heartbeat().custom_mode == HOLD and ap.control == "hold"
+    assert ap.target.a_ff == (0.0, 0.0, 0.0)
+
+
+def test_velocity_setpoints_feel_the_drag_the_velocity_loop_leaves() -> None:
+    """Eq. D7 on a PX4: SIH's whole drag (SIM_DRAG) on raw acceleration setpoints,
+    SIM_DRAG_VEL on velocity setpoints (the part PX4's velocity loop leaves)."""
+    ap = Px4Autopilot(1, DEFAULT_ORIGIN, Px4ParamStore({"SIM_DRAG": 1.0, "SIM_DRAG_VEL": 0.45}),
+                      0.0, airborne_at=HOVER.pos)  # fmt: skip
+    t = _in_offboard(ap, 0.0)
+    ap.handle(_sp((1.0, 0.0, 0.0)), t, HOVER)
+    assert ap.control == "accel" and ap.target.drag == 1.0
+    ap.handle(_vel_sp((2.0, 0.0, 0.0), (0.5, 0.0, 0.0)), t + 0.02, HOVER)
+    assert ap.control == "vel" and ap.target.drag == 0.45 and ap.target.wv == 1.0
+    assert ap.target.v_t == (2.0, 0.0, 0.0) and ap.target.a_ff == (0.5, 0.0, 0.0)
+
+
+def test_the_px4_preset_has_the_fitted_delay_and_drag() -> None:
+    """The values fitted to PX4 SITL (docs/emulator.md, 'PX4'); an ArduCopter has none."""
+    from sim_vehicle.params import ParamStore
+    from sim_vehicle.px4 import PX4_OVERRIDES
+
+    assert PX4_OVERRIDES["SIM_SP_DELAY"] == 0.1 and PX4_OVERRIDES["SIM_DRAG_VEL"] == 0.45
+    ac = ParamStore()
+    assert ac["SIM_SP_DELAY"] == 0.0 and ac["SIM_DRAG_VEL"] == 0.0
