@@ -1,6 +1,7 @@
 """What a link is made of besides its I/O: the parsed connection string, the
-counters (``swarm.link_state.LinkStats``), and the ring of setpoint latencies (``gcs_swarm.runtime.links``
-uses them; they hold no sockets and no tasks)."""
+counters (``swarm.link_state.LinkStats``), and the ring of setpoint
+latencies (``gcs_swarm.runtime.links`` uses them; they hold no sockets and
+no tasks)."""
 
 from __future__ import annotations
 

@@ -99,6 +99,8 @@ class Link:
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
         only (``LinkState``). ``on_notice`` gets one line per refused or
         accepted rebinding of a vehicle (the first refusal only)."""
+        self.connection = connection
+        """The connection string as given (the swarm core's name of the link)."""
         self.endpoint = parse_connection(connection)
         self.state = LinkState(
             str(self.endpoint),

@@ -259,7 +259,9 @@ class LinkState:
         return Codec(signing_key=key, streams=self._sig_streams, unix_s=self._unix_clock())
 
     # ------------------------------------------------------------ sending
-    def send(self, spec: MessageSpec, sysid: int | None = None, since_s: float | None = None) -> bool:
+    def send(
+        self, spec: MessageSpec, sysid: int | None = None, since_s: float | None = None
+    ) -> bool:
         """Queue ``spec`` for vehicle ``sysid`` (None: every peer); False if
         it went nowhere (a broadcast with nobody connected yet). ``since_s``:
         for a setpoint, when the telemetry it answers arrived."""
