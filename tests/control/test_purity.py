@@ -68,7 +68,5 @@ def test_the_emulators_sans_io_pieces_import_no_io() -> None:
     root = CONTROL_DIR.parent.parent / "sim_vehicle"
     names = ("autopilot", "fleet", "commands", "telemetry", "guards", "params", "codec",
              "dynamics")  # fmt: skip
-    offenders = {
-        n: sorted(_imports(root / f"{n}.py") & (FORBIDDEN - {"pymavlink"})) for n in names
-    }
+    offenders = {n: sorted(_imports(root / f"{n}.py") & (FORBIDDEN - {"pymavlink"})) for n in names}
     assert {k: v for k, v in offenders.items() if v} == {}

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.states import Phase
-from gcs_swarm.mission import Mission
+from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.runtime import emulator_config, station_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
 from sim_vehicle import signing
@@ -36,6 +37,7 @@ from sim_vehicle.fleet import Fleet
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin
 
+MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 LINK = "udpin:0.0.0.0:14550"
 GCS: tuple[str, int] = ("10.0.0.1", 14550)
 """The station's address as the vehicles see it."""
@@ -44,6 +46,12 @@ _SETPOINT = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 Datagram = tuple[tuple[str, int], bytes]
 """(sender address, bytes)."""
+
+
+def mission_from(name: str, *, duration: float) -> Mission:
+    """A shipped mission given a ``duration`` [s] of formation flight."""
+    m = load_mission(MISSIONS / name)
+    return dataclasses.replace(m, settings=dataclasses.replace(m.settings, duration=duration))
 
 
 def address(sysid: int) -> tuple[str, int]:
@@ -304,8 +312,5 @@ class Sky:
         self.core.finish_all(self.now)
         self.transfer()
         settled = {Phase.ENDED, Phase.FAILED, Phase.LOST, Phase.CONNECTING}
-        self.run_until(
-            lambda: all(vp.phase in settled and not vp.restoring
-                        for vp in self.core.vehicles.values()),  # fmt: skip
-            limit_s,
-        )
+        vps = list(self.core.vehicles.values())
+        self.run_until(lambda: all(v.phase in settled and not v.restoring for v in vps), limit_s)

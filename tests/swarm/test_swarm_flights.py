@@ -6,28 +6,17 @@ The real-UDP end-to-end twins stay in tests/station and tests/reliability."""
 from __future__ import annotations
 
 import dataclasses
-import sys
-from pathlib import Path
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
-from swarm_harness import Sky, address
+from swarm_harness import Sky, address, mission_from
 
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Event, Mission
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "station"))
-from station_harness import mission_from  # noqa: E402
 
 
 def _tetrahedron(duration: float, **changes: object) -> Mission:
     m = mission_from("example1_tetrahedron.yaml", duration=duration)
     return dataclasses.replace(m, **changes)  # type: ignore[arg-type]
-
-
-def _flying_positions(sky: Sky) -> dict[int, np.ndarray]:
-    f = sky.fleet
-    return {s: f.pos[v.row].copy() for s, v in sky.vehicles.items()}
 
 
 def test_a_reserve_joins_on_its_event_and_gets_setpoints() -> None:
