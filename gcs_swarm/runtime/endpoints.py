@@ -1,13 +1,15 @@
 """What a link is made of besides its I/O: the parsed connection string, the
-counters, and the ring of setpoint latencies (``gcs_swarm.runtime.links``
-uses them; they hold no sockets and no tasks)."""
+counters (``swarm.link_state.LinkStats``), and the ring of setpoint
+latencies (``gcs_swarm.runtime.links`` uses them; they hold no sockets and
+no tasks)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 from gcs_swarm.errors import LinkError
+from gcs_swarm.swarm.link_state import LinkStats
 
 __all__ = ["Endpoint", "LatencyRing", "LinkStats", "Scheme", "parse_connection"]
 
@@ -42,23 +44,6 @@ def parse_connection(text: str) -> Endpoint:
     if not 0 <= port <= 65535 or (port == 0 and scheme in ("udpout", "tcp")) or not host:
         raise LinkError(f"connection string {text!r}: bad host or port")
     return Endpoint(scheme, host, port)  # type: ignore[arg-type]
-
-
-@dataclass
-class LinkStats:
-    """Counters of one link (monotonic)."""
-
-    received: int = 0
-    sent: int = 0
-    bad_packets: int = 0
-    unknown_messages: int = 0
-    setpoints_dropped: int = 0
-    messages_dropped: int = 0
-    reconnects: int = 0
-    spoofed: int = 0
-    signature_rejected: int = 0
-    unencodable: int = 0
-    peers: set[str] = field(default_factory=set)
 
 
 class LatencyRing:

@@ -59,3 +59,14 @@ def test_exported_names() -> None:
         "validate_expression",
     ):
         assert name in exported
+
+
+def test_the_emulators_sans_io_pieces_import_no_io() -> None:
+    """What the in-process harness (tests/swarm/swarm_harness.py) drives with
+    a hand-advanced clock: the emulator's autopilot, fleet, commands,
+    telemetry and codec, like the law, open no socket and start no task."""
+    root = CONTROL_DIR.parent.parent / "sim_vehicle"
+    names = ("autopilot", "fleet", "commands", "telemetry", "guards", "params", "codec",
+             "dynamics")  # fmt: skip
+    offenders = {n: sorted(_imports(root / f"{n}.py") & (FORBIDDEN - {"pymavlink"})) for n in names}
+    assert {k: v for k, v in offenders.items() if v} == {}

@@ -11,6 +11,7 @@ import pytest
 
 import gcs_swarm.mavlink
 import gcs_swarm.runtime
+import gcs_swarm.swarm
 
 _IO_MODULES = {"asyncio", "socket", "selectors", "threading", "time", "subprocess", "logging"}
 
@@ -32,7 +33,7 @@ def test_mavlink_modules_import_no_io(path: Path) -> None:
     }  # the generated dialect only (STYLE.md habit 5)
 
 
-@pytest.mark.parametrize("package", [gcs_swarm.mavlink, gcs_swarm.runtime])
+@pytest.mark.parametrize("package", [gcs_swarm.mavlink, gcs_swarm.runtime, gcs_swarm.swarm])
 def test_exported_names(package: object) -> None:
     exported = package.__all__  # type: ignore[attr-defined]
     assert exported == sorted(exported, key=lambda n: (not n.isupper(), n))
@@ -68,3 +69,39 @@ def test_lower_layers_never_import_the_runtime(package: str, below: str) -> None
     assert len(files) >= 5
     bad = {f.name: sorted(m for m in _gcs_imports(f) if m.startswith(below)) for f in files}
     assert {k: v for k, v in bad.items() if v} == {}
+
+
+def _run_time_imports(tree: ast.Module) -> set[str]:
+    """Modules imported when the module runs: ``if TYPE_CHECKING:`` blocks
+    (names for the types only) left out."""
+    out: set[str] = set()
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            return
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module)
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return out
+
+
+@pytest.mark.parametrize("path", sorted(Path(gcs_swarm.swarm.__file__).parent.glob("*.py")))
+def test_swarm_core_and_link_state_import_no_io_and_not_the_runtime(path: Path) -> None:
+    """The swarm core and the link state are driven by ``now`` (issue 16):
+    no sockets, tasks, threads or clocks, and the asyncio runtime above them
+    only for its types."""
+    names = _run_time_imports(ast.parse(path.read_text()))
+    roots = {n.split(".")[0] for n in names}
+    assert not roots & (_IO_MODULES - {"logging"}), f"{path.name} imports {roots & _IO_MODULES}"
+    assert not [n for n in names if n.startswith("gcs_swarm.runtime")], path.name
+    assert "pymavlink.mavutil" not in names
+
+
+def test_the_swarm_package_is_seen_whole() -> None:
+    files = {p.name for p in Path(gcs_swarm.swarm.__file__).parent.glob("*.py")}
+    assert {"core.py", "link_state.py", "step.py"} <= files

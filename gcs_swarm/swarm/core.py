@@ -1,0 +1,460 @@
+"""The swarm's rules without I/O: membership, events, origin, steps, ending.
+
+``SwarmCore`` is the ground station with its sockets and tasks taken out,
+driven as aioquic drives a connection (STYLE.md habit 1): messages go in with
+the link they came on and the time (``receive``, ``receive_positions``),
+``handle_timer(now)`` when ``get_timer()`` is due, ``control_step(now,
+write)`` when ``step_wanted``; what the vehicles' protocols queued waits in
+``outbound`` as ``(link, spec, sysid)``; ``changed`` and ``finished`` tell
+the shell (``runtime.station.Station``) that a phase moved or the mission
+is over. A link is the mission's connection string (``VehiclePlan.link``).
+
+- each received message goes to its vehicle's ``VehicleProtocol`` (traffic
+  from system ids the mission does not name on that link is counted and
+  ignored); every protocol's deadline is kept, and the earliest is the
+  core's timer;
+- a step is wanted when every flying vehicle has sent a fresh
+  LOCAL_POSITION_NED, or a fallback delay after the first one (half a
+  period; 0.2 s in lockstep), and answers each fresh report with exactly one
+  setpoint: the emulator's lockstep rule, and a steady rate on real vehicles;
+- membership: initial vehicles fly from the start; a reserve is readied with
+  them (it takes off and holds at its start, its reserve point) and joins on
+  its event, so that the join happens at the mission's time; a vehicle leaves
+  on its event, or when its protocol reports it LOST or FAILED; the law simply
+  gets the current set (formation-law.md s9). A lost vehicle that comes back
+  is readied again and rejoins at its slot;
+- the mission origin: the mission's, else the first vehicle's EKF origin as
+  soon as it is heard, handed to every vehicle;
+- ending (issue 15): the mission time reached, or nobody left flying (after
+  ``stale_timeout_s``, or ``ready_timeout_s`` while a vehicle is being
+  readied to rejoin), or a failure of the law in flight (an expression that
+  fails, a non-finite leader state): then ``failure`` says why, no setpoint
+  of that step goes out, and the caller brakes everyone. ``outcome()``
+  judges the run honestly once it is ended.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+from collections import Counter, deque
+from typing import TYPE_CHECKING, Any
+
+from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
+from gcs_swarm.control.loop import ControlLoop
+from gcs_swarm.control.params import Envelope
+from gcs_swarm.control.tracking import VelocityReference
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
+from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
+from gcs_swarm.mavlink.personality import personality_for
+from gcs_swarm.mavlink.states import Phase, ProtocolEvent
+from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.swarm.step import READYING, Write, run_step
+
+if TYPE_CHECKING:  # plain data of the layer above, for the types only
+    from gcs_swarm.report.record import FlightRecorder
+    from gcs_swarm.runtime.config import StationConfig
+    from gcs_swarm.runtime.delay import DelayCompensator
+
+__all__ = ["SwarmCore"]
+
+_log = logging.getLogger("gcs_swarm.station")
+
+_FLYING = Phase.FLYING
+
+
+class SwarmCore:
+    """One mission's rules (module docstring). Time is an argument [s]."""
+
+    def __init__(
+        self,
+        config: StationConfig,
+        *,
+        recorder: FlightRecorder | None = None,
+        delay: DelayCompensator | None = None,
+    ) -> None:
+        """``recorder`` receives every control step, membership change and
+        received message; ``delay`` (TIMESYNC estimates) predicts each
+        report to the step's time."""
+        self.config = config
+        self.recorder = recorder
+        self.delay = delay
+        pcfg = config.protocol_config()
+        self.plans = {p.sysid: p for p in config.vehicles}
+        self.vehicles = {
+            p.sysid: VehicleProtocol(
+                p.sysid,
+                pcfg,
+                goto_m=p.start_m,
+                params=p.params,
+                personality=personality_for(p.autopilot),
+            )
+            for p in config.vehicles
+        }
+        self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
+                                   config.rate_hz)  # fmt: skip
+        self.links = list(dict.fromkeys(p.link for p in config.vehicles))
+        """The mission's links (connection strings), in the order first named."""
+        self.link_of = {p.sysid: p.link for p in config.vehicles}
+        self.members = {p.sysid for p in config.vehicles if not p.reserve}
+        self.velocity_tracked = {
+            p.sysid for p in config.vehicles if p.setpoint == "velocity+acceleration"
+        }
+        """Vehicles sent a velocity setpoint with the acceleration (Eq. V1)."""
+        self.reference = VelocityReference()
+        self.flying: set[int] = set()
+        self.flown: set[int] = set()
+        """Vehicles that have flown in the formation: if one comes back after
+        being lost it goes to its slot beside the leader, not to its start."""
+        self.left: set[int] = set()
+        self.unknown_sysids: Counter[int] = Counter()
+        self.reports_in = 0
+        """LOCAL_POSITION_NED accepted from flying vehicles; each is answered by
+        one setpoint unless a newer report of the same vehicle replaces it
+        before the step (benchmarks: reports in - setpoints out = missed)."""
+        self.log: deque[str] = deque(maxlen=2000)
+        self.started = False
+        self.ending = False
+        self.failure: str | None = None
+        """Why the law could not go on in flight (the mission then ends as failed)."""
+        # What the shell reads after each call:
+        self.outbound: list[tuple[str, MessageSpec, int]] = []
+        """Protocol messages to send: (link, spec, sysid); the shell empties it."""
+        self.step_wanted = False
+        """A control step is due (``control_step``)."""
+        self.timer_moved = False
+        """``get_timer()`` may be earlier than when last read; the shell clears it."""
+        self.changed = False
+        """A vehicle's phase moved (``ready``/``end`` look again); the shell clears it."""
+        self.finished = False
+        """The mission is over (duration, nobody left, or ``failure``)."""
+        self.lookahead: list[LookaheadJob] = []
+        """Plane look-aheads to run off the step (``resolve_lookahead``); the shell empties it."""
+        self._events = sorted(config.events)
+        self._origin = config.mission_origin
+        self._fresh: dict[int, int] = {}
+        self.arrival: dict[int, float] = {}
+        """Arrival time [s] of each fresh report (the setpoints' latency)."""
+        self._deadlines: dict[int, float] = {}
+        self._heap: list[tuple[float, int]] = []
+        self._fallback_at: float | None = None
+        self._idle_since: float | None = None
+        self._idle_at: float | None = None
+
+    @property
+    def reports_waiting(self) -> int:
+        """Reports accepted since the last control step (answered at the next)."""
+        return len(self._fresh)
+
+    # ------------------------------------------------------------ inbound
+    def receive(self, msg: Any, link: str, now: float, rx_s: float) -> None:
+        """A pymavlink message from ``link``, which arrived at ``rx_s`` [s]
+        (the clock of the setpoints' latency), handled at ``now``."""
+        sysid = int(msg.get_srcSystem())
+        if self.recorder is not None:
+            self.recorder.inbound(sysid, int(msg.get_srcComponent()), int(msg.get_seq()),
+                                  int(msg.get_msgId()))  # fmt: skip
+        vp = self._vehicle(sysid, link)
+        if vp is None:
+            return
+        if msg.get_type() == "TIMESYNC":
+            if self.delay is not None and msg.tc1 != 0:
+                self.delay.timesync(sysid, msg.tc1, msg.ts1, now)
+            return
+        inbound = from_pymavlink(msg)
+        if inbound is not None:
+            self._handle(vp, inbound, now, rx_s)
+
+    def receive_positions(
+        self, raws: list[RawPosition], link: str, now: float, rx_s: float
+    ) -> None:
+        """Unsigned LOCAL_POSITION_NED reports (a datagram's run of them): the
+        handling ``receive`` gives each, written as one loop because it runs
+        for every vehicle 50 times a second."""
+        recorder = self.recorder
+        armed, fresh, arrival = self._deadlines, self._fresh, self.arrival
+        accepted = 0
+        for raw in raws:
+            sysid = raw.sysid
+            if recorder is not None:
+                recorder.inbound(sysid, raw.compid, raw.seq, b.MSG_ID_LOCAL_POSITION_NED)
+            vp = self._vehicle(sysid, link)
+            if vp is None:
+                continue
+            pos = LocalPositionNed(sysid, raw.compid, *raw.values)
+            if vp.phase is not _FLYING or sysid not in armed:
+                self._handle(vp, pos, now, rx_s)
+            # FLYING with its deadline armed: what _handle does, without the
+            # calls that change nothing here (see the end of _handle).
+            elif vp.flying_position(pos, now):
+                fresh[sysid] = pos.time_boot_ms
+                arrival[sysid] = rx_s
+                accepted += 1
+                if vp.outbound_waiting:  # the rate watch asked for the interval again
+                    self._service(vp, now)
+        if accepted:
+            self.reports_in += accepted
+            self._maybe_step(now)
+
+    def _vehicle(self, sysid: int, link: str) -> VehicleProtocol | None:
+        """The mission's vehicle ``sysid`` if it belongs on ``link``; traffic
+        from anyone else is counted (and noted once) and ignored."""
+        vp = self.vehicles.get(sysid)
+        if vp is None or self.link_of.get(sysid) != link:
+            if sysid not in self.unknown_sysids:
+                self.note(f"ignoring traffic from system {sysid} on {link}",
+                          level=logging.WARNING)  # fmt: skip
+            self.unknown_sysids[sysid] += 1
+            return None
+        return vp
+
+    def _handle(self, vp: VehicleProtocol, inbound: Inbound, now: float, rx_s: float) -> None:
+        vp.handle_message(inbound, now)
+        if (
+            isinstance(inbound, LocalPositionNed)
+            and vp.phase is Phase.FLYING
+            and vp.position is inbound  # not refused as implausible, duplicated or old
+        ):
+            sysid = vp.sysid
+            self._fresh[sysid] = inbound.time_boot_ms
+            self.reports_in += 1
+            self.arrival[sysid] = rx_s
+            self._maybe_step(now)
+            if sysid in self._deadlines and not vp.outbound_waiting:
+                # Accepted telemetry in FLYING queues nothing (but the rate
+                # watch's request), raises no event and only moves the
+                # protocol's deadlines later, so the armed (earlier) one
+                # stands: ``_service`` would change nothing.
+                return
+        self._service(vp, now)
+
+    def service(self, sysid: int, now: float) -> None:
+        """Take what vehicle ``sysid``'s protocol queued, react to its events,
+        keep its deadline (after a call on the protocol from outside)."""
+        self._service(self.vehicles[sysid], now)
+
+    def _service(self, vp: VehicleProtocol, now: float) -> None:
+        link = self.link_of[vp.sysid]
+        for spec in vp.take_outbound():
+            self.outbound.append((link, spec, vp.sysid))
+        events = vp.take_events()
+        for event in events:
+            self._on_event(vp, event, now)
+        if self._origin is None and vp.origin is not None:
+            if vp.sysid == self.config.vehicles[0].sysid:
+                self._origin = vp.origin
+                self.note(f"mission origin = vehicle {vp.sysid}'s EKF origin")
+                for other in self.vehicles.values():
+                    other.set_reference(vp.origin)
+        self._arm(vp)
+        if events:
+            self.changed = True
+
+    def _on_event(self, vp: VehicleProtocol, event: ProtocolEvent, now: float) -> None:
+        level = {"refused": logging.WARNING, "failed": logging.ERROR, "lost": logging.WARNING,
+                 "warning": logging.WARNING}.get(event.kind, logging.INFO)  # fmt: skip
+        self.note(event.text, level=level)
+        if event.kind not in ("phase", "lost", "failed"):
+            return
+        sysid = vp.sysid
+        if sysid in self.flying and vp.phase is not Phase.FLYING:
+            self.flying.discard(sysid)
+            self._fresh.pop(sysid, None)
+            self.control.forget(sysid)
+            self.reference.forget(sysid)
+            if self.recorder is not None:
+                self.recorder.member(self.control.t_s, sysid, False)
+            self.note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
+                      f"{len(self.flying)} re-form")  # fmt: skip
+            self._maybe_step(now)
+            if not self.flying:
+                self.check_alive(now)
+        elif vp.phase is Phase.READY and self.started and not self.ending:
+            if sysid in self.members:
+                self._join(vp, now)
+
+    # ------------------------------------------------------------- timers
+    def _arm(self, vp: VehicleProtocol) -> None:
+        """Keep ``vp``'s next deadline. An earlier one already kept stands:
+        firing early is harmless (the protocol acts only on what is due, and
+        is kept again then); telemetry pushes the stale deadline on at every
+        message, and this avoids a heap churn."""
+        due = vp.next_deadline()
+        sysid = vp.sysid
+        old = self._deadlines.get(sysid)
+        if old is not None:
+            if due is not None and old <= due:
+                return
+            del self._deadlines[sysid]  # its heap entry is skipped when it comes up
+        if due is not None:
+            self._deadlines[sysid] = due
+            heap = self._heap
+            if not heap or due < heap[0][0]:
+                self.timer_moved = True
+            heapq.heappush(heap, (due, sysid))
+
+    def get_timer(self) -> float | None:
+        """The earliest time [s] ``handle_timer`` has something to do, or None."""
+        heap, armed = self._heap, self._deadlines
+        while heap and armed.get(heap[0][1]) != heap[0][0]:
+            heapq.heappop(heap)
+        times = [t for t in (self._fallback_at, self._idle_at) if t is not None]
+        if heap:
+            times.append(heap[0][0])
+        return min(times) if times else None
+
+    def handle_timer(self, now: float) -> None:
+        """What is due at ``now``: each vehicle's protocol deadline, the step's
+        fallback, the check that somebody is still flying."""
+        heap, armed = self._heap, self._deadlines
+        while heap and heap[0][0] <= now:
+            due, sysid = heapq.heappop(heap)
+            if armed.get(sysid) != due:
+                continue  # superseded by an earlier deadline, already handled
+            del armed[sysid]
+            vp = self.vehicles[sysid]
+            vp.handle_timer(now)
+            self._service(vp, now)
+        if self._fallback_at is not None and self._fallback_at <= now:
+            self._fallback_at = None
+            self.step_wanted = True
+        if self._idle_at is not None and self._idle_at <= now:
+            self.check_alive(now)
+
+    # ---------------------------------------------------------- membership
+    def start(self, now: float) -> None:
+        """Start the formation: the initial members fly."""
+        self.started = True
+        for sysid in sorted(self.members):
+            self._join(self.vehicles[sysid], now)
+        self.note(f"formation started with vehicles {sorted(self.flying)}")
+
+    def finish_all(self, now: float, mode: int | None = None) -> None:
+        """Zero acceleration and the end mode (``mode``, else the mission's)
+        for every vehicle; the mission is ending."""
+        self.ending = True
+        for vp in self.vehicles.values():
+            vp.finish(now, mode=mode)
+            self._service(vp, now)
+
+    def _join(self, vp: VehicleProtocol, now: float) -> None:
+        if vp.phase is Phase.READY:
+            vp.begin_flying(now)
+            self.flying.add(vp.sysid)
+            self.flown.add(vp.sysid)
+            if self.recorder is not None:
+                self.recorder.member(self.control.t_s, vp.sysid, True)
+            if self.started:
+                self.note(f"t={self.control.t_s:.2f} s: vehicle {vp.sysid} joins the formation "
+                          f"({len(self.flying)} flying)")  # fmt: skip
+
+    def _run_events(self, t: float, now: float) -> None:
+        while self._events and self._events[0][0] <= t:
+            at, action, sysid = self._events.pop(0)
+            vp = self.vehicles[sysid]
+            self.note(f"t={at:g} s: vehicle {sysid} {action}s")
+            if action == "join":
+                self.members.add(sysid)
+                self.left.discard(sysid)
+                if vp.phase is Phase.READY:
+                    self._join(vp, now)  # holding at its reserve point: in at once
+                else:
+                    vp.enable(now)  # readied (again) to its start point, then in
+            else:
+                self.members.discard(sysid)
+                self.left.add(sysid)
+                vp.finish(now)
+            self._service(vp, now)
+
+    def check_alive(self, now: float) -> None:
+        """End a started mission once nobody has flown for ``stale_timeout_s``
+        (``ready_timeout_s`` while a member is being readied to rejoin)."""
+        self._idle_at = None
+        if not self.started or self.ending or self.flying:
+            self._idle_since = None
+            return
+        if self._idle_since is None:
+            self._idle_since = now
+        coming = any(self.vehicles[s].phase in READYING for s in self.members)
+        wait = self.config.ready_timeout_s if coming else self.config.stale_timeout_s
+        if now - self._idle_since >= wait:
+            self.note("no vehicle left in the formation; ending", level=logging.WARNING)
+            self.finished = True
+        else:
+            self._idle_at = self._idle_since + wait
+            self.timer_moved = True
+
+    # --------------------------------------------------------- control step
+    def _maybe_step(self, now: float) -> None:
+        if not self.started or self.ending or not self._fresh or self.failure is not None:
+            return
+        # _fresh holds flying vehicles only (a vehicle leaving is popped), so the
+        # subset test runs once per step, not once per report.
+        if len(self._fresh) >= len(self.flying) and self.flying <= self._fresh.keys():
+            self.step_wanted = True
+        elif self._fallback_at is None:
+            # Lockstep: a generous wait keeps runs repeatable; real time: half a period.
+            wait = 0.2 if self.config.lockstep else 0.5 / self.config.rate_hz
+            self._fallback_at = now + wait
+            self.timer_moved = True
+
+    def control_step(self, now: float, write: Write) -> None:
+        """One step of the law at ``now`` over the fresh reports: events,
+        the law, each link's setpoints handed to ``write`` (one answer per
+        fresh report), then the bookkeeping (``swarm.step``). Nothing while
+        ending."""
+        self.step_wanted = False
+        self._fallback_at = None
+        if self.ending:
+            return
+        fresh, self._fresh = self._fresh, {}
+        t = self.control.advance_clock(fresh)
+        self._run_events(t, now)
+        run_step(self, fresh, t, now, write)
+
+    def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult, took_s: float) -> None:
+        """A look-ahead's ``result``, computed off the step in ``took_s`` [s]."""
+        self.control.resolve_lookahead(job, result)
+        n_vertical = int(result.vertical.sum())
+        self.note(
+            f"look-ahead for episode {job.episode}: vertical plane for {n_vertical} of "
+            f"{len(result.ids)} vehicles ({1e3 * took_s:.0f} ms in a worker thread)"
+        )
+
+    # --------------------------------------------------------------- ending
+    def abort(self, why: str) -> None:
+        """End the mission now, as failed: no setpoint of this step goes out;
+        the caller ends every vehicle (``finish_all``, braking)."""
+        if self.failure is None:
+            self.failure = why
+            self.note(f"{why}; ending the mission (failed)", level=logging.ERROR)
+        self.finished = True
+
+    def outcome(self) -> str:
+        """The run's outcome once ended: ``failed`` when the law failed in
+        flight or every vehicle that flew was lost (or failed, or never
+        confirmed its end action); ``degraded`` when some were; ``completed``
+        when every vehicle that flew ended."""
+        gone = [s for s in self.flown if self.vehicles[s].phase is not Phase.ENDED]
+        if self.failure is not None or (self.flown and len(gone) == len(self.flown)):
+            return "failed"
+        return "degraded" if gone else "completed"
+
+    def apply_envelope(self) -> Envelope:
+        """Plan and shape every command within the tightest envelope of the
+        readied vehicles (docs/vehicle-envelope.md); returns it."""
+        env = Envelope()
+        for vp in self.vehicles.values():
+            if vp.phase is Phase.READY:
+                env = env.tighter(vp.envelope)
+        inforce = self.control.set_envelope(env)
+        if inforce.bounded:
+            self.note(f"envelope in force: {inforce.describe()}")
+        return inforce
+
+    def note(self, text: str, *, level: int = logging.INFO) -> None:
+        """A line for the log (and the run's summary at INFO and above)."""
+        _log.log(level, "%s", text)
+        if level >= logging.INFO:
+            self.log.append(text)

@@ -1,0 +1,162 @@
+"""One control step of the swarm without I/O: the law over the flying
+vehicles' fresh reports, and each link's setpoints (``SwarmCore.control_step``
+calls ``run_step`` once the events of the step's time have run).
+
+The path (docs/architecture.md, "From a datagram to a setpoint", steps 4-5):
+the mission-frame states (``mavlink.batch.mission_states``), the delay
+compensator's prediction when there is one, ``ControlLoop.command`` (the
+leader, the law, the safety filter, the shaper), the checks that end a
+mission as failed, then the setpoints: mission frame -> NED
+(``mavlink.batch.accel_ned``), Eq. V1 for velocity-tracked vehicles
+(docs/setpoints.md), written link by link before the bookkeeping, so that
+a setpoint's latency does not include it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.errors import SwarmError
+from gcs_swarm.mavlink.batch import accel_ned, mission_states
+from gcs_swarm.mavlink.states import Phase
+
+if TYPE_CHECKING:
+    from gcs_swarm.swarm.core import SwarmCore
+
+__all__ = ["LEADER_BOUND", "READYING", "SetpointBatch", "Write", "run_step"]
+
+FloatArray = npt.NDArray[np.float64]
+
+READYING = frozenset(
+    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
+     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
+)  # fmt: skip
+"""The phases of a vehicle on its way into the formation."""
+
+LEADER_BOUND = 1.0e7
+"""Largest leader coordinate [m] or velocity component [m/s] taken as finite:
+beyond the Earth's size the mission's flat local frame means nothing, and
+the law's squares of such numbers overflow."""
+
+
+class SetpointBatch(NamedTuple):
+    """One step's setpoints for one link (``Link.send_accel_setpoints``'s
+    arguments): row k to vehicle ``sysids[k]``, NED."""
+
+    sysids: list[int]
+    compids: list[int]
+    time_boot_ms: list[int]
+    accel_ned: FloatArray
+    since_s: list[float | None]
+    vel_ned: FloatArray | None
+
+
+Write = Callable[[str, SetpointBatch | None], None]
+"""Called by ``control_step`` for each link, in the mission's order, before
+the step's bookkeeping: its setpoints, or None (write what is queued)."""
+
+
+def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write: Write) -> None:
+    """The law at mission time ``t`` [s] (wall ``now`` [s]) over ``core``'s
+    flying vehicles, answering those in ``fresh`` (sysid -> report time)."""
+    ids = sorted(core.flying)
+    if ids:
+        pos, vel = mission_states([core.vehicles[s] for s in ids])
+        if core.delay is not None:
+            for i, s in enumerate(ids):
+                last = core.vehicles[s].position
+                if last is not None:
+                    t_s = last.time_boot_ms * 1e-3
+                    pos[i], vel[i] = core.delay.predict(s, t_s, now, pos[i], vel[i])
+        try:
+            # Overflow is judged below, on the leader (and counted, on the setpoints).
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                out, accel, report = core.control.command(ids, pos, vel)
+        except (SwarmError, ArithmeticError, ValueError) as err:
+            core.abort(f"t={t:.2f} s: the law failed in flight: {err}")
+            return
+        lead = (out.leader_pos_m, out.leader_vel_mps)
+        if not all((np.abs(x) <= LEADER_BOUND).all() for x in lead):  # NaN fails too
+            core.abort(f"t={t:.2f} s: the virtual leader's state is not finite (position "
+                       f"{lead[0].tolist()} m, velocity {lead[1].tolist()} m/s)")  # fmt: skip
+            return
+        if out.event is not None:
+            what = "starts" if out.event == "start" else "ends: formation resumes"
+            core.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
+        if core.recorder is not None:
+            # Before the setpoints go out: the log's LEADER note marks the step.
+            cor = None if report is None else report.correction_mps2
+            core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
+                               out.episode, accel_mps2=accel, sent=fresh.keys(),
+                               correction_mps2=cor)  # fmt: skip
+        rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
+        _answer(core, [ids[i] for i in rows], accel[rows], now, t, vel[rows], write)
+        core.control.account(ids, pos, out, accel, report)
+        job = core.control.pending_lookahead()
+        if job is not None:
+            core.lookahead.append(job)
+    for sysid in (core.members & core.flown) - core.flying:
+        vp = core.vehicles[sysid]
+        if vp.phase in READYING and vp.phase is not Phase.READY:
+            vp.set_goto(core.control.slot_m(core.plans[sysid].start_m))
+    if t >= core.config.duration_s:
+        core.note(f"mission time {t:.2f} s reached the duration")
+        core.finished = True
+
+
+def _answer(
+    core: SwarmCore,
+    sysids: list[int],
+    accel: FloatArray,
+    now: float,
+    t: float,
+    vel: FloatArray,
+    write: Write,
+) -> None:
+    """One acceleration setpoint (mission frame ``accel (K, 3)``) for each
+    of ``sysids``, each link's at once. A velocity-tracked vehicle's goes
+    with its velocity setpoint (Eq. V1, from ``vel``, the velocity the law
+    saw, at mission time ``t``)."""
+    vps = [core.vehicles[s] for s in sysids]
+    ned = accel_ned(vps, accel)
+    vel_ned: FloatArray | None = None
+    tracked = [k for k, s in enumerate(sysids) if s in core.velocity_tracked]
+    if tracked:
+        # What was sent (the NED rows, clipped) back in the mission frame: V1 integrates it.
+        sent = np.stack([ned[tracked, 1], ned[tracked, 0], -ned[tracked, 2]], axis=1)
+        ref = core.reference.setpoints([sysids[k] for k in tracked], t, vel[tracked], sent)
+        vel_ned = np.full((len(sysids), 3), np.nan)
+        bias = np.array([vps[k].vel_correction_ned for k in tracked], dtype=np.float64)
+        # The vehicle flies its own (biased) velocity estimate to the setpoint.
+        vel_ned[tracked, 0] = ref[:, 1] + bias[:, 0]
+        vel_ned[tracked, 1] = ref[:, 0] + bias[:, 1]
+        vel_ned[tracked, 2] = -ref[:, 2] + bias[:, 2]
+    rows: dict[str, list[int]] = {}
+    link_of = core.link_of
+    for k, sysid in enumerate(sysids):
+        rows.setdefault(link_of[sysid], []).append(k)
+    arrival = core.arrival
+    for link in core.links:
+        idx = rows.get(link)
+        if idx is None:
+            write(link, None)
+            continue
+        whole = len(idx) == len(sysids)
+        write(
+            link,
+            SetpointBatch(
+                [sysids[k] for k in idx],
+                [vps[k].compid for k in idx],
+                [vps[k].boot_ms() for k in idx],
+                ned if whole else ned[idx],
+                [arrival.get(sysids[k]) for k in idx],
+                vel_ned if vel_ned is None or whole else vel_ned[idx],
+            ),
+        )
+    if core.delay is not None:
+        for k, sysid in enumerate(sysids):
+            core.delay.sent(sysid, now, accel[k])

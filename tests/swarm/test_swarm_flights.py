@@ -1,0 +1,136 @@
+"""The station's core flown against the emulator's autopilots in one process
+(``swarm_harness.Sky``, a hand-advanced clock): join, leave, lossy links,
+spoofing and a vehicle that stops answering, each in well under a second.
+The real-UDP end-to-end twins stay in tests/station and tests/reliability."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+from swarm_harness import Sky, address, mission_from
+
+from gcs_swarm.mavlink.states import Phase
+from gcs_swarm.mission import Event, Mission
+
+
+def _tetrahedron(duration: float, **changes: object) -> Mission:
+    m = mission_from("example1_tetrahedron.yaml", duration=duration)
+    return dataclasses.replace(m, **changes)  # type: ignore[arg-type]
+
+
+def test_a_reserve_joins_on_its_event_and_gets_setpoints() -> None:
+    base = _tetrahedron(3.0)
+    reserve = dataclasses.replace(
+        base.vehicles[3], sysid=5, start=(1.0, 1.0, 5.0), origin=(1.0, 1.0, 4.0), reserve=True
+    )
+    mission = dataclasses.replace(
+        base, vehicles=(*base.vehicles, reserve), events=(Event(t=1.0, action="join", sysid=5),)
+    )
+    sky = Sky(mission)
+    assert not sky.vehicles[5].ap.armed  # a reserve waits on the ground
+    sky.ready()  # the reserve too: armed, took off, holding at its start
+    sky.start()
+    assert sky.core.flying == {1, 2, 3, 4}
+    sky.run_until(lambda: sky.core.control.t_s >= 0.9, 2.0)
+    assert 5 not in sky.core.flying and sky.answered[5] == 0
+    sky.run_until(lambda: sky.core.finished, 5.0)
+    log = "\n".join(sky.core.log)
+    assert "t=1.00 s: vehicle 5 joins the formation (5 flying)" in log
+    assert sky.core.flying == {1, 2, 3, 4, 5}
+    # From its join to the end (2 s at 50 Hz), one setpoint per report.
+    assert 99 <= sky.answered[5] <= 101 and sky.answered[1] >= 149
+    sky.end()
+    assert sky.core.outcome() == "completed"
+
+
+def test_a_vehicle_leaves_on_its_event_and_the_rest_fly_on() -> None:
+    mission = _tetrahedron(2.0, events=(Event(t=1.0, action="leave", sysid=2),))
+    sky = Sky(mission)
+    sky.ready()
+    sky.start()
+    sky.run_until(lambda: sky.core.finished, 4.0)
+    log = "\n".join(sky.core.log)
+    assert "t=1 s: vehicle 2 leaves" in log
+    assert "vehicle 2 out of the formation (ending); 3 re-form" in log
+    assert sky.core.flying == {1, 3, 4} and sky.core.left == {2}
+    assert sky.core.vehicles[2].phase in (Phase.ENDING, Phase.ENDED)
+    n = sky.answered
+    assert 49 <= n[2] <= 51 and min(n[s] for s in (1, 3, 4)) >= 99, n
+    sky.end()
+    assert sky.core.outcome() == "completed"
+
+
+def test_lossy_links_fly_on_without_losing_anyone() -> None:
+    # 20 % of the datagrams each way lost (seeded): the step runs on the
+    # fallback when a report is missing; nobody goes stale (1 s without a
+    # report would take 50 losses in a row).
+    sky = Sky(_tetrahedron(3.0), drop_down=0.2, drop_up=0.2, seed=7)
+    sky.ready()
+    sky.start()
+    heard0 = {s: v.setpoints_heard for s, v in sky.vehicles.items()}
+    sky.run_until(lambda: sky.core.finished, 5.0)
+    assert sky.lost_down > 100 and sky.lost_up > 100
+    assert sky.core.flying == {1, 2, 3, 4}
+    # The missing reports cost no step: 50 Hz over 3 s, a step on the
+    # fallback (half a period) when a report is missing.
+    assert 148 <= sky.core.control.steps <= 151
+    for s, v in sky.vehicles.items():
+        # One setpoint per report that came through (about 80 %), of which
+        # about 80 % came through in turn.
+        assert 0.7 * 150 <= sky.answered[s] <= 0.9 * 150, sky.answered
+        heard = v.setpoints_heard - heard0[s]
+        assert 0.7 * sky.answered[s] <= heard <= 0.9 * sky.answered[s], (s, heard)
+    sky.end()
+    assert sky.core.outcome() == "completed"
+
+
+def test_a_frame_for_a_bound_vehicle_from_another_address_is_refused_and_counted() -> None:
+    sky = Sky(_tetrahedron(2.0))
+    sky.ready()
+    sky.start()
+    sky.advance(0.5)
+    forger = mav.MAVLink(None, 2, 1)  # vehicle 2's system id, from elsewhere
+    stray = ("10.6.6.6", 4242)
+    for k in range(10):
+        lpn = forger.local_position_ned_encode(10**6 + k, 99.0, 99.0, -99.0, 0, 0, 0)
+        sky.inject(stray, bytes(lpn.pack(forger)))
+    sky.transfer()
+    assert sky.link.stats.spoofed == 10 and sky.link.rebinds_refused == {2: 10}
+    assert sky.notices == [
+        f"{sky.link.name}: frames of vehicle 2 from 10.6.6.6:4242 refused: it is bound to "
+        f"{address(2)[0]}:{address(2)[1]} for the run (silent 0.0 s)"
+    ]  # once per vehicle, not per frame
+    assert sky.link.peer_count == 4  # the forger got no codec
+    sky.run_until(lambda: sky.core.finished, 3.0)
+    # The real vehicle 2 flew on: its reports were taken, the forged ones never.
+    assert sky.core.flying == {1, 2, 3, 4}
+    pos = sky.core.vehicles[2].position
+    assert pos is not None and abs(pos.x) < 50
+    assert sky.answered[2] >= 99
+
+
+def test_a_vehicle_that_stops_answering_leaves_and_the_rest_go_on() -> None:
+    mission = _tetrahedron(4.0)
+    sky = Sky(mission)
+    sky.ready()
+    sky.start()
+    sky.advance(1.0)
+    sky.set_silent(3)
+    t_off = sky.now
+    sky.run_until(lambda: 3 not in sky.core.flying, 3.0)
+    lost_after = sky.now - t_off
+    stale = sky.core.config.protocol_config().stale_timeout_s
+    assert stale <= lost_after <= stale + 0.1
+    assert sky.core.vehicles[3].phase is Phase.LOST
+    log = "\n".join(sky.core.log)
+    assert "vehicle 3 out of the formation (lost); 3 re-form" in log
+    heard = dict(sky.answered)
+    sky.run_until(lambda: sky.core.finished, 4.0)
+    assert sky.core.flying == {1, 2, 4}
+    # The three went on at the full rate: each step waited for them only.
+    for s in (1, 2, 4):
+        assert sky.answered[s] - heard[s] >= 50 * (4.0 - 1.0 - lost_after) - 2
+    assert sky.answered[3] == heard[3]
+    sky.end()
+    assert sky.core.outcome() == "degraded"

@@ -1,0 +1,104 @@
+"""One link's policy without sockets (``gcs_swarm.swarm.LinkState``): bytes
+in with their peer and a hand-set arrival time, datagrams out."""
+
+from __future__ import annotations
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.codec import RawPosition
+from gcs_swarm.swarm import MESSAGE_QUEUE_SIZE, REBIND_S, LinkState
+from mavwire import MAX_DATAGRAM_BYTES
+from mavwire.signing import mavlink
+
+A, B, C = ("10.0.0.2", 5760), ("10.0.0.3", 5770), ("10.6.6.6", 4242)
+KEY = bytes(range(32))
+
+
+def _lpn(sysid: int, t_ms: int = 1, mav: object | None = None) -> bytes:
+    m = mav if mav is not None else dialect.MAVLink(None, sysid, 1)
+    return bytes(m.local_position_ned_encode(t_ms, 1.0, 2.0, 3.0, 0, 0, 0).pack(m))  # type: ignore[attr-defined]
+
+
+def _state(**kw: object) -> tuple[LinkState, list[str]]:
+    notices: list[str] = []
+    kw.setdefault("sysids", [1, 2])
+    st = LinkState("udpin:0.0.0.0:14550", unix_clock=lambda: 1.7e9, on_notice=notices.append,
+                   **kw)  # type: ignore[arg-type]  # fmt: skip
+    return st, notices
+
+
+def _parse(data: bytes) -> list[object]:
+    return dialect.MAVLink(None, 255, 190).parse_buffer(data) or []
+
+
+def test_a_system_id_stays_on_its_first_address_and_others_are_refused() -> None:
+    st, notices = _state(raw_positions=True)
+    items = st.receive(_lpn(1) + _lpn(2), A, 0.0, datagram=True)
+    assert [[r.sysid for r in run] for run in items] == [[1, 2]]
+    assert all(type(r) is RawPosition for r in items[0])
+    for k in range(5):
+        assert st.receive(_lpn(1, 2 + k), C, 1.0 + k, datagram=True) == []
+    assert st.stats.spoofed == 5 and st.rebinds_refused == {1: 5}
+    assert len(notices) == 1 and "from 10.6.6.6:4242 refused" in notices[0]
+    assert st.peer_count == 1 and st.route(1) == A  # the forger got nothing
+    st.send(b.heartbeat())
+    assert [peer for peer, _, _ in st.datagrams_to_send()] == [A]
+
+
+def test_strangers_keep_no_state_and_draw_no_reply() -> None:
+    st, _ = _state()
+    for port in range(100):
+        st.receive(b"\xfd\x09garbage" + bytes(port), ("10.9.9.9", port), 0.0, datagram=True)
+        st.receive(_lpn(42), ("10.9.9.9", port), 0.0, datagram=True)  # an id not served
+    assert st.peer_count == 0 and st.stats.bad_packets > 0 and not st.peer_added
+    assert not st.send(b.heartbeat()) and st.datagrams_to_send() == []
+
+
+def test_setpoints_newest_wins_and_messages_are_a_bounded_fifo() -> None:
+    st, _ = _state()
+    for k in range(MESSAGE_QUEUE_SIZE + 3):  # queued while nobody is connected
+        st.send(b.param_request_read(1, 1, f"P{k}"), 1)
+    st.send(b.accel_setpoint(1, 1, 10, (1.0, 0.0, 0.0)), 1)
+    st.send(b.accel_setpoint(1, 1, 20, (2.0, 0.0, 0.0)), 1)
+    assert st.stats.messages_dropped == 3 and st.stats.setpoints_dropped == 1
+    assert st.datagrams_to_send() == []  # no peer yet: the queues wait
+    st.receive(_lpn(1), A, 0.0, datagram=True)
+    assert st.peer_added
+    msgs = [m for _, data, _ in st.datagrams_to_send() for m in _parse(data)]
+    names = [m.param_id for m in msgs if m.get_type() == "PARAM_REQUEST_READ"]  # type: ignore[attr-defined]
+    assert names == [f"P{k}" for k in range(3, MESSAGE_QUEUE_SIZE + 3)]  # the oldest went
+    sp = [m for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert [(m.time_boot_ms, m.afx) for m in sp] == [(20, 2.0)]  # type: ignore[attr-defined]
+
+
+def test_a_steps_setpoints_are_joined_into_datagrams_within_the_limit() -> None:
+    n = 60
+    st, _ = _state(sysids=range(1, n + 1))
+    for s in range(1, n + 1):
+        st.receive(_lpn(s), A, 0.0, datagram=True)
+    accel = np.arange(3 * n, dtype=np.float64).reshape(n, 3) * 0.01
+    since = [0.5 + s for s in range(n)]
+    writes = st.accel_setpoints(list(range(1, n + 1)), [1] * n, [7] * n, accel, since)
+    assert len(writes) > 1 and all(len(d) <= MAX_DATAGRAM_BYTES for _, d, _ in writes)
+    assert {p for p, _, _ in writes} == {A}
+    assert [t for _, _, ts in writes for t in ts] == since  # latency per frame, in order
+    msgs = [m for _, d, _ in writes for m in _parse(d)]
+    assert [m.target_system for m in msgs] == list(range(1, n + 1))  # type: ignore[attr-defined]
+    np.testing.assert_allclose([m.afy for m in msgs], accel[:, 1], rtol=1e-6)  # type: ignore[attr-defined]
+    assert st.stats.sent == n
+
+
+def test_a_signed_vehicle_silent_for_rebind_s_may_move_to_a_new_address() -> None:
+    st, notices = _state(signing_key=KEY, allow_rebind=True)
+    mav = mavlink(1, 1, KEY, unix_s=1.7e9)
+    assert len(st.receive(_lpn(1, 1, mav), A, 0.0, datagram=True)) == 1
+    assert st.receive(_lpn(1, 2, mav), B, REBIND_S - 0.5, datagram=True) == []  # too soon
+    assert st.rebinds_refused == {1: 1}
+    assert len(st.receive(_lpn(1, 3, mav), B, REBIND_S + 0.1, datagram=True)) == 1
+    assert st.route(1) == B and st.peer_count == 1  # A speaks for nobody: its state went
+    assert "vehicle 1 rebound from 10.0.0.2:5760 to 10.0.0.3:5770" in notices[-1]
+    unsigned, _ = _state(allow_rebind=True)  # without signing: never handed over
+    unsigned.receive(_lpn(1), A, 0.0, datagram=True)
+    assert unsigned.receive(_lpn(1, 2), B, 100.0, datagram=True) == []
