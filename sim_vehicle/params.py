@@ -57,7 +57,7 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_SP_DELAY": (
         0.0,
         _R32,
-        "s, dead time from a GUIDED/OFFBOARD setpoint's arrival to its effect (Eq. D8)",
+        "s, dead time from an OFFBOARD setpoint's arrival to its effect (Eq. D8; PX4 only)",
     ),
     "SIM_BRAKE_ACC": (2.0, _R32, "m/s/s braking unshaped (fits 18.7 m); shaped: WPNAV_ACCEL"),
     "SIM_TKOFF_DLY": (3.3, _R32, "s spool-up before a takeoff climbs (fits the sheet's 9.4 s)"),

@@ -163,10 +163,8 @@ def time_to_enter(
     mean over the last ``window_s`` [s] (None: never). On a vehicle that wanders
     by more than the summary's 1 % (PX4 SITL) the formation never stays inside
     it: this is the time to form that can be compared (docs/sitl.md)."""
-    mean = np.nanmean(series[times_s >= times_s[-1] - window_s], axis=0)
-    inside = np.all(np.abs(series - mean) <= band * np.abs(mean), axis=1)
-    k = np.flatnonzero(inside)
-    return float(times_s[k[0]]) if k.size else None
+    mean = _held(times_s, series, window_s)
+    return _first(times_s, np.all(np.abs(series - mean) <= band * np.abs(mean), axis=1))
 
 
 def time_to_rms_band(
@@ -175,11 +173,20 @@ def time_to_rms_band(
     """The first time [s] the formation's RMS relative error (every radius and
     distance against its mean over the last ``window_s`` s) is within ``band``
     (None: never). Unlike ``time_to_enter`` one vehicle's wander does not decide
-    it: on three PX4 SITL runs 2.62-2.84 s where ``time_to_enter`` gave 2.82-3.48 s
+    it: on four PX4 SITL runs 2.62-2.88 s where ``time_to_enter`` gave 2.82-3.48 s
     (docs/sitl.md)."""
-    held = np.nanmean(series[times_s >= times_s[-1] - window_s], axis=0)
-    rel = np.sqrt(np.nanmean(((series - held) / held) ** 2, axis=1))
-    k = np.flatnonzero(rel <= band)
+    held = _held(times_s, series, window_s)
+    return _first(times_s, np.sqrt(np.nanmean(((series - held) / held) ** 2, axis=1)) <= band)
+
+
+def _held(times_s: np.ndarray, series: np.ndarray, window_s: float) -> np.ndarray:
+    """Each column's mean over the last ``window_s`` [s]."""
+    return np.asarray(np.nanmean(series[times_s >= times_s[-1] - window_s], axis=0))
+
+
+def _first(times_s: np.ndarray, inside: np.ndarray) -> float | None:
+    """The first time [s] ``inside`` holds (None: never)."""
+    k = np.flatnonzero(inside)
     return float(times_s[k[0]]) if k.size else None
 
 
