@@ -166,8 +166,20 @@ def _check_leader_for(mission: Mission, duration_s: float) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import run_command
 
+    view = None
+    if args.view is not None:
+        from gcs_swarm.view.server import parse_address
+
+        try:
+            view = parse_address(args.view)
+        except ValueError as err:
+            raise UsageError(f"--view: {err}") from None
     return run_command(
-        args.mission, status=not args.no_status, log_dir=args.log_dir, record=not args.no_log
+        args.mission,
+        status=not args.no_status,
+        log_dir=args.log_dir,
+        record=not args.no_log,
+        view=view,
     )
 
 
@@ -196,6 +208,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="fly a mission over MAVLink (bundled emulator for `sim` links)")
     p.add_argument("mission", help="mission YAML file")
     p.add_argument("--no-status", action="store_true", help="no live status line")
+    p.add_argument(
+        "--view",
+        metavar="[HOST:]PORT",
+        default=None,
+        help="serve the operator view in a browser there (host 127.0.0.1 unless named;"
+        " port 0: any free one); the address with its token is printed at start",
+    )
     _log_options(p)
     p.set_defaults(handler=_cmd_run)
 

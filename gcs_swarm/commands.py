@@ -48,20 +48,29 @@ def check_command(path: str) -> int:
 
 
 def run_command(
-    path: str, *, status: bool = True, log_dir: str | None = None, record: bool = True
+    path: str,
+    *,
+    status: bool = True,
+    log_dir: str | None = None,
+    record: bool = True,
+    view: tuple[str, int] | None = None,
 ) -> int:
     """``gcs-swarm run PATH``: exit 0 when the mission completed (every vehicle
     that flew ended), 1 when it failed or was degraded (``EXIT_CODES``), 130
     when it was interrupted. ``SwarmError`` (bad file, start-up failure) propagates
     for the command line to print as one line. With ``record`` the run
-    folder goes under ``log_dir`` (default the mission's ``log.dir``)."""
+    folder goes under ``log_dir`` (default the mission's ``log.dir``). With
+    ``view`` (host, port) the operator view is served there and its address,
+    with the run's token, printed at start (docs/operator-view.md)."""
     mission = load_mission(path)
     base = (log_dir if log_dir is not None else mission.log.dir) if record else None
-    return asyncio.run(_main(mission, status=status, log_dir=base))
+    return asyncio.run(_main(mission, status=status, log_dir=base, view=view))
 
 
-async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
-    from gcs_swarm.runtime.run import EXIT_CODES, run_mission
+async def _main(
+    mission: Mission, *, status: bool, log_dir: str | None, view: tuple[str, int] | None = None
+) -> int:
+    from gcs_swarm.runtime.run import EXIT_CODES, View, run_mission
 
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
@@ -105,6 +114,15 @@ async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
         folders.append(folder)
         print(f"run folder: {folder.path}", file=sys.stderr)
 
+    live: View | None = None
+    if view is not None:
+        from gcs_swarm.view import live_view
+
+        def url(text: str) -> None:
+            print(f"operator view: {text}", file=sys.stderr, flush=True)
+
+        live = live_view(mission, host=view[0], port=view[1], on_url=url)
+
     try:
         summary = await run_mission(
             mission,
@@ -112,6 +130,7 @@ async def _main(mission: Mission, *, status: bool, log_dir: str | None) -> int:
             on_summary=report,
             log_dir=log_dir,
             on_folder=announce,
+            view=live,
         )
     except asyncio.CancelledError:
         return 130

@@ -20,6 +20,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Mapping
+from contextlib import AbstractAsyncContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,6 +42,7 @@ from gcs_swarm.missionsim import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.report.replay import safety_applied
+from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
 from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.tlog import TlogWriter
@@ -48,6 +50,9 @@ from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
 
 if TYPE_CHECKING:
     from gcs_swarm.control.envelope import Demand
+
+View = Callable[[Station, EndRequest, FlightRecorder | None], AbstractAsyncContextManager[object]]
+"""An operator view's lifetime over the running station (``gcs_swarm.view.live``)."""
 
 __all__ = [
     "END_MODES",
@@ -275,6 +280,7 @@ async def run_mission(
     log_dir: str | Path | None = None,
     picture: bool = True,
     on_folder: Callable[[RunFolder], None] | None = None,
+    view: View | None = None,
 ) -> RunSummary:
     """Fly ``mission`` and return its summary.
 
@@ -283,7 +289,9 @@ async def run_mission(
     in and out, plus the station's annotations), a copy of the mission,
     ``summary.json`` and ``report.png`` (unless ``picture`` is False); the
     summary and picture are written however the run ends. ``on_folder``
-    gets the folder as soon as it exists.
+    gets the folder as soon as it exists. ``view`` is entered once the station
+    is up; its ``EndRequest`` (the page's Hold, Land, Return) ends the run
+    with that end action, as the end of the mission's duration does.
 
     ``links`` maps system ids to connection strings and overrides the file's
     (tests point them at their own emulator); vehicles still ``sim`` make this
@@ -319,6 +327,7 @@ async def run_mission(
         async with contextlib.AsyncExitStack() as stack:
             if folder is not None:
                 tlog = await stack.enter_async_context(TlogWriter(folder.tlog, on_error=log_failed))
+            if folder is not None or view is not None:  # the view shows its link counts
                 recorder = FlightRecorder(
                     name=mission.settings.name,
                     source="run",
@@ -326,7 +335,7 @@ async def run_mission(
                     r0=mission.law.avoidance.r0,
                     rate_hz=mission.settings.rate,
                     safety=safety_applied(mission),
-                    sink=_note_sink(tlog),
+                    sink=None if tlog is None else _note_sink(tlog),
                 )
             if sims:
                 cfg = emulator_config(mission, airborne=sim_airborne)
@@ -353,6 +362,9 @@ async def run_mission(
             )
             end_mode: int | None = None
             flew = False
+            request = None if view is None else EndRequest()
+            if view is not None and request is not None:
+                await stack.enter_async_context(view(station, request, recorder))
             # What the gains ask of the vehicle: a whole-mission simulation (seconds),
             # so off the event loop, while the swarm is readied (heartbeats and the
             # vehicles' hold must not stall: their GCS failsafe waits only 5 s).
@@ -362,15 +374,18 @@ async def run_mission(
             ):
                 demand = asyncio.ensure_future(asyncio.to_thread(envelope_demand, mission))
             try:
-                await station.ready()
-                envelope = station.apply_envelope()
-                if demand is not None and envelope.bounded:
-                    for line in demand_report(mission, envelope, demand=await demand):
-                        station.warn(line)
-                await station.fly()
-                flew = True
+                if not await unless_ended(request, station.ready()):
+                    envelope = station.apply_envelope()
+                    if demand is not None and envelope.bounded:
+                        for line in demand_report(mission, envelope, demand=await demand):
+                            station.warn(line)
+                    await unless_ended(request, station.fly())
+                    flew = True
                 if station.failure is not None:
                     end_mode = END_MODES["hold"]  # the law failed in flight: brake everyone
+                elif request is not None and request.action is not None:
+                    end_mode = END_MODES[request.action]  # the operator's button
+                    station.warn(f"ending on the operator's request: {request.action}")
             except StartupError:
                 outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
                 raise

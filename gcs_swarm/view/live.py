@@ -1,0 +1,92 @@
+"""The live operator view of a flight: ``run_mission(view=live_view(...))``.
+
+``live_view`` returns the lifetime ``run_mission`` enters once the station is
+up (``runtime.run.View``): a ``ViewServer`` on the station's event loop whose
+frames are ``SnapshotBuilder`` frames of the station (with the flight
+recorder's inbound counts for the loss column, and the links' setpoint
+drops), and whose only command is an end button: ``{"type": "end",
+"action": "hold" | "land" | "rtl"}`` fills the run's ``EndRequest``, so the
+mission ends the way it does when its duration is over (``Station.end`` with
+that end action, for every vehicle). Nothing else in the page commands a
+vehicle. docs/operator-view.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import AsyncIterator, Callable
+from typing import TYPE_CHECKING, Any
+
+from gcs_swarm.runtime.ending import END_ACTIONS, EndRequest
+from gcs_swarm.view.server import ViewServer
+from gcs_swarm.view.snapshot import SnapshotBuilder, scene_of
+
+if TYPE_CHECKING:
+    from gcs_swarm.mission import Mission
+    from gcs_swarm.report.record import FlightRecorder
+    from gcs_swarm.runtime.run import View
+    from gcs_swarm.runtime.station import Station
+
+__all__ = ["END_LABELS", "live_view"]
+
+END_LABELS = {"hold": "Hold", "land": "Land", "rtl": "Return"}
+"""The page's button for each end action."""
+
+
+def live_view(
+    mission: Mission,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    rate_hz: float = 10.0,
+    token: str | None = None,
+    on_url: Callable[[str], None] | None = None,
+    on_server: Callable[[ViewServer], None] | None = None,
+    write_limit: int = 2**15,
+    send_buffer: int | None = 2**16,
+) -> View:
+    """The view of ``mission``'s run on ``host:port`` (0: any free port),
+    frames at ``rate_hz``; ``on_url`` gets the page's address with its token
+    as soon as it listens, ``on_server`` the server (tests read its counts);
+    ``write_limit``, ``send_buffer`` [bytes]: ``ViewServer``'s."""
+
+    @contextlib.asynccontextmanager
+    async def lifetime(
+        station: Station, request: EndRequest, recorder: FlightRecorder | None
+    ) -> AsyncIterator[ViewServer]:
+        law = mission.law
+        builder = SnapshotBuilder(scene_of(law, name=mission.settings.name),
+                                  station.control.controller.obstacles)  # fmt: skip
+
+        def frames() -> dict[str, Any]:
+            counts = None if recorder is None else recorder.telemetry.counts
+            frame = builder.frame(station, station.now(), telemetry=counts)
+            links = station.links.values()
+            frame["setpoints_dropped"] = sum(link.stats.setpoints_dropped for link in links)
+            frame["ended_by"] = request.action
+            return frame
+
+        def command(msg: dict[str, Any]) -> dict[str, Any]:
+            action = msg.get("action")
+            if msg.get("type") != "end" or action not in END_ACTIONS:
+                return {"ok": False, "text": "the view takes only an end action: "
+                        + ", ".join(END_ACTIONS)}  # fmt: skip
+            assert isinstance(action, str)
+            if station.ending or not request.request(action):
+                return {"ok": False, "action": action, "text": "the mission is already ending"}
+            text = f"{END_LABELS[action]}: ending the mission for every vehicle"
+            return {"ok": True, "action": action, "text": text}
+
+        hello = {"mode": "live", "name": mission.settings.name,
+                 "actions": [[a, END_LABELS[a]] for a in END_ACTIONS]}  # fmt: skip
+        async with ViewServer(frames, host=host, port=port, rate_hz=rate_hz, token=token,
+                              on_command=command, hello=hello,
+                              write_limit=write_limit,
+                              send_buffer=send_buffer) as server:  # fmt: skip
+            if on_url is not None:
+                on_url(server.url)
+            if on_server is not None:
+                on_server(server)
+            yield server
+
+    return lifetime

@@ -1,0 +1,258 @@
+"""The operator view's frames without I/O: the station now, as JSON-able data.
+
+``SnapshotBuilder.frame(station, now)`` reads a running station through its
+public figures (``Station`` or ``SwarmCore``: the vehicles' protocols, the
+control loop's last step, who flies, the log) and returns one frame, a dict
+of lists, numbers, strings and None only (no NaN: the browser's JSON parser
+refuses it), so ``json.dumps`` takes it as it is. It is called by the view's
+push task at 10-20 Hz, never inside the control path; it changes nothing it
+reads. Its only state is what the last frame showed (who flew, the
+behaviour, the last log line), so each frame carries the events since the
+previous one. docs/operator-view.md describes every field.
+
+Frames and units: mission frame (x east, y north, z up), metres, seconds of
+mission time (vehicle time, formation-law.md s4), m/s^2. The vehicles go as
+columns (one list per field, row k is vehicle ``sysid[k]``): at 250
+vehicles that is a fraction of the cost of one dict per vehicle.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import deque
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.control.obstacles import Ellipsoids, box_signed_distance
+from gcs_swarm.mavlink.states import Phase
+
+if TYPE_CHECKING:
+    from gcs_swarm.control.loop import ControlLoop
+    from gcs_swarm.control.params import LawConfig
+    from gcs_swarm.mavlink.vehicle import VehicleProtocol
+    from gcs_swarm.report.record import LinkCounts
+    from gcs_swarm.runtime.config import VehiclePlan
+
+__all__ = ["EVENT_KINDS", "SnapshotBuilder", "StationState", "scene_of"]
+
+F64 = npt.NDArray[np.float64]
+
+EVENT_KINDS = ("join", "leave", "lost", "switch", "note")
+"""What an event in a frame is: a vehicle joined or left the formation, was
+lost (left it because its link went silent or it failed), the behaviour
+switched (formation <-> avoidance, Eqs. 29-30), or a line of the station's log."""
+
+_LOG_SCAN = 200
+"""Most log lines one frame carries (the rest were too many to read anyway)."""
+
+
+class StationState(Protocol):
+    """What a frame is built from: ``runtime.Station`` and ``swarm.SwarmCore``
+    both have these."""
+
+    @property
+    def vehicles(self) -> Mapping[int, VehicleProtocol]: ...
+    @property
+    def plans(self) -> Mapping[int, VehiclePlan]: ...
+    @property
+    def control(self) -> ControlLoop: ...
+    @property
+    def flying(self) -> set[int]: ...
+    @property
+    def log(self) -> deque[str]: ...
+    @property
+    def started(self) -> bool: ...
+    @property
+    def ending(self) -> bool: ...
+
+
+def scene_of(law: LawConfig, *, name: str = "") -> dict[str, Any]:
+    """What does not move during a run: the boxes (centre, half-extents [m],
+    Eq. 14) with the avoidance field's range ``r0`` [m] (Eq. 21), Eq. 7's
+    sphere radius alpha [m], the geofence (min/max corners [m], or None) and
+    the floor ``z_floor`` [m] (None when unbounded)."""
+    lim = law.limits
+    fence = None
+    if lim.geofence_min is not None and lim.geofence_max is not None:
+        fence = {"min": list(lim.geofence_min), "max": list(lim.geofence_max)}
+    return {
+        "name": name,
+        "sphere_radius": float(law.gains.alpha),
+        "r0": float(law.avoidance.r0),
+        "obstacles": [
+            {"centre": list(b.centre), "half": list(b.half_extents)} for b in law.obstacles
+        ],
+        "fence": fence,
+        "floor": float(lim.z_floor) if math.isfinite(lim.z_floor) else None,
+    }
+
+
+def _col(values: F64, digits: int) -> list[float | None]:
+    """A column of floats rounded to ``digits``, None where not finite."""
+    out: list[float | None] = np.round(values, digits).tolist()
+    if not np.isfinite(values).all():
+        bad = np.flatnonzero(~np.isfinite(values)).tolist()
+        for k in bad:
+            out[k] = None
+    return out
+
+
+def _rows(values: F64, digits: int) -> list[list[float] | None]:
+    """Rows of ``values (N, 3)`` rounded to ``digits``, None where not all finite."""
+    out: list[list[float] | None] = np.round(values, digits).tolist()
+    for k in np.flatnonzero(~np.isfinite(values).all(axis=1)).tolist():
+        out[k] = None
+    return out
+
+
+def _nearest_m(pos: F64) -> F64:
+    """Each row's distance [m] to the nearest other row of ``pos (N, 3)``
+    (inf when alone, NaN rows ignored)."""
+    n = pos.shape[0]
+    out = np.full(n, np.inf)
+    ok = np.flatnonzero(np.isfinite(pos).all(axis=1))
+    if ok.size < 2:
+        return out
+    p = pos[ok]
+    sq = np.einsum("ij,ij->i", p, p)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * (p @ p.T)
+    np.fill_diagonal(d2, np.inf)
+    out[ok] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
+    return out
+
+
+class SnapshotBuilder:
+    """Frames of one run (module docstring). ``scene`` is ``scene_of``'s."""
+
+    def __init__(self, scene: Mapping[str, Any], obstacles: Ellipsoids | None = None) -> None:
+        self.scene = dict(scene)
+        boxes = self.scene["obstacles"]
+        if obstacles is None:
+            from gcs_swarm.control.params import Box
+
+            obstacles = Ellipsoids.from_boxes(
+                [Box(tuple(b["centre"]), tuple(b["half"])) for b in boxes]
+            )
+        self._obstacles = obstacles
+        self._flying: set[int] = set()
+        self._behaviour: str | None = None
+        self._last_line: str | None = None
+        self.seq = 0
+
+    def frame(
+        self,
+        station: StationState,
+        now: float,
+        *,
+        telemetry: Mapping[int, LinkCounts] | None = None,
+    ) -> dict[str, Any]:
+        """One frame at wall time ``now`` [s] (the station's clock). ``telemetry``:
+        inbound counts per system id (the flight recorder's), for the loss column."""
+        control = station.control
+        last = control.last
+        vps = [station.vehicles[s] for s in sorted(station.vehicles)]
+        ids = [vp.sysid for vp in vps]
+        n = len(vps)
+        pos = np.full((n, 3), np.nan)
+        for k, vp in enumerate(vps):
+            p, o = vp.position, vp.offset_m
+            if p is not None and o is not None:  # state_mission's position (formation-law.md s1)
+                pos[k] = (p.y + o[0], p.x + o[1], -p.z + o[2])
+        leader = None if last is None else last.law.leader_pos_m
+        radius = np.full(n, np.nan)
+        if leader is not None:
+            radius = np.linalg.norm(pos - leader, axis=1)
+        clearance = np.full(n, np.nan)
+        if self._obstacles.count and n:
+            clearance = box_signed_distance(pos, self._obstacles).min(axis=1)
+        accel = np.full(n, np.nan)
+        correction = np.full(n, np.nan)
+        if last is not None:
+            col = {s: k for k, s in enumerate(ids)}
+            rows = [col[s] for s in last.ids if s in col]
+            have = [i for i, s in enumerate(last.ids) if s in col]
+            accel[rows] = np.linalg.norm(last.accel_mps2[have], axis=1)
+            if last.safety is not None:
+                correction[rows] = last.safety.correction_mps2[have]
+        flying = station.flying
+        heard = np.array([now - vp.position_at for vp in vps], dtype=np.float64)
+        rate = np.array([math.nan if vp.telemetry_rate_hz is None else vp.telemetry_rate_hz
+                         for vp in vps], dtype=np.float64)  # fmt: skip
+        loss = np.full(n, np.nan)
+        if telemetry is not None:
+            for k, s in enumerate(ids):
+                c = telemetry.get(s)
+                if c is not None:
+                    loss[k] = c.loss_fraction
+        behaviour = None if last is None else str(last.law.behaviour)
+        t = float(control.t_s)
+        events = self._events(station, t, behaviour)
+        self.seq += 1
+        stage = "ending" if station.ending else "flying" if station.started else "starting"
+        return {
+            "type": "frame",
+            "seq": self.seq,
+            "t": round(t, 3),
+            "stage": stage,
+            "behaviour": behaviour,
+            "episode": None if last is None else int(last.law.episode),
+            "leader": None if leader is None else _col(np.asarray(leader), 3),
+            "vehicles": {
+                "sysid": ids,
+                "autopilot": [station.plans[s].autopilot for s in ids],
+                "phase": [vp.phase.value for vp in vps],
+                "mode": [vp.mode_name for vp in vps],
+                "armed": [vp.armed for vp in vps],
+                "rate_hz": _col(rate, 1),
+                "loss": _col(loss, 4),
+                "heard_s": _col(heard, 2),
+                "pos": _rows(pos, 3),
+                "radius": _col(radius, 3),
+                "nearest": _col(_nearest_m(pos), 3),
+                "clearance": _col(clearance, 3),
+                "accel": _col(accel, 3),
+                "correction": _col(correction, 3),
+                "in_formation": [s in flying for s in ids],
+            },
+            "scene": self.scene,
+            "events": events,
+        }
+
+    def _events(self, station: StationState, t: float, behaviour: str | None) -> list[Any]:
+        """What happened since the last frame: membership and behaviour by
+        difference, then the log's new lines."""
+        out: list[dict[str, Any]] = []
+        flying = set(station.flying)
+        for s in sorted(flying - self._flying):
+            out.append({"t": t, "kind": "join", "sysid": s, "text": f"vehicle {s} joins"})
+        for s in sorted(self._flying - flying):
+            vp = station.vehicles[s]
+            kind = "lost" if vp.phase in (Phase.LOST, Phase.FAILED) else "leave"
+            text = f"vehicle {s} out of the formation ({vp.phase.value})"
+            out.append({"t": t, "kind": kind, "sysid": s, "text": text})
+        self._flying = flying
+        if behaviour is not None and self._behaviour is not None and behaviour != self._behaviour:
+            out.append({"t": t, "kind": "switch", "sysid": None, "text": f"{behaviour}"})
+        if behaviour is not None:
+            self._behaviour = behaviour
+        for line in self._new_lines(station.log):
+            out.append({"t": t, "kind": "note", "sysid": None, "text": line})
+        return out
+
+    def _new_lines(self, log: deque[str]) -> list[str]:
+        """The log's lines after the one the last frame ended on (the log is
+        a bounded deque: the mark is that line, looked for from the end)."""
+        if not log:
+            return []
+        mark, self._last_line = self._last_line, log[-1]
+        lines: list[str] = []
+        for line in itertools.islice(reversed(log), _LOG_SCAN):
+            if line is mark:
+                break
+            lines.append(line)
+        lines.reverse()
+        return lines
