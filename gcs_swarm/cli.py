@@ -9,7 +9,10 @@ Subcommands (their work lives in the library modules):
 - ``check MISSION...``: validate without flying (``gcs_swarm.mission``);
 - ``schema``: print the JSON Schema of mission files;
 - ``report RUN_FOLDER_OR_TLOG``: rebuild a run's summary and picture from
-  its ``.tlog`` and the mission file (``gcs_swarm.report``).
+  its ``.tlog`` and the mission file (``gcs_swarm.report``);
+- ``view RUN_FOLDER_OR_TLOG``: replay a run in the operator view
+  (``gcs_swarm.view``; ``run --view`` and ``simulate --view`` show it live
+  and after a simulation).
 
 Exit codes (``EXIT_*``, stated in the README): 0 done; 1 a vehicle or a link
 failed (start-up or flight); 2 refused before anything flew (bad arguments,
@@ -105,6 +108,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from gcs_swarm.missionsim import simulate_mission
 
     _check_simulate_args(args)
+    view = _address("--view", args.view)
     mission = load_mission(args.mission)
     if args.duration is not None:
         _check_leader_for(mission, args.duration)
@@ -127,6 +131,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         write_simulation_report(out, folder.path, name=mission.settings.name)
         print(f"summary written to {folder.summary}")
         print(f"picture written to {folder.picture}")
+    if view is not None:
+        from gcs_swarm.commands import serve_replay
+        from gcs_swarm.report.artefacts import from_sim_result
+
+        sys.stdout.flush()
+        return serve_replay(from_sim_result(out, name=mission.settings.name), mission, view)
     return 0
 
 
@@ -163,17 +173,30 @@ def _check_leader_for(mission: Mission, duration_s: float) -> None:
         raise MissionError(f"{line} (with --duration {duration_s:g})")
 
 
+def _address(option: str, text: str | None) -> tuple[str, int] | None:
+    """``[HOST:]PORT`` of a view option, refused as a usage error."""
+    if text is None:
+        return None
+    from gcs_swarm.view.server import parse_address
+
+    try:
+        return parse_address(text)
+    except ValueError as err:
+        raise UsageError(f"{option}: {err}") from None
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from gcs_swarm.commands import view_command
+
+    address = _address("--listen", args.listen)
+    assert address is not None
+    return view_command(args.path, args.mission, address)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import run_command
 
-    view = None
-    if args.view is not None:
-        from gcs_swarm.view.server import parse_address
-
-        try:
-            view = parse_address(args.view)
-        except ValueError as err:
-            raise UsageError(f"--view: {err}") from None
+    view = _address("--view", args.view)
     return run_command(
         args.mission,
         status=not args.no_status,
@@ -224,6 +247,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="override the duration [s]")
     p.add_argument("--out", type=Path, default=None, help="write trajectories (.csv or .npz)")
     p.add_argument("--every", type=int, default=1, help="write every n-th sample (default 1, >= 1)")
+    p.add_argument(
+        "--view",
+        metavar="[HOST:]PORT",
+        default=None,
+        help="then replay the simulation in the operator view there (port 0: any free one)",
+    )
     _log_options(p)
     p.set_defaults(handler=_cmd_simulate)
 
@@ -246,6 +275,19 @@ def build_parser() -> argparse.ArgumentParser:
         " report-<n>.png beside them)",
     )
     p.set_defaults(handler=_cmd_report)
+
+    p = sub.add_parser("view", help="replay a run in the operator view (a browser page)")
+    p.add_argument("path", help="a run folder, or a .tlog file")
+    p.add_argument(
+        "--mission", default=None, help="the mission file flown (default: the folder's copy)"
+    )
+    p.add_argument(
+        "--listen",
+        metavar="[HOST:]PORT",
+        default="0",
+        help="serve the page there (default 127.0.0.1, any free port)",
+    )
+    p.set_defaults(handler=_cmd_view)
     return parser
 
 

@@ -8,7 +8,8 @@ terminal.
 (rewritten in place on a terminal, every 5th line into a log file), Ctrl-C
 or SIGTERM ends the run cleanly (zero acceleration, then the end action), a
 second Ctrl-C quits at once. ``report_command`` wraps
-``gcs_swarm.report.rebuild_report``.
+``gcs_swarm.report.rebuild_report``; ``view_command`` and ``serve_replay``
+replay a run or a simulation in the operator view (``gcs_swarm.view``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import asyncio
 import os
 import signal
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gcs_swarm.errors import MissionError
@@ -24,9 +26,10 @@ from gcs_swarm.mission import Mission, load_mission, summary
 
 if TYPE_CHECKING:
     from gcs_swarm.report.artefacts import RunFolder
+    from gcs_swarm.report.record import FlightRecord
     from gcs_swarm.runtime.summary import RunSummary
 
-__all__ = ["check_command", "report_command", "run_command"]
+__all__ = ["check_command", "report_command", "run_command", "serve_replay", "view_command"]
 
 
 def check_command(path: str) -> int:
@@ -151,4 +154,57 @@ def report_command(
     print(summary_text(summary))
     print(f"summary written to {summary_path}")
     print(f"picture written to {picture_path}")
+    return 0
+
+
+def view_command(
+    path: str | os.PathLike[str], mission_path: str | None, address: tuple[str, int]
+) -> int:
+    """``gcs-swarm view RUN_FOLDER_OR_TLOG [--mission FILE] [--listen [HOST:]PORT]``:
+    the run's flight record rebuilt from its ``.tlog`` and mission (as
+    ``report`` does), replayed in the operator view until Ctrl-C."""
+    from gcs_swarm.errors import ReportError
+    from gcs_swarm.report.artefacts import MISSION_NAME, TLOG_NAME, report_from_tlog
+
+    where = Path(path)
+    tlog = where / TLOG_NAME if where.is_dir() else where
+    mission_file = Path(mission_path) if mission_path else tlog.parent / MISSION_NAME
+    if not tlog.is_file():
+        raise ReportError(f"{tlog}: no such telemetry log")
+    if not mission_file.is_file():
+        raise ReportError(
+            f"{mission_file}: no mission file; give the one that was flown with --mission FILE"
+        )
+    mission = load_mission(mission_file)
+    _, record = report_from_tlog(tlog, mission)
+    return serve_replay(record, mission, address)
+
+
+def serve_replay(record: FlightRecord, mission: Mission, address: tuple[str, int]) -> int:
+    """Replay ``record`` (of ``mission``) in the operator view at ``address``
+    (host, port), printing its address with the token, until Ctrl-C (0)."""
+    from gcs_swarm.view import RecordFrames, replay_view, scene_of
+
+    frames = RecordFrames(
+        record,
+        scene_of(mission.law, name=mission.settings.name),
+        autopilots={v.sysid: v.autopilot for v in mission.vehicles},
+    )
+
+    def url(text: str) -> None:
+        print(f"replay view: {text} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+
+    async def serve() -> None:
+        loop = asyncio.get_running_loop()
+        stop = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        try:
+            async with replay_view(frames, host=address[0], port=address[1], on_url=url):
+                await stop.wait()
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+
+    asyncio.run(serve())
     return 0

@@ -5,21 +5,28 @@ the end buttons, and replay (docs/operator-view.md).
 - ``server``: the asyncio shell (``websockets``): the page and its files over
   HTTP, frames over a WebSocket, a per-run token, a slot per client;
 - ``live``: the view ``gcs-swarm run --view`` enters over the station;
+- ``replay``: a finished run's flight record (or a simulation's) in the same
+  page, with play, pause, speed and a time slider (``gcs-swarm view``);
 - ``static/``: the page, its script (a small canvas 3-D renderer written here)
   and its style, served by the package: nothing is loaded from elsewhere.
 """
 
 from gcs_swarm.view.live import END_LABELS, live_view
+from gcs_swarm.view.replay import SPEEDS, RecordFrames, ReplayClock, replay_view
 from gcs_swarm.view.server import ViewServer, parse_address
 from gcs_swarm.view.snapshot import EVENT_KINDS, SnapshotBuilder, StationState, scene_of
 
 __all__ = [
     "END_LABELS",
     "EVENT_KINDS",
+    "SPEEDS",
+    "RecordFrames",
+    "ReplayClock",
     "SnapshotBuilder",
     "StationState",
     "ViewServer",
     "live_view",
     "parse_address",
+    "replay_view",
     "scene_of",
 ]

@@ -37,7 +37,15 @@ if TYPE_CHECKING:
     from gcs_swarm.report.record import LinkCounts
     from gcs_swarm.runtime.config import VehiclePlan
 
-__all__ = ["EVENT_KINDS", "SnapshotBuilder", "StationState", "scene_of"]
+__all__ = [
+    "EVENT_KINDS",
+    "SnapshotBuilder",
+    "StationState",
+    "float_column",
+    "geometry_columns",
+    "obstacles_of",
+    "scene_of",
+]
 
 F64 = npt.NDArray[np.float64]
 
@@ -91,7 +99,7 @@ def scene_of(law: LawConfig, *, name: str = "") -> dict[str, Any]:
     }
 
 
-def _col(values: F64, digits: int) -> list[float | None]:
+def float_column(values: F64, digits: int) -> list[float | None]:
     """A column of floats rounded to ``digits``, None where not finite."""
     out: list[float | None] = np.round(values, digits).tolist()
     if not np.isfinite(values).all():
@@ -125,19 +133,41 @@ def _nearest_m(pos: F64) -> F64:
     return out
 
 
+def geometry_columns(
+    pos_m: F64, leader_m: F64 | None, obstacles: Ellipsoids
+) -> dict[str, list[Any]]:
+    """The columns a frame derives from positions ``pos_m (N, 3)`` (NaN rows:
+    no position): ``pos``, ``radius`` to ``leader_m``, ``nearest`` neighbour,
+    ``clearance`` (signed distance to the nearest box, Eq. 14's boxes)."""
+    n = pos_m.shape[0]
+    radius = np.full(n, np.nan)
+    if leader_m is not None:
+        radius = np.linalg.norm(pos_m - leader_m, axis=1)
+    clearance = np.full(n, np.nan)
+    if obstacles.count and n:
+        clearance = box_signed_distance(pos_m, obstacles).min(axis=1)
+    return {
+        "pos": _rows(pos_m, 3),
+        "radius": float_column(radius, 3),
+        "nearest": float_column(_nearest_m(pos_m), 3),
+        "clearance": float_column(clearance, 3),
+    }
+
+
+def obstacles_of(scene: Mapping[str, Any]) -> Ellipsoids:
+    """The scene's boxes as the law's arrays (Eqs. 14-17)."""
+    from gcs_swarm.control.params import Box
+
+    boxes = [Box(tuple(b["centre"]), tuple(b["half"])) for b in scene["obstacles"]]
+    return Ellipsoids.from_boxes(boxes)
+
+
 class SnapshotBuilder:
     """Frames of one run (module docstring). ``scene`` is ``scene_of``'s."""
 
     def __init__(self, scene: Mapping[str, Any], obstacles: Ellipsoids | None = None) -> None:
         self.scene = dict(scene)
-        boxes = self.scene["obstacles"]
-        if obstacles is None:
-            from gcs_swarm.control.params import Box
-
-            obstacles = Ellipsoids.from_boxes(
-                [Box(tuple(b["centre"]), tuple(b["half"])) for b in boxes]
-            )
-        self._obstacles = obstacles
+        self._obstacles = obstacles_of(scene) if obstacles is None else obstacles
         self._flying: set[int] = set()
         self._behaviour: str | None = None
         self._last_line: str | None = None
@@ -163,12 +193,6 @@ class SnapshotBuilder:
             if p is not None and o is not None:  # state_mission's position (formation-law.md s1)
                 pos[k] = (p.y + o[0], p.x + o[1], -p.z + o[2])
         leader = None if last is None else last.law.leader_pos_m
-        radius = np.full(n, np.nan)
-        if leader is not None:
-            radius = np.linalg.norm(pos - leader, axis=1)
-        clearance = np.full(n, np.nan)
-        if self._obstacles.count and n:
-            clearance = box_signed_distance(pos, self._obstacles).min(axis=1)
         accel = np.full(n, np.nan)
         correction = np.full(n, np.nan)
         if last is not None:
@@ -200,22 +224,19 @@ class SnapshotBuilder:
             "stage": stage,
             "behaviour": behaviour,
             "episode": None if last is None else int(last.law.episode),
-            "leader": None if leader is None else _col(np.asarray(leader), 3),
+            "leader": None if leader is None else float_column(np.asarray(leader), 3),
             "vehicles": {
                 "sysid": ids,
                 "autopilot": [station.plans[s].autopilot for s in ids],
                 "phase": [vp.phase.value for vp in vps],
                 "mode": [vp.mode_name for vp in vps],
                 "armed": [vp.armed for vp in vps],
-                "rate_hz": _col(rate, 1),
-                "loss": _col(loss, 4),
-                "heard_s": _col(heard, 2),
-                "pos": _rows(pos, 3),
-                "radius": _col(radius, 3),
-                "nearest": _col(_nearest_m(pos), 3),
-                "clearance": _col(clearance, 3),
-                "accel": _col(accel, 3),
-                "correction": _col(correction, 3),
+                "rate_hz": float_column(rate, 1),
+                "loss": float_column(loss, 4),
+                "heard_s": float_column(heard, 2),
+                **geometry_columns(pos, leader, self._obstacles),
+                "accel": float_column(accel, 3),
+                "correction": float_column(correction, 3),
                 "in_formation": [s in flying for s in ids],
             },
             "scene": self.scene,

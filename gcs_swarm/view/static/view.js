@@ -49,7 +49,10 @@
       box.appendChild(b);
     }
     $("replay").hidden = msg.mode !== "replay";
-    if (msg.mode === "replay") $("slider").max = String(msg.duration || 1);
+    if (msg.mode === "replay") {
+      $("slider").min = String(msg.start || 0);
+      $("slider").max = String(msg.duration || 1);
+    }
   }
   function askConfirm(action, label) {
     $("confirm-text").textContent = `${label} every vehicle and end the mission?`;
@@ -65,6 +68,7 @@
 
   // -------------------------------------------------------------- frames
   const fmt = (x, d) => (x === null || x === undefined ? "-" : x.toFixed(d));
+  const txt = (x) => (x === null || x === undefined ? "-" : String(x));
   function onFrame(f) {
     view.frame = f; view.scene = f.scene; view.frames += 1;
     $("clock").textContent = f.t.toFixed(2);
@@ -95,7 +99,8 @@
       const row = body.rows[k] || body.insertRow();
       const p = v.pos[k];
       const cells = [
-        v.sysid[k], v.autopilot[k], v.phase[k], v.mode[k], v.armed[k] ? "yes" : "no",
+        v.sysid[k], txt(v.autopilot[k]), txt(v.phase[k]), txt(v.mode[k]),
+        v.armed[k] === null ? "-" : v.armed[k] ? "yes" : "no",
         fmt(v.rate_hz[k], 1), v.loss[k] === null ? "-" : (100 * v.loss[k]).toFixed(1) + "%",
         fmt(v.heard_s[k], 2), p ? `${p[0].toFixed(2)} ${p[1].toFixed(2)} ${p[2].toFixed(2)}` : "-",
         fmt(v.radius[k], 3), fmt(v.nearest[k], 3), fmt(v.clearance[k], 2),
@@ -193,6 +198,16 @@
       poly([[cx - half, cy + k, z], [cx + half, cy + k, z]]); ctx.stroke();
     }
   }
+  let ground = null;
+  function groundZ() { // the floor, else a reference plane 2 m under the lowest vehicle first seen
+    if (view.scene.floor !== null) return view.scene.floor;
+    if (ground === null) {
+      const zs = view.frame.vehicles.pos.filter((p) => p).map((p) => p[2]);
+      if (!zs.length) return 0;
+      ground = Math.floor(Math.min(...zs)) - 2;
+    }
+    return ground;
+  }
   function colour(v, k) {
     if (v.in_formation[k]) return "#58a6ff";
     const ph = v.phase[k];
@@ -213,7 +228,7 @@
     const step = span > 60 ? 10 : span > 25 ? 5 : 1;
     ctx.lineWidth = 1;
     ctx.strokeStyle = "#1e2a36";
-    grid(sc.floor !== null ? sc.floor : 0, span, step);
+    grid(groundZ(), span, step);
     if (sc.fence) { ctx.strokeStyle = "#e3b341"; ctx.setLineDash([6, 4]); boxEdges(sc.fence.min, sc.fence.max); ctx.setLineDash([]); }
     for (const o of sc.obstacles) {
       const lo = o.centre.map((c, i) => c - o.half[i]), hi = o.centre.map((c, i) => c + o.half[i]);

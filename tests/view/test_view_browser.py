@@ -1,0 +1,105 @@
+"""The operator view in a real headless browser (Debian's ``chromium`` with
+``chromium-driver``, driven by Selenium) during a lockstep run of the demo:
+the 3-D view and the table show the six vehicles, their positions change,
+and the page's confirmed Land click lands them. A screenshot of the page
+goes into the test's temporary folder. Skipped, with the reason, where the
+browser is not installed (README set-up, ``.ci/run``)."""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gcs_swarm.view import ViewServer
+from tests.station.station_harness import mission_from
+from tests.view.test_view_server import _fly_with_view
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+
+pytestmark = pytest.mark.skipif(
+    not (Path(CHROMIUM).is_file() and Path(DRIVER).is_file()),
+    reason="no headless browser: apt-get install -y chromium chromium-driver (README, set-up)",
+)
+
+
+def _browser() -> Any:
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                "--window-size=1500,900", "--no-first-run"):  # fmt: skip
+        opts.add_argument(arg)
+    return webdriver.Chrome(options=opts, service=webdriver.ChromeService(executable_path=DRIVER))
+
+
+def _wait(driver: Any, script: str, limit_s: float = 15.0) -> Any:
+    """Poll ``script`` (JavaScript returning a value) until it is truthy."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        value = driver.execute_script(script)
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"not true after {limit_s} s: {script}")
+
+
+_DRAWN = "return window.gcsView && window.gcsView.drawn.length === 6 && window.gcsView.drawn"
+_ROWS = "return document.querySelectorAll('#vehicles tbody tr').length"
+
+
+def test_the_page_shows_six_vehicles_moving_and_lands_them(tmp_path: Path) -> None:
+    mission = mission_from("example1_octahedron.yaml")  # 150 s: ended by the click
+    driver = _browser()
+    seen: dict[str, Any] = {}
+
+    def look(server: ViewServer) -> None:
+        driver.get(server.url)
+        first = _wait(driver, _DRAWN)
+        t0 = driver.execute_script("return window.gcsView.frame.t")
+        _wait(driver, f"return window.gcsView.frame.t > {t0} + 1.0")
+        later = _wait(driver, _DRAWN)
+        seen["moved"] = {
+            a["sysid"]: abs(a["x"] - b["x"]) + abs(a["y"] - b["y"])
+            for a, b in zip(sorted(first, key=lambda d: d["sysid"]),
+                            sorted(later, key=lambda d: d["sysid"]), strict=True)
+        }  # fmt: skip
+        seen["rows"] = driver.execute_script(_ROWS)
+        seen["ids"] = driver.execute_script(
+            "return [...document.querySelectorAll('#vehicles tbody tr')]"
+            ".map(r => r.cells[0].textContent)"
+        )
+        seen["positions"] = driver.execute_script(
+            "return [...document.querySelectorAll('#vehicles tbody tr')]"
+            ".map(r => r.cells[8].textContent)"
+        )
+        _wait(driver, "return window.gcsView.draws > 2")
+        driver.save_screenshot(str(tmp_path / "live-view.png"))
+        driver.find_element("id", "end-land").click()
+        seen["confirm"] = driver.find_element("id", "confirm-text").text
+        driver.find_element("id", "confirm-yes").click()
+        seen["answer"] = _wait(driver, "return window.gcsView.answers.length && "
+                               "window.gcsView.answers[0]")  # fmt: skip
+
+    async def during(server: ViewServer) -> None:
+        await asyncio.to_thread(look, server)
+
+    try:
+        summary, states = asyncio.run(_fly_with_view(mission, during, timeout_s=28.0))
+    finally:
+        driver.quit()
+    assert seen["rows"] == 6 and seen["ids"] == ["1", "2", "3", "4", "5", "6"]
+    assert all(p != "-" for p in seen["positions"])
+    assert sorted(seen["moved"]) == [1, 2, 3, 4, 5, 6]
+    assert min(seen["moved"].values()) > 0.5  # pixels: every label moved on the canvas
+    assert "Land every vehicle" in seen["confirm"]
+    assert seen["answer"]["ok"] and seen["answer"]["action"] == "land"
+    assert {st.mode_name for st in states.values()} == {"LAND"}
+    assert summary.outcome == "completed"
+    shot = tmp_path / "live-view.png"
+    assert shot.stat().st_size > 10_000
