@@ -1,7 +1,9 @@
 """Station capacity: N vehicles at 50 Hz in real time, station and emulator apart.
 
 Run from the repository root: ``python benchmarks/bench_station.py`` (about
-90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change).
+90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change;
+``--view HZ`` opens the operator view on each station, read by a page in
+its own process, to compare the figures with and without it).
 
 The emulator runs in a child process (this file with ``--emulator``) pinned
 to core 0, the station in this process pinned to core 1 (when the machine has
@@ -114,7 +116,48 @@ def contextlib_stack():  # type: ignore[no-untyped-def]
     return contextlib.AsyncExitStack()
 
 
-async def station_run(n: int, seconds: float) -> dict[str, float]:
+_VIEW_CLIENT = """
+import asyncio, sys
+from websockets.asyncio.client import connect
+async def main():
+    n = 0
+    async with connect(sys.argv[1], max_size=None) as ws:
+        async def count():
+            nonlocal n
+            async for _ in ws:
+                n += 1
+        task = asyncio.ensure_future(count())
+        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+        task.cancel()
+    print(n, flush=True)
+asyncio.run(main())
+"""
+"""A page in its own process (as a browser is): reads frames until stdin closes."""
+
+
+async def _open_views(stations, stack, view_rate_hz: float):  # type: ignore[no-untyped-def]
+    """``--view``: the operator view on each station, one reading page per view."""
+    from gcs_swarm.runtime.ending import EndRequest
+    from gcs_swarm.view import live_view
+
+    servers, pages = [], []
+    for st in stations:
+        got = []
+        mission = load(len(st.vehicles))
+        lv = live_view(mission, rate_hz=view_rate_hz, on_server=got.append)
+        await stack.enter_async_context(lv(st, EndRequest(), None))
+        url = got[0].url.replace("http://", "ws://").replace("/?", "/ws?")
+        pages.append(await asyncio.create_subprocess_exec(
+            sys.executable, "-c", _VIEW_CLIENT, url,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        ))  # fmt: skip
+        servers.append(got[0])
+    return servers, pages
+
+
+async def station_run(
+    n: int, seconds: float, view_rate_hz: float | None = None
+) -> dict[str, float]:
     import logging
 
     from gcs_swarm.runtime.links import LatencyRing
@@ -142,6 +185,9 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
                 await st.ready()
                 flying.append(asyncio.create_task(st.fly()))
             t_ready = time.monotonic() - t_ready
+            servers, pages = [], []
+            if view_rate_hz is not None:
+                servers, pages = await _open_views(stations, stack, view_rate_hz)
             await asyncio.sleep(1.0)
             links = [lk for s in stations for lk in s.links.values()]
             for lk in links:
@@ -155,6 +201,13 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
             await asyncio.sleep(seconds)
             c1, w1 = time.process_time(), time.monotonic()
             proc.stdin.write(b"stop\n")
+            builds = sorted(x for sv in servers for x in sv.build_s)
+            frames_read = 0
+            for page in pages:
+                assert page.stdin is not None and page.stdout is not None
+                page.stdin.close()
+                frames_read += int((await page.stdout.read()).split()[0])
+                await page.wait()
             lat = sorted(x for lk in links for x in lk.latency.samples())
             sent = sum(lk.latency.count for lk in links)
             rx = sum(lk.stats.received for lk in links) - rx0
@@ -181,7 +234,16 @@ async def station_run(n: int, seconds: float) -> dict[str, float]:
     def pct(q: float) -> float:
         return lat[min(len(lat) - 1, int(q / 100 * len(lat)))] * 1e3 if lat else math.nan
 
+    view = {}
+    if view_rate_hz is not None:
+        view = {
+            "view_frames_read": float(frames_read),
+            "view_dropped": float(sum(sv.frames_dropped for sv in servers)),
+            "frame_build_mean_ms": statistics.fmean(builds) * 1e3 if builds else math.nan,
+            "frame_build_max_ms": builds[-1] * 1e3 if builds else math.nan,
+        }
     return {
+        **view,
         "ready_s": t_ready,
         "setpoints_per_s": sent / wall,
         "rx_per_s": rx / wall,
@@ -205,6 +267,9 @@ def main() -> None:
     ap.add_argument("--counts", default="50,100,250,500")
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--view", type=float, default=None, metavar="HZ",
+                    help="open the operator view on each station at HZ frames/s, read by a"
+                    " page in its own process")  # fmt: skip
     args = ap.parse_args()
     if args.emulator:
         asyncio.run(emulator_main(args.emulator))
@@ -224,7 +289,7 @@ def main() -> None:
         runs, failed = [], 0
         while len(runs) < args.repeat and failed < 3:
             try:
-                runs.append(asyncio.run(station_run(n, args.seconds)))
+                runs.append(asyncio.run(station_run(n, args.seconds, args.view)))
             except StartupError as err:  # reported, not hidden: see the README
                 failed += 1
                 print(f"{n:4d} start-up failed ({str(err)[:90]}...); retrying", flush=True)
@@ -237,6 +302,11 @@ def main() -> None:
               f"{r['us_per_vehicle_cycle'] / floor_us:7.2f} {r['emu_late']:8.0f} "
               f"{r['emu_cpu']:7.2f} {r['emu_rt']:6.3f}",
               flush=True)  # fmt: skip
+        if args.view is not None:
+            print(f"       view {args.view:g} Hz: frames read {r['view_frames_read']:.0f}, "
+                  f"dropped {r['view_dropped']:.0f}, frame build+encode mean "
+                  f"{r['frame_build_mean_ms']:.2f} ms, max {r['frame_build_max_ms']:.2f} ms",
+                  flush=True)  # fmt: skip
         if len(runs) > 1:  # the spread behind the medians
             for key in ("p50_ms", "p99_ms", "max_ms", "missed", "us_per_vehicle_cycle"):
                 vals = sorted(x[key] for x in runs)

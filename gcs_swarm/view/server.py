@@ -35,6 +35,8 @@ import json
 import logging
 import secrets
 import socket
+import time
+from collections import deque
 from collections.abc import Callable
 from importlib import resources
 from types import TracebackType
@@ -134,6 +136,8 @@ class ViewServer:
         self._push: asyncio.Task[None] | None = None
         self._files = {path: (_static(name), kind) for path, (name, kind) in _FILES.items()}
         self.frames_built = 0
+        self.build_s: deque[float] = deque(maxlen=1000)
+        """What building and encoding each recent frame took [s] (on the event loop)."""
         self.refused = 0
         """Requests refused for a wrong or missing token."""
         self._gone_sent = 0
@@ -277,6 +281,7 @@ class ViewServer:
             await asyncio.sleep(due - loop.time())
             if not self._clients:
                 continue
+            t0 = time.perf_counter()
             try:
                 frame = self._frames()
                 frame["view"] = {"clients": len(self._clients), "dropped": self.frames_dropped}
@@ -287,5 +292,6 @@ class ViewServer:
                     self._failed = True
                 continue
             self.frames_built += 1
+            self.build_s.append(time.perf_counter() - t0)
             for client in self._clients:
                 client.offer(text)

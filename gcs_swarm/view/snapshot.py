@@ -54,6 +54,8 @@ EVENT_KINDS = ("join", "leave", "lost", "switch", "note")
 lost (left it because its link went silent or it failed), the behaviour
 switched (formation <-> avoidance, Eqs. 29-30), or a line of the station's log."""
 
+_NO_XYZ = (math.nan, math.nan, math.nan)
+
 _LOG_SCAN = 200
 """Most log lines one frame carries (the rest were too many to read anyway)."""
 
@@ -80,9 +82,11 @@ class StationState(Protocol):
 
 def scene_of(law: LawConfig, *, name: str = "") -> dict[str, Any]:
     """What does not move during a run: the boxes (centre, half-extents [m],
-    Eq. 14) with the avoidance field's range ``r0`` [m] (Eq. 21), Eq. 7's
-    sphere radius alpha [m], the geofence (min/max corners [m], or None) and
-    the floor ``z_floor`` [m] (None when unbounded)."""
+    Eq. 14) with the edge of their avoidance field, ``rho = r0``: the
+    ellipsoid of semi-axes ``sqrt(3) r0 v_i`` [m] (Eqs. 15-18, A = 1/(sqrt3
+    v1) etc.; formation-law.md s5), Eq. 7's sphere radius alpha [m], the
+    geofence (min/max corners [m], or None) and the floor ``z_floor`` [m]
+    (None when unbounded)."""
     lim = law.limits
     fence = None
     if lim.geofence_min is not None and lim.geofence_max is not None:
@@ -92,7 +96,12 @@ def scene_of(law: LawConfig, *, name: str = "") -> dict[str, Any]:
         "sphere_radius": float(law.gains.alpha),
         "r0": float(law.avoidance.r0),
         "obstacles": [
-            {"centre": list(b.centre), "half": list(b.half_extents)} for b in law.obstacles
+            {
+                "centre": list(b.centre),
+                "half": list(b.half_extents),
+                "field": [math.sqrt(3.0) * law.avoidance.r0 * v for v in b.half_extents],
+            }
+            for b in law.obstacles
         ],
         "fence": fence,
         "floor": float(lim.z_floor) if math.isfinite(lim.z_floor) else None,
@@ -171,6 +180,8 @@ class SnapshotBuilder:
         self._flying: set[int] = set()
         self._behaviour: str | None = None
         self._last_line: str | None = None
+        self._modes: dict[int, tuple[object, str, bool]] = {}
+        """Per vehicle: the HEARTBEAT last read, and its mode name and arming."""
         self.seq = 0
 
     def frame(
@@ -187,11 +198,17 @@ class SnapshotBuilder:
         vps = [station.vehicles[s] for s in sorted(station.vehicles)]
         ids = [vp.sysid for vp in vps]
         n = len(vps)
-        pos = np.full((n, 3), np.nan)
-        for k, vp in enumerate(vps):
-            p, o = vp.position, vp.offset_m
-            if p is not None and o is not None:  # state_mission's position (formation-law.md s1)
-                pos[k] = (p.y + o[0], p.x + o[1], -p.z + o[2])
+        # state_mission's position, p = (e, n, -d) + o_i (formation-law.md s1), in one go.
+        ned = np.array([_NO_XYZ if vp.position is None or vp.offset_m is None
+                        else vp.position[3:6] for vp in vps], dtype=np.float64)  # fmt: skip
+        off = np.array([_NO_XYZ if vp.offset_m is None else vp.offset_m for vp in vps],
+                       dtype=np.float64).reshape(n, 3)  # fmt: skip
+        pos = np.empty((n, 3))
+        if n:
+            pos[:, 0] = ned[:, 1] + off[:, 0]
+            pos[:, 1] = ned[:, 0] + off[:, 1]
+            pos[:, 2] = off[:, 2] - ned[:, 2]
+        modes, armed = self._mode_columns(vps)
         leader = None if last is None else last.law.leader_pos_m
         accel = np.full(n, np.nan)
         correction = np.full(n, np.nan)
@@ -228,9 +245,9 @@ class SnapshotBuilder:
             "vehicles": {
                 "sysid": ids,
                 "autopilot": [station.plans[s].autopilot for s in ids],
-                "phase": [vp.phase.value for vp in vps],
-                "mode": [vp.mode_name for vp in vps],
-                "armed": [vp.armed for vp in vps],
+                "phase": [vp.phase._value_ for vp in vps],  # ._value_: no enum descriptor
+                "mode": modes,
+                "armed": armed,
                 "rate_hz": float_column(rate, 1),
                 "loss": float_column(loss, 4),
                 "heard_s": float_column(heard, 2),
@@ -242,6 +259,21 @@ class SnapshotBuilder:
             "scene": self.scene,
             "events": events,
         }
+
+    def _mode_columns(self, vps: list[VehicleProtocol]) -> tuple[list[str], list[bool]]:
+        """Each vehicle's mode name and arming, read again only when a new
+        HEARTBEAT has come (1 Hz: most frames reuse the last reading)."""
+        modes, armed = [], []
+        cache = self._modes
+        for vp in vps:
+            hb = vp.heartbeat
+            seen = cache.get(vp.sysid)
+            if seen is None or seen[0] is not hb:
+                seen = (hb, vp.mode_name, vp.armed)
+                cache[vp.sysid] = seen
+            modes.append(seen[1])
+            armed.append(seen[2])
+        return modes, armed
 
     def _events(self, station: StationState, t: float, behaviour: str | None) -> list[Any]:
         """What happened since the last frame: membership and behaviour by

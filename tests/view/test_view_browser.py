@@ -8,6 +8,7 @@ browser is not installed (README set-up, ``.ci/run``)."""
 from __future__ import annotations
 
 import asyncio
+import os
 import shutil
 import time
 from pathlib import Path
@@ -15,7 +16,8 @@ from typing import Any
 
 import pytest
 
-from gcs_swarm.view import ViewServer
+from gcs_swarm.report.artefacts import report_from_tlog
+from gcs_swarm.view import RecordFrames, ViewServer, replay_view, scene_of
 from tests.station.station_harness import mission_from
 from tests.view.test_view_server import _fly_with_view
 
@@ -47,6 +49,13 @@ def _wait(driver: Any, script: str, limit_s: float = 15.0) -> Any:
             return value
         time.sleep(0.05)
     raise AssertionError(f"not true after {limit_s} s: {script}")
+
+
+def _keep(shot: Path) -> None:
+    """Also into ``$GCS_SWARM_VIEW_SHOTS`` when set (the README's pictures)."""
+    where = os.environ.get("GCS_SWARM_VIEW_SHOTS")
+    if where:
+        shutil.copy(shot, Path(where) / shot.name)
 
 
 _DRAWN = "return window.gcsView && window.gcsView.drawn.length === 6 && window.gcsView.drawn"
@@ -103,3 +112,37 @@ def test_the_page_shows_six_vehicles_moving_and_lands_them(tmp_path: Path) -> No
     assert summary.outcome == "completed"
     shot = tmp_path / "live-view.png"
     assert shot.stat().st_size > 10_000
+    _keep(shot)
+
+
+def test_the_replay_page_plays_a_logged_run(tmp_path: Path, run_folder: Path) -> None:
+    mission = mission_from("example1_octahedron.yaml")
+    _, record = report_from_tlog(run_folder / "flight.tlog", mission)
+    frames = RecordFrames(record, scene_of(mission.law, name="Example 1 (replay)"))
+    driver = _browser()
+    seen: dict[str, Any] = {}
+
+    def look(server: ViewServer) -> None:
+        driver.get(server.url)
+        _wait(driver, _DRAWN)
+        assert driver.find_element("id", "replay").is_displayed()
+        assert not driver.find_elements("css selector", "#buttons button")  # no end buttons
+        _wait(driver, "return Number(document.getElementById('slider').value) > 1.0")
+        seen["rows"] = driver.execute_script(_ROWS)
+        driver.find_element("id", "play").click()  # pause
+        _wait(driver, "return !window.gcsView.frame.replay.playing")
+        seen["events"] = driver.execute_script(
+            "return document.querySelectorAll('#events .ev-join').length"
+        )
+        driver.save_screenshot(str(tmp_path / "replay-view.png"))
+
+    async def main() -> None:
+        async with asyncio.timeout(25.0), replay_view(frames) as server:
+            await asyncio.to_thread(look, server)
+
+    try:
+        asyncio.run(main())
+    finally:
+        driver.quit()
+    assert seen["rows"] == 6 and seen["events"] == 6
+    _keep(tmp_path / "replay-view.png")

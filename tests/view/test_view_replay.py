@@ -13,11 +13,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 from websockets.asyncio.client import connect
 
 from gcs_swarm.report.artefacts import report_from_tlog
-from gcs_swarm.runtime import run_mission
 from gcs_swarm.view import RecordFrames, ReplayClock, scene_of
 from tests.station.station_harness import mission_from
 
@@ -40,23 +38,6 @@ def test_the_replay_clock_plays_pauses_speeds_and_seeks() -> None:
     assert c.t_s == 0.0 and c.playing
     assert c.at(200.0) == 10.0 and not c.playing  # stops at the end
     assert not c.command({"type": "end", "action": "land"}, 200.0)["ok"]  # commands nothing
-
-
-@pytest.fixture(scope="module")
-def run_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 4 s lockstep run of the demo from the ground, logged."""
-    mission = mission_from("example1_octahedron.yaml", duration=4.0)
-    base = tmp_path_factory.mktemp("runs")
-    folders: list[Path] = []
-
-    async def main() -> None:
-        async with asyncio.timeout(25.0):
-            await run_mission(
-                mission, log_dir=base, picture=False, on_folder=lambda f: folders.append(f.path)
-            )
-
-    asyncio.run(main())
-    return folders[0]
 
 
 def test_frames_of_a_logged_run(run_folder: Path) -> None:

@@ -72,6 +72,10 @@ def test_a_vehicle_leaving_and_the_switch_are_events() -> None:
     assert any(e["kind"] == "switch" and e["text"] == "avoidance" for e in seen)
     f = _frame(b, sky)
     assert len(f["scene"]["obstacles"]) == len(mission.law.obstacles) > 0
+    box, drawn = mission.law.obstacles[0], f["scene"]["obstacles"][0]
+    # The field's edge rho = r0 (Eqs. 15-18): semi-axes sqrt(3) r0 v_i.
+    want = np.sqrt(3.0) * mission.law.avoidance.r0 * np.array(box.half_extents)
+    np.testing.assert_allclose(drawn["field"], want)
     assert all(c is not None for c in f["vehicles"]["clearance"])
     # A vehicle whose link goes silent is lost and leaves the formation.
     victim = f["vehicles"]["sysid"][0]

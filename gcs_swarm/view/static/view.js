@@ -183,14 +183,16 @@
       poly(q.map(c), true); ctx.fill();
     }
   }
-  function circle(centre, radius, a, b) { // in the plane of unit vectors a, b
+  function ellipse(centre, a, b) { // centre + cos t a + sin t b
     const pts = [];
     for (let k = 0; k <= 64; k++) {
-      const t = (2 * Math.PI * k) / 64, cs = Math.cos(t) * radius, sn = Math.sin(t) * radius;
+      const t = (2 * Math.PI * k) / 64, cs = Math.cos(t), sn = Math.sin(t);
       pts.push([0, 1, 2].map((i) => centre[i] + cs * a[i] + sn * b[i]));
     }
     poly(pts); ctx.stroke();
   }
+  const scaled = (v, s) => v.map((x) => x * s);
+  function circle(centre, radius, a, b) { ellipse(centre, scaled(a, radius), scaled(b, radius)); }
   function grid(z, half, step) {
     const cx = Math.round(cam.target[0] / step) * step, cy = Math.round(cam.target[1] / step) * step;
     for (let k = -half; k <= half; k += step) {
@@ -234,8 +236,13 @@
       const lo = o.centre.map((c, i) => c - o.half[i]), hi = o.centre.map((c, i) => c + o.half[i]);
       ctx.fillStyle = "rgba(180,110,60,0.18)"; boxFaces(lo, hi);
       ctx.strokeStyle = "#c9824a"; boxEdges(lo, hi);
+      // The avoidance field's edge, rho = r0 (an ellipsoid; its three sections).
+      const [fx, fy, fz] = o.field;
       ctx.strokeStyle = "rgba(201,130,74,0.45)"; ctx.setLineDash([3, 4]);
-      boxEdges(lo.map((x) => x - sc.r0), hi.map((x) => x + sc.r0)); ctx.setLineDash([]);
+      ellipse(o.centre, [fx, 0, 0], [0, fy, 0]);
+      ellipse(o.centre, [fx, 0, 0], [0, 0, fz]);
+      ellipse(o.centre, [0, fy, 0], [0, 0, fz]);
+      ctx.setLineDash([]);
     }
     if (f.leader) {
       ctx.strokeStyle = "rgba(127,216,143,0.35)";
