@@ -12,8 +12,10 @@
     mode: "live", frames: 0, frame: null, scene: null, drawn: [], trails: new Map(),
     draws: 0, answers: [],
   };
-  window.gcsView = view; // read by the browser test and handy in the console
   const cam = { yaw: -0.9, pitch: 0.45, dist: 0, target: [0, 0, 0], fov: 0.9 };
+  view.camera = cam;
+  view.redraw = () => { dirty = true; };
+  window.gcsView = view; // read by the browser test and handy in the console
   let dirty = true;
   let ws = null;
   let closedOnPurpose = false;

@@ -1,0 +1,57 @@
+"""``gcs-swarm run MISSION --view [HOST:]PORT`` from the command line: the
+address with its token is printed at start and the page is served while
+the mission flies; a bad address is refused before anything flies."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from gcs_swarm.cli import EXIT_REFUSED, main
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "config" / "missions" / "example1_octahedron.yaml"
+
+
+def test_run_with_view_prints_the_address_and_serves_the_page(tmp_path: Path) -> None:
+    mission = tmp_path / "short.yaml"
+    mission.write_text(DEMO.read_text().replace("duration: 150", "duration: 20", 1))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs_swarm", "run", str(mission), "--view", "127.0.0.1:0",
+         "--no-log", "--no-status"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert line.startswith("operator view: http://127.0.0.1:"), line
+        url = line.split()[2]
+        assert "?token=" in url
+        with urllib.request.urlopen(url, timeout=5) as page:
+            assert page.status == 200 and b"<canvas" in page.read()
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(url.split("?")[0], timeout=5)
+        assert err.value.code == 403
+        err.value.close()
+        out, _ = proc.communicate(timeout=25)
+        assert proc.returncode == 0, out
+    finally:
+        proc.kill()
+        proc.wait()
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
+
+
+@pytest.mark.parametrize("bad", ["x", "host:", "127.0.0.1:99999", "-1"])
+def test_a_bad_view_address_is_refused(bad: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", str(DEMO), "--view", bad, "--no-log"]) == EXIT_REFUSED
+    err = capsys.readouterr().err
+    assert err.startswith("gcs-swarm: --view: expected [HOST:]PORT"), err
