@@ -5,6 +5,7 @@ the mission flies; a bad address is refused before anything flies."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import urllib.error
@@ -55,3 +56,28 @@ def test_a_bad_view_address_is_refused(bad: str, capsys: pytest.CaptureFixture[s
     assert main(["run", str(DEMO), "--view", bad, "--no-log"]) == EXIT_REFUSED
     err = capsys.readouterr().err
     assert err.startswith("gcs-swarm: --view: expected [HOST:]PORT"), err
+
+
+def test_simulate_with_view_replays_the_simulation_until_interrupted(tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs_swarm", "simulate", str(DEMO), "--duration", "2",
+         "--no-log", "--view", "127.0.0.1:0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert line.startswith("replay view: http://127.0.0.1:"), line
+        with urllib.request.urlopen(line.split()[2], timeout=5) as page:
+            assert page.status == 200
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=10)
+        assert proc.returncode == 0
+        assert "simulated 2.00 s" in out
+    finally:
+        proc.kill()
+        proc.wait()
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()

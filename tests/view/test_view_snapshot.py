@@ -87,3 +87,15 @@ def test_a_vehicle_leaving_and_the_switch_are_events() -> None:
         if sky.core.vehicles[victim].phase is Phase.LOST:
             break
     assert any(e["kind"] == "lost" and e["sysid"] == victim for e in events)
+
+
+def test_the_scene_carries_the_geofence_and_the_floor() -> None:
+    from gcs_swarm.mission import load_mission
+    from tests.swarm.swarm_harness import MISSIONS
+
+    scene = scene_of(load_mission(MISSIONS / "sitl_octahedron.yaml").law)
+    assert scene["fence"] == {"min": [-40.0, -40.0, 0.0], "max": [60.0, 40.0, 40.0]}
+    assert scene["floor"] == 5.0 and scene["obstacles"] == []
+    bare = scene_of(mission_from("example1_octahedron.yaml", duration=1.0).law)
+    assert bare["fence"] is None and bare["floor"] is None
+    json.dumps(scene, allow_nan=False)
