@@ -57,6 +57,9 @@ _FILES = {
     "/view.js": ("view.js", "text/javascript; charset=utf-8"),
     "/view.css": ("view.css", "text/css; charset=utf-8"),
 }
+_CLOSE_S = 1.0
+"""How long [s] the pages get to close the WebSocket at the end before their
+sockets are cut (a stalled one never would)."""
 _MAX_MESSAGE = 4096
 """Largest message [bytes] a page may send (a button press is ~40)."""
 
@@ -85,7 +88,8 @@ def _static(name: str) -> bytes:
 class _Client:
     """One page's slot: the newest frame not yet written, and the answers."""
 
-    def __init__(self) -> None:
+    def __init__(self, ws: ServerConnection) -> None:
+        self.ws = ws
         self.frame: str | None = None
         self.answers: list[str] = []
         self.ready = asyncio.Event()
@@ -173,6 +177,7 @@ class ViewServer:
             write_limit=self._write_limit,
             max_size=_MAX_MESSAGE,
             max_queue=4,
+            close_timeout=_CLOSE_S,
             server_header=None,
         )
         sock = next(iter(self._server.sockets))
@@ -190,7 +195,14 @@ class ViewServer:
             self._push = None
         if self._server is not None:
             self._server.close(close_connections=True)
-            await self._server.wait_closed()
+            try:
+                async with asyncio.timeout(_CLOSE_S):
+                    await self._server.wait_closed()
+            except TimeoutError:
+                # A stalled page cannot even take the closing frame: cut it.
+                for client in list(self._clients):
+                    client.ws.transport.abort()
+                await self._server.wait_closed()
             self._server = None
 
     # ---------------------------------------------------------------- HTTP
@@ -225,7 +237,7 @@ class ViewServer:
         sock = ws.transport.get_extra_info("socket")
         if self._send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self._send_buffer)
-        client = _Client()
+        client = _Client(ws)
         client.answers.append(self._hello)
         client.ready.set()
         self._clients.add(client)
