@@ -60,6 +60,8 @@ _FILES = {
 _CLOSE_S = 1.0
 """How long [s] the pages get to close the WebSocket at the end before their
 sockets are cut (a stalled one never would)."""
+_RECENT_EVENTS = 300
+"""Events a page that opens late is sent first (the frames carry only new ones)."""
 _MAX_MESSAGE = 4096
 """Largest message [bytes] a page may send (a button press is ~40)."""
 
@@ -132,7 +134,8 @@ class ViewServer:
         self.host, self.port, self.rate_hz = host, port, rate_hz
         self.token = token if token is not None else secrets.token_urlsafe(16)
         self._on_command = on_command
-        self._hello = json.dumps({"type": "hello", **(hello or {"mode": "live"})})
+        self._hello = {"type": "hello", **(hello or {"mode": "live"})}
+        self._recent: deque[Any] = deque(maxlen=_RECENT_EVENTS)
         self._write_limit = write_limit
         self._send_buffer = send_buffer
         self._clients: set[_Client] = set()
@@ -238,7 +241,7 @@ class ViewServer:
         if self._send_buffer is not None and sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self._send_buffer)
         client = _Client(ws)
-        client.answers.append(self._hello)
+        client.answers.append(json.dumps({**self._hello, "events": list(self._recent)}))
         client.ready.set()
         self._clients.add(client)
         sender = asyncio.get_running_loop().create_task(self._send(ws, client))
@@ -297,6 +300,7 @@ class ViewServer:
             try:
                 frame = self._frames()
                 frame["view"] = {"clients": len(self._clients), "dropped": self.frames_dropped}
+                self._recent.extend(frame.get("events", ()))
                 text = json.dumps(frame, separators=(",", ":"), allow_nan=False)
             except Exception:  # the view must never take the flight down
                 if not self._failed:

@@ -98,6 +98,10 @@ def test_frames_show_the_six_vehicles_moving_and_hold_ends_the_run() -> None:
             assert [a for a, _ in hello["actions"]] == ["hold", "land", "rtl"]
             seen.extend(await _frames_until(ws, _flying))
             seen.extend(await _frames_until(ws, lambda f: f["t"] >= seen[-1]["t"] + 0.5))
+            async with connect(_ws_url(server)) as late:  # a page opened late gets the story
+                story = json.loads(await late.recv())["events"]
+                joins = sorted(e["sysid"] for e in story if e["kind"] == "join")
+                assert joins == [1, 2, 3, 4, 5, 6]
             answers.append(await _press(ws, "takeoff"))  # not an end action: refused
             answers.append(await _press(ws, "hold"))
             answers.append(await _press(ws, "land"))  # one end action per run

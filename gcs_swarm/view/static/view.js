@@ -51,6 +51,8 @@
       box.appendChild(b);
     }
     $("replay").hidden = msg.mode !== "replay";
+    $("events").textContent = "";
+    events(msg.events);
     if (msg.mode === "replay") {
       $("slider").min = String(msg.start || 0);
       $("slider").max = String(msg.duration || 1);
