@@ -48,6 +48,8 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
+from gcs_swarm.errors import LinkError
+
 __all__ = ["ViewServer", "parse_address"]
 
 _log = logging.getLogger("gcs_swarm.view")
@@ -172,17 +174,21 @@ class ViewServer:
 
     # ------------------------------------------------------------ lifetime
     async def __aenter__(self) -> ViewServer:
-        self._server = await serve(
-            self._handler,
-            self.host,
-            self.port,
-            process_request=self._process_request,
-            write_limit=self._write_limit,
-            max_size=_MAX_MESSAGE,
-            max_queue=4,
-            close_timeout=_CLOSE_S,
-            server_header=None,
-        )
+        try:
+            self._server = await serve(
+                self._handler,
+                self.host,
+                self.port,
+                process_request=self._process_request,
+                write_limit=self._write_limit,
+                max_size=_MAX_MESSAGE,
+                max_queue=4,
+                close_timeout=_CLOSE_S,
+                server_header=None,
+            )
+        except OSError as err:  # a port in use, a host that does not resolve
+            where = f"{self.host}:{self.port}"
+            raise LinkError(f"operator view on {where}: {err.strerror or err}") from None
         sock = next(iter(self._server.sockets))
         self.port = int(sock.getsockname()[1])
         self._push = asyncio.get_running_loop().create_task(self._push_frames())

@@ -16,6 +16,7 @@ import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import InvalidStatus
 
+from gcs_swarm.errors import LinkError
 from gcs_swarm.mission import Mission
 from gcs_swarm.runtime import RunSummary, run_mission
 from gcs_swarm.view import ViewServer, live_view
@@ -177,6 +178,16 @@ def test_a_wrong_or_missing_token_is_refused() -> None:
                 assert json.loads(await ws.recv())["type"] == "hello"
                 assert json.loads(await ws.recv())["type"] == "frame"
             assert server.refused == 9
+
+    asyncio.run(main())
+
+
+def test_a_port_in_use_is_a_link_error() -> None:
+    async def main() -> None:
+        async with ViewServer(lambda: {}) as first:
+            with pytest.raises(LinkError, match=f"operator view on 127.0.0.1:{first.port}: "):
+                async with ViewServer(lambda: {}, port=first.port):
+                    pass
 
     asyncio.run(main())
 
