@@ -3,7 +3,8 @@
 Run from the repository root: ``python benchmarks/bench_station.py`` (about
 90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change;
 ``--view HZ`` opens the operator view on each station, read by a page in
-its own process, to compare the figures with and without it).
+its own process, with the flight recorder ``run_mission`` gives the view,
+to compare the figures with and without it).
 
 The emulator runs in a child process (this file with ``--emulator``) pinned
 to core 0, the station in this process pinned to core 1 (when the machine has
@@ -145,7 +146,7 @@ async def _open_views(stations, stack, view_rate_hz: float):  # type: ignore[no-
         got = []
         mission = load(len(st.vehicles))
         lv = live_view(mission, rate_hz=view_rate_hz, on_server=got.append)
-        await stack.enter_async_context(lv(st, EndRequest(), None))
+        await stack.enter_async_context(lv(st, EndRequest(), st.recorder))
         url = got[0].url.replace("http://", "ws://").replace("/?", "/ws?")
         pages.append(await asyncio.create_subprocess_exec(
             sys.executable, "-c", _VIEW_CLIENT, url,
@@ -160,6 +161,7 @@ async def station_run(
 ) -> dict[str, float]:
     import logging
 
+    from gcs_swarm.report.record import FlightRecorder
     from gcs_swarm.runtime.links import LatencyRing
     from gcs_swarm.runtime.run import station_config
     from gcs_swarm.runtime.station import Station
@@ -178,7 +180,10 @@ async def station_run(
                 mission = load(size)
                 links = {v.sysid: f"udpout:127.0.0.1:{port}" for v in mission.vehicles}
                 cfg = station_config(mission, links)
-                stations.append(await stack.enter_async_context(Station(cfg)))
+                # The view gets the flight recorder run_mission gives it (its
+                # loss column, and the step it builds its frames after).
+                recorder = None if view_rate_hz is None else FlightRecorder()
+                stations.append(await stack.enter_async_context(Station(cfg, recorder=recorder)))
             t_ready = time.monotonic()
             flying = []
             for st in stations:  # one group after the other: see the module docstring

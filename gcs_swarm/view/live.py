@@ -83,6 +83,8 @@ def live_view(
                               on_command=command, hello=hello,
                               write_limit=write_limit,
                               send_buffer=send_buffer) as server:  # fmt: skip
+            if recorder is not None:
+                recorder.on_step = server.step_done
             if on_url is not None:
                 on_url(server.url)
             if on_server is not None:

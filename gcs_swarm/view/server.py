@@ -151,6 +151,7 @@ class ViewServer:
         """Requests refused for a wrong or missing token."""
         self._gone_sent = 0
         self._failed = False
+        self._stepped: asyncio.Event | None = None
         self._gone_dropped = 0
 
     @property
@@ -158,6 +159,17 @@ class ViewServer:
         """The page's address with the token (printed at start, as Jupyter does)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/?token={self.token}"
+
+    def step_done(self) -> None:
+        """The station has just stepped (its flight recorder's ``on_step``):
+        a frame that is due is built once this step's setpoints are out,
+        while the loop waits for the next round of telemetry, rather than
+        whenever its timer fires (then it could delay a report's answer by
+        the frame's cost). Without steps (start-up, ending) frames go on at
+        their own pace."""
+        if self._stepped is None:
+            self._stepped = asyncio.Event()
+        self._stepped.set()
 
     @property
     def clients(self) -> int:
@@ -302,6 +314,11 @@ class ViewServer:
             await asyncio.sleep(due - loop.time())
             if not self._clients:
                 continue
+            if self._stepped is not None:  # just after the next step (``step_done``)
+                self._stepped.clear()
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(period):
+                        await self._stepped.wait()
             t0 = time.perf_counter()
             try:
                 frame = self._frames()
