@@ -3,8 +3,8 @@
 Run from the repository root: ``python benchmarks/bench_station.py`` (about
 90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change;
 ``--view HZ`` opens the operator view on each station, read by a page in
-its own process, with the flight recorder ``run_mission`` gives the view,
-to compare the figures with and without it).
+its own process, to compare the figures with and without it; ``--record``
+gives each station the flight recorder of a logged run).
 
 The emulator runs in a child process (this file with ``--emulator``) pinned
 to core 0, the station in this process pinned to core 1 (when the machine has
@@ -157,7 +157,7 @@ async def _open_views(stations, stack, view_rate_hz: float):  # type: ignore[no-
 
 
 async def station_run(
-    n: int, seconds: float, view_rate_hz: float | None = None
+    n: int, seconds: float, view_rate_hz: float | None = None, record: bool = False
 ) -> dict[str, float]:
     import logging
 
@@ -180,9 +180,9 @@ async def station_run(
                 mission = load(size)
                 links = {v.sysid: f"udpout:127.0.0.1:{port}" for v in mission.vehicles}
                 cfg = station_config(mission, links)
-                # The view gets the flight recorder run_mission gives it (its
-                # loss column, and the step it builds its frames after).
-                recorder = None if view_rate_hz is None else FlightRecorder()
+                # --record: the flight recorder of a logged run (the view then
+                # reads its loss counts and builds its frames after its steps).
+                recorder = FlightRecorder() if record else None
                 stations.append(await stack.enter_async_context(Station(cfg, recorder=recorder)))
             t_ready = time.monotonic()
             flying = []
@@ -275,6 +275,8 @@ def main() -> None:
     ap.add_argument("--view", type=float, default=None, metavar="HZ",
                     help="open the operator view on each station at HZ frames/s, read by a"
                     " page in its own process")  # fmt: skip
+    ap.add_argument("--record", action="store_true",
+                    help="give each station a flight recorder, as a logged run has")  # fmt: skip
     args = ap.parse_args()
     if args.emulator:
         asyncio.run(emulator_main(args.emulator))
@@ -294,7 +296,7 @@ def main() -> None:
         runs, failed = [], 0
         while len(runs) < args.repeat and failed < 3:
             try:
-                runs.append(asyncio.run(station_run(n, args.seconds, args.view)))
+                runs.append(asyncio.run(station_run(n, args.seconds, args.view, args.record)))
             except StartupError as err:  # reported, not hidden: see the README
                 failed += 1
                 print(f"{n:4d} start-up failed ({str(err)[:90]}...); retrying", flush=True)

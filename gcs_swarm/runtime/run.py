@@ -327,7 +327,6 @@ async def run_mission(
         async with contextlib.AsyncExitStack() as stack:
             if folder is not None:
                 tlog = await stack.enter_async_context(TlogWriter(folder.tlog, on_error=log_failed))
-            if folder is not None or view is not None:  # the view shows its link counts
                 recorder = FlightRecorder(
                     name=mission.settings.name,
                     source="run",
@@ -335,7 +334,7 @@ async def run_mission(
                     r0=mission.law.avoidance.r0,
                     rate_hz=mission.settings.rate,
                     safety=safety_applied(mission),
-                    sink=None if tlog is None else _note_sink(tlog),
+                    sink=_note_sink(tlog),
                 )
             if sims:
                 cfg = emulator_config(mission, airborne=sim_airborne)

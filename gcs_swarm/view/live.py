@@ -46,8 +46,10 @@ def live_view(
     send_buffer: int | None = 2**16,
 ) -> View:
     """The view of ``mission``'s run on ``host:port`` (0: any free port),
-    frames at ``rate_hz``; ``on_url`` gets the page's address with its token
-    as soon as it listens, ``on_server`` the server (tests read its counts);
+    frames at ``rate_hz`` (built after the station's steps when the run has a
+    flight recorder, i.e. a run folder: ``ViewServer.step_done``); ``on_url``
+    gets the page's address with its token as soon as it listens, ``on_server``
+    the server (tests read its counts);
     ``write_limit``, ``send_buffer`` [bytes]: ``ViewServer``'s."""
 
     @contextlib.asynccontextmanager
