@@ -17,8 +17,10 @@ received frame is accepted only if its signature is good and its timestamp
 newer than the last of its stream (link id, system, component): unsigned,
 wrongly signed and replayed frames are counted in ``signature_rejected`` and
 dropped. Only RADIO_STATUS may come unsigned, as on ArduPilot. The key is
-never logged or shown (``repr`` hides it). The signing set-up and the CRC
-are ``mavwire``'s, shared with the emulator. Nothing here does I/O.
+never logged or shown (``repr`` hides it). The signing set-up, the CRC and
+the column-wise frame building (``mavwire.FrameBuilder``) are ``mavwire``'s,
+shared with the emulator; ``self._mav`` is typed by ``mavwire.protocols``.
+Nothing here does I/O.
 """
 
 from __future__ import annotations
@@ -33,8 +35,9 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
-from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
+from mavwire.framing import FrameBuilder
+from mavwire.protocols import MAVLinkInterface, MAVLinkMessage
 from mavwire.signing import SIGNING_KEY_BYTES, mavlink
 
 _register_event()  # PX4's EVENT (410) is not in pymavlink's dialect (events.py)
@@ -130,7 +133,9 @@ class Codec:
     unix_s: float | None = None
 
     def __post_init__(self) -> None:
-        self._mav: Any = mavlink(self.sysid, self.compid, self.signing_key, unix_s=self.unix_s)
+        self._mav: MAVLinkInterface = mavlink(
+            self.sysid, self.compid, self.signing_key, unix_s=self.unix_s
+        )
         if self.signing_key is not None and self.streams is not None:
             self._mav.signing.stream_timestamps = self.streams
 
@@ -154,7 +159,7 @@ class Codec:
                 key: (value.encode("ascii") if isinstance(value, str) else value)
                 for key, value in spec.fields.items()
             }
-            msg = encoder(**fields)
+            msg: MAVLinkMessage = encoder(**fields)
             buf = msg.pack(self._mav)
         self._advance(1, len(buf))
         return buf
@@ -187,22 +192,17 @@ class Codec:
         back to back and the length of one (all the same): exactly what k
         ``encode_setpoint`` calls would give, sequence numbers included.
 
-        One control step's setpoints for a whole formation: the header and
-        payload fields are filled column-wise in one structured array and
-        only the CRC is computed frame by frame. A few rows, a signing codec,
-        a zero ``coordinate_frame`` (MAVLink 2 would trim the payload) or an
-        acceleration float32 cannot hold take the one-frame path."""
+        One control step's setpoints for a whole formation, built column-wise
+        by ``mavwire.FrameBuilder`` (only the CRC frame by frame). A few rows,
+        a signing codec (pymavlink signs each frame), a zero
+        ``coordinate_frame`` (MAVLink 2 would trim the payload, and the frames
+        would differ in length) or an acceleration float32 cannot hold take
+        the one-frame path."""
         k = len(targets)
         fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX))
         if vel_ned is not None:
             fits = fits and bool(np.all(np.abs(vel_ned) <= _F32_MAX))
-        if (
-            k < _BATCH_FROM
-            or self._mav.signing.sign_outgoing
-            or coordinate_frame == 0
-            or _MCRF4XX is None
-            or not fits
-        ):
+        if k < _BATCH_FROM or self._mav.signing.sign_outgoing or coordinate_frame == 0 or not fits:
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
             vel = [zero] * k if vel_ned is None else vel_ned.tolist()
             masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
@@ -213,30 +213,20 @@ class Codec:
             ]
             return b"".join(frames), (len(frames[0]) if frames else 0)
         mav = self._mav
-        arr = np.zeros(k, dtype=_SP_FRAME)
-        arr["magic"] = 0xFD
-        arr["len"] = _SP_SIZE
-        arr["seq"] = (mav.seq + np.arange(k)) & 0xFF
-        arr["sysid"] = mav.srcSystem
-        arr["compid"] = mav.srcComponent
-        arr["msgid"] = _SP.id
-        arr["time_boot_ms"] = np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF
-        arr["afx"] = accel_ned[:, 0]
-        arr["afy"] = accel_ned[:, 1]
-        arr["afz"] = accel_ned[:, 2]
+        columns: dict[str, npt.ArrayLike] = {
+            "time_boot_ms": np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF,
+            "acc": accel_ned,
+            "type_mask": type_mask,
+            "target": targets,
+            "coordinate_frame": coordinate_frame,
+        }
         if vel_ned is not None:
-            arr["vel"] = vel_ned
-        arr["type_mask"] = type_mask if isinstance(type_mask, int) else list(type_mask)
-        arr["target"] = targets
-        arr["coordinate_frame"] = coordinate_frame
-        size = _SP_FRAME.itemsize
-        view = memoryview(arr.tobytes())
-        crc = _MCRF4XX
-        arr["crc"] = [
-            crc(_SP_EXTRA, crc(view[j + 1 : j + size - 2])) for j in range(0, k * size, size)
-        ]
+            columns["vel"] = vel_ned
+        seq = mav.seq + np.arange(k)
+        batch = _SP_FRAMES.build(seq, mav.srcSystem, mav.srcComponent, columns)
+        size = batch.rows.shape[1]  # never trimmed: coordinate_frame, the last byte, is not 0
         self._advance(k, k * size)
-        return arr.tobytes(), size
+        return batch.tobytes(), size
 
     def _advance(self, frames: int, nbytes: int) -> None:
         """Count ``frames`` sent. pymavlink's MAVLink.send() would write to a
@@ -378,40 +368,27 @@ def _lpn_message(raw: RawPosition, data: bytes, i: int, end: int) -> Any:
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message
 _SP_NAMES = tuple(_SP.ordered_fieldnames)
-_SP_EXTRA = bytes((_SP.crc_extra,))
 _SP_PACK = _SP.unpacker.pack
-_V2_HEADER = struct.Struct("<BBBBBBBHB")
-
-
-_SP_SIZE: int = _SP.unpacker.size
 _F32_MAX = float(np.finfo(np.float32).max)
 _BATCH_FROM = 8
-"""From this many frames ``encode_accel_setpoints`` fills arrays (below it,
-numpy's per-call cost is more than packing frame by frame)."""
-_SP_FRAME = np.dtype([
-    ("magic", "u1"), ("len", "u1"), ("incompat", "u1"), ("compat", "u1"), ("seq", "u1"),
-    ("sysid", "u1"), ("compid", "u1"), ("msgid", "<u2"), ("msgid_hi", "u1"),
-    # SET_POSITION_TARGET_LOCAL_NED's payload in wire order (53 bytes, never
-    # trimmed when coordinate_frame, its last byte, is not zero).
-    ("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4", (3,)),
-    ("afx", "<f4"), ("afy", "<f4"), ("afz", "<f4"), ("yaw", "<f4"), ("yaw_rate", "<f4"),
-    ("type_mask", "<u2"), ("target", "u1", (2,)), ("coordinate_frame", "u1"),
-    ("crc", "<u2"),
+"""From this many frames ``encode_accel_setpoints`` builds column-wise (below
+it, numpy's per-call cost is more than packing frame by frame)."""
+_SP_PAYLOAD = np.dtype([
+    ("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4", (3,)), ("acc", "<f4", (3,)),
+    ("yaw", "<f4"), ("yaw_rate", "<f4"), ("type_mask", "<u2"), ("target", "u1", (2,)),
+    ("coordinate_frame", "u1"),
 ])  # fmt: skip
-"""One unsigned MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frame (65 bytes)."""
+"""SET_POSITION_TARGET_LOCAL_NED's payload in wire order (53 bytes): x, y, z
+as ``pos``, vx, vy, vz as ``vel``, afx, afy, afz as ``acc``, target system
+and component as ``target``."""
+_SP_FRAMES = FrameBuilder(_SP.id, _SP.crc_extra, _SP_PAYLOAD)
 
 SETPOINT_FIELDS: tuple[str, ...] = _SP_NAMES
 """SET_POSITION_TARGET_LOCAL_NED's field names in wire order (``encode_setpoint``)."""
 
 
-def _pack_setpoint(mav: Any, values: Sequence[FieldValue]) -> bytes:
+def _pack_setpoint(mav: MAVLinkInterface, values: Sequence[FieldValue]) -> bytes:
     """SET_POSITION_TARGET_LOCAL_NED field ``values`` (wire order) as
     pymavlink's unsigned MAVLink 2 ``pack`` would frame them with ``mav``'s
     ids and sequence."""
-    payload: bytes = _SP_PACK(*values)
-    plen = len(payload)
-    while plen > 1 and payload[plen - 1] == 0:  # MAVLink 2 trims trailing zeros
-        plen -= 1
-    frame = _V2_HEADER.pack(0xFD, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent,
-                            _SP.id & 0xFFFF, _SP.id >> 16) + payload[:plen]  # fmt: skip
-    return frame + _frame_crc(memoryview(frame)[1:], _SP_EXTRA).to_bytes(2, "little")
+    return _SP_FRAMES.pack(mav.seq, mav.srcSystem, mav.srcComponent, _SP_PACK(*values))
