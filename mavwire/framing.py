@@ -15,7 +15,7 @@ per-call cost is more than the work). Both give exactly the bytes pymavlink's
 ``len`` is the payload less its trailing zero bytes, at least 1; the CRC
 (CRC-16/MCRF4XX) covers bytes 1 .. 9 + len and then CRC_EXTRA. Signed frames
 are not built here: a signing peer packs each frame with pymavlink, which
-stamps and signs it (docs/mavlink-protocol.md, Signing). No I/O.
+stamps and signs it (``mavwire.signing``). No I/O.
 """
 
 from __future__ import annotations
