@@ -72,7 +72,16 @@ class FrameBuilder:
     for x, y, z). ``frame`` is the whole frame's dtype: the header's fields,
     ``payload``, then ``crc``."""
 
-    __slots__ = ("_extra", "_id", "crc_extra", "frame", "msgid", "payload", "payload_bytes")
+    __slots__ = (
+        "_extra",
+        "_header",
+        "_id",
+        "crc_extra",
+        "frame",
+        "msgid",
+        "payload",
+        "payload_bytes",
+    )
 
     def __init__(self, msgid: int, crc_extra: int, payload: np.dtype[Any]) -> None:
         names = payload.names
@@ -85,6 +94,8 @@ class FrameBuilder:
         self.msgid, self.crc_extra, self.payload = msgid, crc_extra, payload
         self.payload_bytes: int = payload.itemsize
         self.frame = np.dtype([*_HEADER, ("payload", payload), ("crc", "<u2")])
+        header = bytes((_MAGIC, payload.itemsize, 0, 0, 0, 0, 0, msgid & 0xFF, (msgid >> 8) & 0xFF))
+        self._header = np.frombuffer(header + bytes((msgid >> 16,)), dtype=np.uint8)
         self._extra = bytes((crc_extra,))
         self._id = bytes((msgid & 0xFF, (msgid >> 8) & 0xFF, msgid >> 16))
 
@@ -104,46 +115,46 @@ class FrameBuilder:
         seq_col = np.asarray(seq, dtype=np.int64) & 0xFF
         n = len(seq_col)
         arr = np.zeros(n, dtype=self.frame)
-        arr["magic"] = _MAGIC
-        arr["len"] = self.payload_bytes
+        size = self.frame.itemsize
+        u8 = arr.view(np.uint8).reshape(n, size)
+        u8[:, :HEADER_BYTES] = self._header  # magic, len, msgid
         arr["seq"] = seq_col
         arr["sysid"] = sysid
         arr["compid"] = compid
-        arr["msgid"] = self.msgid & 0xFFFF
-        arr["msgid_hi"] = self.msgid >> 16
         pay = arr["payload"]
         for name, values in columns.items():
             pay[name] = values
-        size = self.frame.itemsize
-        u8 = arr.view(np.uint8).reshape(n, size)
-        body = u8[:, HEADER_BYTES : HEADER_BYTES + self.payload_bytes]
-        full = n == 0 or bool(body[:, -1].all())
-        if full:
-            end = np.full(n, size - 2, dtype=np.int64)
-        else:  # MAVLink 2 drops trailing zero bytes, keeping at least one
-            nz = body != 0
-            last = self.payload_bytes - np.argmax(nz[:, ::-1], axis=1)
-            plen = np.where(nz.any(axis=1), last, 1)
-            arr["len"] = plen
-            end = (HEADER_BYTES + plen).astype(np.int64)
-        crc = self._crcs(u8, end)
-        if full:
-            arr["crc"] = crc
-        else:  # the CRC follows the kept payload, over zero bytes it does not cover
-            crc, rows = np.asarray(crc), np.arange(n)
-            u8[rows, end] = crc & 0xFF
-            u8[rows, end + 1] = crc >> 8
-        return FrameBatch(u8, end + 2, full)
+        if 0 not in u8[:, size - 3].tobytes():  # the usual case: no trailing zero to trim
+            arr["crc"] = self._crcs(u8, None)
+            return FrameBatch(u8, np.full(n, size, dtype=np.int64), True)
+        # MAVLink 2 drops trailing zero bytes, keeping at least one
+        nz = u8[:, HEADER_BYTES : size - 2] != 0
+        last = self.payload_bytes - np.argmax(nz[:, ::-1], axis=1)
+        plen = np.where(nz.any(axis=1), last, 1)
+        arr["len"] = plen
+        end = (HEADER_BYTES + plen).astype(np.int64)
+        crc, rows = np.asarray(self._crcs(u8, end)), np.arange(n)
+        u8[rows, end] = crc & 0xFF  # the CRC follows the kept payload
+        u8[rows, end + 1] = crc >> 8
+        return FrameBatch(u8, end + 2, False)
 
-    def _crcs(self, u8: npt.NDArray[np.uint8], end: npt.NDArray[np.int64]) -> Any:
-        """The CRC of each row ``u8[i, 1:end[i]]`` followed by CRC_EXTRA."""
+    def _crcs(self, u8: npt.NDArray[np.uint8], end: npt.NDArray[np.int64] | None) -> Any:
+        """The CRC of each row ``u8[i, 1:end[i]]`` followed by CRC_EXTRA
+        (``end`` None: every row but its last two bytes)."""
+        size = u8.shape[1]
         if MCRF4XX is not None:
-            crc, extra, size = MCRF4XX, self._extra, u8.shape[1]
+            crc, extra = MCRF4XX, self._extra
             flat = u8.reshape(-1).data  # a memoryview of the bytes, no copy
+            if end is None:
+                return [
+                    crc(extra, crc(flat[j + 1 : j + size - 2])) for j in range(0, len(flat), size)
+                ]
             return [
                 crc(extra, crc(flat[j + 1 : j + e]))
                 for j, e in zip(range(0, len(flat), size), end.tolist(), strict=True)
             ]
+        if end is None:
+            end = np.full(len(u8), size - 2, dtype=np.int64)
         return _column_crc(u8, end, self.crc_extra)
 
     def pack(self, seq: int, sysid: int, compid: int, payload: bytes) -> bytes:
