@@ -106,12 +106,12 @@ class FrameBuilder:
         compid: npt.ArrayLike,
         columns: Mapping[str, npt.ArrayLike],
     ) -> FrameBatch:
-        """N frames at once. ``seq``, ``sysid``, ``compid``: one per frame or
-        one for all (``seq`` taken modulo 256, the others 0..255); ``columns``
-        maps payload field names to values, one per frame or one for all (a
-        sub-array field takes an (N, k) array); a field not named is zero.
-        N is the length of ``seq``. Values are cast to the field's type as
-        numpy casts them (the caller checks ranges)."""
+        """N frames at once, N the length of ``seq`` (one sequence number per
+        frame, taken modulo 256). ``sysid``, ``compid`` (0..255): one per frame
+        or one for all; ``columns`` maps payload field names to values, one
+        per frame or one for all (a sub-array field takes an (N, k) array); a
+        field not named is zero. Values are cast to the field's type as numpy
+        casts them (the caller checks ranges)."""
         seq_col = np.asarray(seq, dtype=np.int64) & 0xFF
         n = len(seq_col)
         arr = np.zeros(n, dtype=self.frame)
