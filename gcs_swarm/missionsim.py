@@ -1,6 +1,6 @@
 """A mission file flown through the in-process simulator (``gcs-swarm simulate``).
 
-Maps a validated ``Mission`` onto ``gcs_swarm.simulation.simulate``: the
+Maps a validated ``Mission`` onto ``gcs_swarm.integrator.integrate``: the
 initial vehicles are active from t = 0, reserves wait at their start until
 their join event, events keep their mission times (seconds from the start of
 the formation phase), and every commanded acceleration passes through the
@@ -13,7 +13,7 @@ When the mission states ``limits.envelope`` the reference models the vehicle
 (docs/vehicle-envelope.md): the station's command path of
 ``gcs_swarm.control.loop.ControlLoop`` (filter planning within the
 envelope, then ``CommandShaper``) once per control period, flown by the
-envelope's jerk-limited, lagged vehicle (``simulation.vehicle_step``), so the
+envelope's jerk-limited, lagged vehicle (``integrator.vehicle_step``), so the
 step is the control period whatever ``dt_s`` says. ``envelope_demand`` and
 ``demand_report`` measure what the gains ask of an ideal point mass and
 say when it is more than an envelope (``gcs-swarm check``, the start-up
@@ -39,7 +39,7 @@ from gcs_swarm.control.safety import (
     filter_acts,
 )
 from gcs_swarm.mission import Mission
-from gcs_swarm.simulation import F64, SimResult, simulate
+from gcs_swarm.integrator import F64, SimResult, integrate
 
 __all__ = [
     "DEMAND_DT_S",
@@ -85,7 +85,7 @@ class MissionSimResult:
 @dataclass
 class EnvelopeHook:
     """The station's command path as a simulator hook, called ONCE per control
-    step (the vehicle-model path of ``simulate``): the safety filter, planning
+    step (the vehicle-model path of ``integrate``): the safety filter, planning
     from each vehicle's last command, then the shaper (E1-E2)."""
 
     shaper: CommandShaper
@@ -141,7 +141,7 @@ def simulate_mission(
     elif filter_acts(law.limits, law.safety):
         hook = SafetyHook(SafetyFilter(law.limits, law.safety, law.obstacles, dt=period))
     vehicles = mission.vehicles
-    result = simulate(
+    result = integrate(
         law,
         [v.start for v in vehicles],
         [v.q for v in vehicles],

@@ -19,7 +19,7 @@ import numpy as np
 
 from gcs_swarm.control.params import Avoidance, Box, Gains, LawConfig, Leader, Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook, box_signed_distance
-from gcs_swarm.simulation import simulate
+from gcs_swarm.integrator import integrate
 
 BOX = Box((16.0, 14.0, 4.0), (3.0, 2.0, 1.0))
 CONFIG = LawConfig(
@@ -38,7 +38,7 @@ def _run(enabled: bool) -> tuple[float, float, SafetyHook]:
         Limits(a_max=5.0, v_max=3.0), Safety(enabled=enabled, clearance=CLEARANCE), [BOX], dt=DT
     )
     hook = SafetyHook(flt)
-    res = simulate(CONFIG, [(16.0, 6.0, 4.0)], duration=60.0, dt=DT, accel_filter=hook)
+    res = integrate(CONFIG, [(16.0, 6.0, 4.0)], duration=60.0, dt=DT, accel_filter=hook)
     pos = res.pos_m[:, 0]
     clear, _ = box_signed_distance(pos, np.array([BOX.centre]), np.array([BOX.half_extents]))
     past = np.flatnonzero(pos[:, 1] > 16.0)

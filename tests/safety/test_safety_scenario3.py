@@ -22,7 +22,7 @@ from gcs_swarm.control.limits import box_signed_distance
 from gcs_swarm.control.params import Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary
 from gcs_swarm.mission import load_mission
-from gcs_swarm.simulation import SimResult, simulate
+from gcs_swarm.integrator import SimResult, integrate
 
 MISSION = Path(__file__).resolve().parents[2] / "config" / "missions" / "scenario3_obstacle.yaml"
 DT = 0.05
@@ -41,7 +41,7 @@ def _run(enabled: bool, heading: str = "desired") -> tuple[SimResult, SafetySumm
     saf = Safety(enabled=enabled, clearance=CLEARANCE, separation=SEPARATION)
     cfg = dataclasses.replace(law, limits=lim, safety=saf)
     hook = SafetyHook(SafetyFilter(lim, saf, law.obstacles, dt=DT))
-    res = simulate(cfg, starts, duration=40.0, dt=DT, accel_filter=hook)
+    res = integrate(cfg, starts, duration=40.0, dt=DT, accel_filter=hook)
     return res, hook.stats.summary()
 
 
