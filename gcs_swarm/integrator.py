@@ -1,7 +1,7 @@
 """The in-process integrator (``integrate``): the law on ideal point masses (or
 the envelope's vehicle model), deterministic, no MAVLink; the reference the
 MAVLink closed loop is compared against. A mission file reaches it through
-``gcs_swarm.missionsim`` (``gcs-swarm simulate``, ``gcs_swarm.simulate``).
+``gcs_swarm.offline`` (``gcs-swarm simulate``, ``gcs_swarm.simulate``).
 
 Fixed-step classical RK4 of Eq. 1 for every active vehicle AND of the virtual
 leader (Eq. 13) jointly: the leader's position inside each RK4 stage is the

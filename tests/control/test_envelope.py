@@ -154,7 +154,7 @@ def test_example1_arducopter_forms_inside_the_envelope() -> None:
     from pathlib import Path
 
     from gcs_swarm.mission import load_mission
-    from gcs_swarm.missionsim import simulate_mission
+    from gcs_swarm.offline import simulate_mission
 
     path = Path(__file__).resolve().parents[2] / "config/missions/example1_arducopter.yaml"
     mission = load_mission(path)

@@ -56,7 +56,7 @@ def test_figure_panels_labels_and_legends(tmp_path: Path) -> None:
 
 
 def test_simulation_report(tmp_path: Path) -> None:
-    from gcs_swarm.missionsim import simulate_mission
+    from gcs_swarm.offline import simulate_mission
 
     m = mission()
     out = simulate_mission(m, dt_s=0.05, duration_s=30.0)

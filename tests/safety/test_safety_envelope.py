@@ -21,9 +21,9 @@ import pytest
 from gcs_swarm.control.envelope import ARDUCOPTER, CommandShaper
 from gcs_swarm.control.params import Envelope, LawConfig, Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook
-from gcs_swarm.mission import load_mission
-from gcs_swarm.missionsim import EnvelopeHook, simulate_mission
 from gcs_swarm.integrator import SimResult, integrate, vehicle_step
+from gcs_swarm.mission import load_mission
+from gcs_swarm.offline import EnvelopeHook, simulate_mission
 
 MISSIONS_DIR = Path(__file__).resolve().parents[2] / "config" / "missions"
 TOL_M = 0.02

@@ -21,8 +21,8 @@ import pytest
 from gcs_swarm.control.limits import box_signed_distance
 from gcs_swarm.control.params import Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary
-from gcs_swarm.mission import load_mission
 from gcs_swarm.integrator import SimResult, integrate
+from gcs_swarm.mission import load_mission
 
 MISSION = Path(__file__).resolve().parents[2] / "config" / "missions" / "scenario3_obstacle.yaml"
 DT = 0.05

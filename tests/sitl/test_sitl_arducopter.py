@@ -30,7 +30,7 @@ import pytest
 
 from gcs_swarm.control.params import Limits
 from gcs_swarm.mission import Mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 from gcs_swarm.runtime import run_mission
 from tests.sitl.mavmonitor import Monitor
 from tests.sitl.sitl_flights import (

@@ -29,7 +29,7 @@ import yaml
 
 from gcs_swarm.control.params import Limits
 from gcs_swarm.mission import Mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 from gcs_swarm.runtime import run_mission
 from tests.sitl.px4_harness import (
     Px4Monitor,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from station_harness import fly, lockstep_config, mission_from, radii
 
-from gcs_swarm.mission import Mission
 from gcs_swarm.integrator import integrate
+from gcs_swarm.mission import Mission
 
 # ArduCopter 4.5.6 SITL's EKF, hovering still (docs/velocity-bias.md), NED m/s.
 BIAS_NED = (-0.015, 0.013, 0.0)

@@ -1,4 +1,5 @@
-"""A mission file flown through the in-process simulator (``gcs-swarm simulate``).
+"""The offline mission simulation (``gcs-swarm simulate``, ``gcs_swarm.simulate``):
+a mission file flown without MAVLink, through the in-process integrator.
 
 Maps a validated ``Mission`` onto ``gcs_swarm.integrator.integrate``: the
 initial vehicles are active from t = 0, reserves wait at their start until
@@ -38,8 +39,8 @@ from gcs_swarm.control.safety import (
     SafetySummary,
     filter_acts,
 )
-from gcs_swarm.mission import Mission
 from gcs_swarm.integrator import F64, SimResult, integrate
+from gcs_swarm.mission import Mission
 
 __all__ = [
     "DEMAND_DT_S",
