@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gcs_swarm.analysis import SwarmSummary, summarize
+from gcs_swarm.analysis import FormationFigures, formation_figures
 from gcs_swarm.control.envelope import jerk_limit
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import eq1_acceleration
@@ -92,9 +92,9 @@ class SimResult:
     episode: NDArray[np.int64]
     switches: tuple[tuple[float, str], ...]
 
-    def summary(self, *, form_tol: float = 0.01) -> SwarmSummary:
-        """Figures of the run (``gcs_swarm.analysis.summarize``)."""
-        return summarize(
+    def figures(self, *, form_tol: float = 0.01) -> FormationFigures:
+        """Figures of the run (``gcs_swarm.analysis.formation_figures``)."""
+        return formation_figures(
             self.times_s,
             self.pos_m,
             self.leader_pos_m,

@@ -36,7 +36,7 @@ from gcs_swarm.control.safety import (
     SafetyFilter,
     SafetyHook,
     SafetyStats,
-    SafetySummary,
+    SafetyTotals,
     filter_acts,
 )
 from gcs_swarm.integrator import F64, SimResult, integrate
@@ -66,12 +66,12 @@ class MissionSimResult:
     envelope modelled (None: the ideal point mass)."""
 
     result: SimResult
-    safety: SafetySummary | None
+    safety: SafetyTotals | None
     envelope: Envelope | None = None
 
     def text(self) -> str:
         """The summary printed by ``gcs-swarm simulate``."""
-        lines = [self.result.summary().text()]
+        lines = [self.result.figures().text()]
         if self.envelope is not None:
             e = self.envelope
             lines.append(
@@ -156,9 +156,9 @@ def simulate_mission(
     )
     stats = None
     if isinstance(hook, EnvelopeHook):
-        stats = hook.stats.summary() if hook.safety_filter is not None else None
+        stats = hook.stats.totals() if hook.safety_filter is not None else None
     elif hook is not None:
-        stats = hook.stats.summary()
+        stats = hook.stats.totals()
     return MissionSimResult(result, stats, model)
 
 
@@ -176,7 +176,7 @@ def envelope_demand(mission: Mission, *, dt_s: float = DEMAND_DT_S) -> Demand:
     for t_switch, _ in r.switches:
         steps |= np.isclose(r.times_s[1:], t_switch, rtol=0.0, atol=1e-9 + 1e-6 * dt_s)
     return command_demand(
-        r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.summary().time_to_form_s, steps=steps
+        r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.figures().time_to_form_s, steps=steps
     )
 
 

@@ -93,7 +93,7 @@ def test_a_bad_mission_path_is_a_mission_error_before_anything_flies(tmp_path: P
         gcs_swarm.run(tmp_path / "nope.yaml")
     result = gcs_swarm.simulate(ROOT / "config/missions/example1_tetrahedron.yaml",
                                 duration_s=5.0)  # fmt: skip
-    assert result.result.summary().text()
+    assert result.result.figures().text()
 
 
 def test_library_code_does_not_print() -> None:

@@ -127,7 +127,7 @@ def test_save_npz_and_csv(tmp_path: Path) -> None:
 
 def test_summary_figures() -> None:
     res = integrate(LawConfig(), STARTS[:4], duration=200.0, dt=DT)
-    s = res.summary()
+    s = res.figures()
     assert s.n_vehicles == 4 and s.episodes == 0 and s.min_clearance_m is None
     np.testing.assert_allclose(s.final_radii_m, 2.33359, atol=1e-4)
     assert [c for _, c in s.distance_groups] == [6]

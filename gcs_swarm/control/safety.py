@@ -85,7 +85,7 @@ from gcs_swarm.control.limits import (
 )
 from gcs_swarm.control.params import Box, Envelope, Limits, Safety
 from gcs_swarm.control.reaction import POLYGON_SIDES, cap_rows, radial_extent, reaction_bound
-from gcs_swarm.control.safety_stats import SafetyReport, SafetyStats, SafetySummary
+from gcs_swarm.control.safety_stats import SafetyReport, SafetyStats, SafetyTotals
 from gcs_swarm.errors import InfeasibleError
 
 __all__ = [
@@ -93,7 +93,7 @@ __all__ = [
     "SafetyHook",
     "SafetyReport",
     "SafetyStats",
-    "SafetySummary",
+    "SafetyTotals",
     "SafetyTuning",
     "box_signed_distance",
     "filter_acts",

@@ -37,9 +37,9 @@ from gcs_swarm.mission.source import (
 __all__ = [
     "MAX_FILE_BYTES",
     "MAX_PROBLEMS",
+    "describe",
     "load_mission",
     "parse_mission",
-    "summary",
 ]
 
 #: A mission file is a few kilobytes; anything over this is refused unread.
@@ -258,7 +258,7 @@ def _fill_sim_origins(vehicles: tuple[Vehicle, ...], emulator: Emulator) -> tupl
     return tuple(out)
 
 
-def summary(mission: Mission) -> str:
+def describe(mission: Mission) -> str:
     """One line describing a valid mission, for ``gcs-swarm check``."""
     n = len(mission.vehicles)
     sim = sum(v.is_sim for v in mission.vehicles)

@@ -164,7 +164,7 @@ def test_example1_arducopter_forms_inside_the_envelope() -> None:
     res = out.result
     r = np.linalg.norm(res.pos_m[-1] - res.leader_pos_m[-1], axis=-1)
     np.testing.assert_allclose(r, 2.48418, rtol=0.01)
-    assert res.summary().min_separation_m >= 1.0
+    assert res.figures().min_separation_m >= 1.0
     a = res.accel_mps2
     assert np.linalg.norm(a[..., :2], axis=-1).max() <= 1.0 + 1e-9  # a_max 1 inside 2.5
     assert np.abs(a[..., 2]).max() <= 1.0 + 1e-9

@@ -83,7 +83,7 @@ def test_octahedron_matches_analytic_equilibrium() -> None:
 
 def test_settling_time_is_about_52_s() -> None:
     # Spec s10: every radius and distance within 1 % of final after ~52 s.
-    summary = _run(6).summary()
+    summary = _run(6).figures()
     assert 45.0 < summary.time_to_form_s < 60.0
 
 

@@ -55,7 +55,7 @@ def test_point_mass_filter_fails_on_the_jerk_limited_vehicle() -> None:
     """The motivating case: the issue-10 filter, right on a point mass, lets the
     SITL-like vehicle into the box and closer than the separation."""
     res, law = _scenario3(Envelope())
-    s = res.summary()
+    s = res.figures()
     assert s.min_clearance_m is not None
     assert s.min_clearance_m < law.safety.clearance - 0.5  # inside the margin by far
     assert s.min_clearance_m < 0.0  # measured -1.9 m: inside the box
@@ -63,7 +63,7 @@ def test_point_mass_filter_fails_on_the_jerk_limited_vehicle() -> None:
 
 def test_envelope_filter_keeps_clearance_and_separation_every_cycle() -> None:
     res, law = _scenario3(ARDUCOPTER)
-    s = res.summary()  # over every sample (every control cycle) of the run
+    s = res.figures()  # over every sample (every control cycle) of the run
     assert s.min_clearance_m is not None
     assert s.min_clearance_m >= law.safety.clearance - TOL_M
     assert s.min_separation_m >= law.safety.separation - TOL_M

@@ -50,7 +50,7 @@ def test_scenario1_filter_on_passes_without_entering_the_box() -> None:
     clear, t_past, hook = _run(enabled=True)
     # 1e-6 m: the barrier is exact up to rounding (measured 4e-11 m).
     assert clear >= CLEARANCE - 1e-6
-    summary = hook.stats.summary()
+    summary = hook.stats.totals()
     assert summary.vehicle_cycles == 1201  # one report per period, not per RK4 stage
     assert summary.infeasible == 0
     assert summary.interventions > 0  # the filter did have to act
@@ -64,4 +64,4 @@ def test_scenario1_filter_off_reproduces_the_paper_flaw() -> None:
     # Spec s10-11: passes after about 35 s, cutting into the box by ~0.6 m.
     assert 34.0 < t_past < 36.5
     assert -0.7 < clear < -0.5
-    assert hook.stats.summary().interventions == 0
+    assert hook.stats.totals().interventions == 0

@@ -113,7 +113,7 @@ def _equilibrium_radius(mission: Mission) -> float:
         ),
         settings=dataclasses.replace(mission.settings, duration=300.0),
     )  # fmt: skip
-    return float(np.mean(simulate_mission(ideal).result.summary().final_radii_m))
+    return float(np.mean(simulate_mission(ideal).result.figures().final_radii_m))
 
 
 def test_px4_startup_first_try_three_times(tmp_path: Path, request: pytest.FixtureRequest) -> None:

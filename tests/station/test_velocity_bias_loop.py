@@ -51,7 +51,7 @@ def _predicted_radii() -> dict[int, float]:
 
     r = integrate(m.law, [v.start for v in m.vehicles], [v.q for v in m.vehicles],
                  duration=DURATION_S, dt=0.02, accel_filter=biased)  # fmt: skip
-    return dict(zip([v.sysid for v in m.vehicles], r.summary().final_radii_m.tolist(), strict=True))
+    return dict(zip([v.sysid for v in m.vehicles], r.figures().final_radii_m.tolist(), strict=True))
 
 
 @pytest.mark.slow
