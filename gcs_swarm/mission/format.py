@@ -25,21 +25,7 @@ from gcs_swarm.mission.addresses import LINK_WHAT, check_link
 from gcs_swarm.mission.bounds import GAIN_MAX
 from gcs_swarm.mission.context import Context
 from gcs_swarm.mission.emulator_format import EMULATOR
-from gcs_swarm.mission.fields import (
-    INVALID,
-    REQUIRED,
-    Bool,
-    ByKind,
-    Enum,
-    Key,
-    ListOf,
-    NonNeg,
-    Num,
-    Obj,
-    Pos,
-    Str,
-    Vec3,
-)
+from gcs_swarm.mission.fields import INVALID, REQUIRED, ByKind, Key, ListOf, Obj
 from gcs_swarm.mission.law_format import GAINS, LEADER, LIMITS, OBSTACLES, READINGS
 from gcs_swarm.mission.model import (
     Emulator,
@@ -47,6 +33,15 @@ from gcs_swarm.mission.model import (
     LogSettings,
     Mission,
     Vehicle,
+)
+from gcs_swarm.mission.scalars import (
+    Bool,
+    Enum,
+    NonNeg,
+    Num,
+    Pos,
+    Str,
+    Vec3,
 )
 from gcs_swarm.mission.settings_format import SETTINGS, geo_field
 
