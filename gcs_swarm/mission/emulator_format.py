@@ -1,7 +1,7 @@
 """The ``emulator:`` section of the mission format: the bundled emulator that
 flies the vehicles on ``link: sim`` (mode, dynamics, noise, homes, endpoints,
-seeded impairments; docs/emulator.md). Declared with ``fields`` and ``scalars``; assembled
-into the whole file by ``format``.
+seeded impairments; docs/emulator.md). Declared with ``fields`` and
+``scalars``; assembled into the whole file by ``format``.
 """
 
 from __future__ import annotations
