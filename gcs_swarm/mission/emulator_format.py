@@ -1,6 +1,6 @@
 """The ``emulator:`` section of the mission format: the bundled emulator that
 flies the vehicles on ``link: sim`` (mode, dynamics, noise, homes, endpoints,
-seeded impairments; docs/emulator.md). Declared with ``fields`` and
+seeded impairments; docs/emulator.md). Declared with ``declarations`` and
 ``scalars``; assembled into the whole file by ``format``.
 """
 
@@ -13,7 +13,7 @@ import yaml
 from gcs_swarm.mission.addresses import check_host
 from gcs_swarm.mission.bounds import POSITION_LIMIT_M, SPEED_LIMIT_MPS
 from gcs_swarm.mission.context import Context
-from gcs_swarm.mission.fields import INVALID, Key, Obj
+from gcs_swarm.mission.declarations import INVALID, Key, Obj
 from gcs_swarm.mission.model import Emulator, Impairments
 from gcs_swarm.mission.scalars import (
     Bool,

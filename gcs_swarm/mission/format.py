@@ -24,8 +24,8 @@ from gcs_swarm.control.params import Gains, Leader, Readings
 from gcs_swarm.mission.addresses import LINK_WHAT, check_link
 from gcs_swarm.mission.bounds import GAIN_MAX
 from gcs_swarm.mission.context import Context
+from gcs_swarm.mission.declarations import INVALID, REQUIRED, ByKind, Key, ListOf, Obj
 from gcs_swarm.mission.emulator_format import EMULATOR
-from gcs_swarm.mission.fields import INVALID, REQUIRED, ByKind, Key, ListOf, Obj
 from gcs_swarm.mission.law_format import GAINS, LEADER, LIMITS, OBSTACLES, READINGS
 from gcs_swarm.mission.model import (
     Emulator,

@@ -22,7 +22,7 @@ from gcs_swarm.control.params import Avoidance, LawConfig, Limits, Safety
 from gcs_swarm.errors import MissionError
 from gcs_swarm.mission.checks import run_checks
 from gcs_swarm.mission.context import Context, Problem
-from gcs_swarm.mission.fields import INVALID
+from gcs_swarm.mission.declarations import INVALID
 from gcs_swarm.mission.format import MISSION
 from gcs_swarm.mission.model import Emulator, Mission, Settings, Signing, Vehicle
 from gcs_swarm.mission.source import (

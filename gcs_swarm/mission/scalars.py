@@ -1,8 +1,8 @@
 """Leaf fields of the mission format: numbers (``Num`` and its shorthands
 ``Int``, ``Pos``, ``NonNeg``), ``Bool``, ``Str``, ``Enum``, ``Const`` and
 ``Vec3`` (three numbers). Each validates a scalar node by the YAML 1.2 core
-schema and describes itself as JSON Schema (``fields`` has the base and the
-containers).
+schema and describes itself as JSON Schema (``declarations`` has the base
+and the containers).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import yaml
 from gcs_swarm.mission.bounds import POSITION_LIMIT_M
 from gcs_swarm.mission.context import TAG as _TAG
 from gcs_swarm.mission.context import Context, did_you_mean
-from gcs_swarm.mission.fields import INVALID, Field, ListOf
+from gcs_swarm.mission.declarations import INVALID, Field, ListOf
 
 __all__ = ["Bool", "Const", "Enum", "Int", "NonNeg", "Num", "Pos", "Str", "Vec3"]
 

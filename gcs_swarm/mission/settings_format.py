@@ -1,8 +1,8 @@
 """The ``mission:`` section of the mission format (name, duration, rate,
 origin, end action, start-up, signing, the vehicles' own failsafe, the
 velocity bias) and the geodetic point both it and ``vehicles[].origin`` take.
-Declared with ``fields`` and ``scalars``; assembled into the whole file by
-``format``.
+Declared with ``declarations`` and ``scalars``; assembled into the whole file
+by ``format``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import yaml
 
 from gcs_swarm.mission.bounds import DURATION_MAX_S
 from gcs_swarm.mission.context import Context
-from gcs_swarm.mission.fields import INVALID, REQUIRED, ByKind, Key, Obj
+from gcs_swarm.mission.declarations import INVALID, REQUIRED, ByKind, Key, Obj
 from gcs_swarm.mission.model import (
     Failsafe,
     GeoPoint,

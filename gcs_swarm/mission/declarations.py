@@ -1,4 +1,4 @@
-"""Field definitions of the mission format: each one both validates a YAML
+"""Field declarations of the mission format: each one both validates a YAML
 node (with its line) and describes itself as JSON Schema, so the validator and
 ``gcs-swarm schema`` are generated from the same declarations and cannot drift.
 
@@ -8,7 +8,8 @@ after recording one problem line per mistake in the ``Context``.
 
 This module holds the base ``Field`` (tag and size checks) and the
 containers (``ListOf``, ``Key``, ``Obj``, ``ByKind``); the leaf values
-(numbers, booleans, strings, choices, ``Vec3``) are in ``scalars``.
+(numbers, booleans, strings, choices, ``Vec3``) are in ``scalars``. (The
+potential fields of the law are ``gcs_swarm.control.fields``.)
 """
 
 from __future__ import annotations
