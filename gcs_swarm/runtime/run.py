@@ -37,7 +37,7 @@ from gcs_swarm.mission.source import (
     read_regular,
     signing_key_bytes,
 )
-from gcs_swarm.missionsim import demand_report, envelope_demand
+from gcs_swarm.offline import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.report.replay import safety_applied
