@@ -5,7 +5,7 @@ byte-identical to pymavlink's ``MAVLink_local_position_ned_message.pack``
 (a test checks it), so the per-vehicle Python cost of the 50 Hz stream is one
 slice and one ``sendto``; and ``lpn_frames_small``, the same bytes one frame
 at a time with ``struct`` for a handful of vehicles, where numpy's per-call
-cost outweighs the work. Frame layout (MAVLink 2, unsigned)::
+cost outweighs the work (``small.SMALL_N``). Frame layout (MAVLink 2, unsigned)::
 
     0xFD len incompat=0 compat=0 seq sysid compid msgid(3, LE) payload[len] crc(2, LE)
 
@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavwire.crc import CRC_INIT, crc_step, frame_crc
+from sim_vehicle.small import few
 
 __all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "encode_local_position_ned", "lpn_frames_small"]
 
@@ -43,9 +44,6 @@ _PAY_DTYPE = np.dtype(
 )
 
 
-_SMALL_N = 64
-"""Below this many frames the CRC runs per frame over bytes (a numpy step per
-byte costs more than the whole frame in plain Python)."""
 _LPN_PAYLOAD = struct.Struct("<Iffffff")
 _LPN_EXTRA = bytes((LPN_CRC_EXTRA,))
 
@@ -84,7 +82,7 @@ def encode_local_position_ned(
     buf[:, _HDR : _HDR + _PAYLOAD][~(np.arange(_PAYLOAD)[None, :] < plen[:, None])] = 0
     end = _HDR + plen
     rows = np.arange(n)
-    if n < _SMALL_N:
+    if few(n):  # the CRC per frame over bytes: a numpy step per byte costs more
         for i, e in enumerate(end.tolist()):
             crc_i = frame_crc(buf[i, 1:e].tobytes(), _LPN_EXTRA)
             buf[i, e] = crc_i & 0xFF
