@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle import lockstep, schedule, signing
+from sim_vehicle import lockstep, schedule
 from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
@@ -143,8 +143,9 @@ class EmulatorCore:
         self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
 
     # ------------------------------------------------------------ vehicles
-    def add(self, spec: VehicleSpec, ep: Port, initial: bool) -> HostedVehicle:
-        """Host ``spec`` on port ``ep`` from now on."""
+    def add(self, spec: VehicleSpec, ep: Port, initial: bool, enc: Any) -> HostedVehicle:
+        """Host ``spec`` on port ``ep`` from now on; ``enc``: its pymavlink encoder
+        (``signing.mavlink``: signing starts from the wall clock, the shell's)."""
         cfg, key = self.config, spec.key
         now = self.sim_time_s
         ap = autopilot_for(cfg, spec, now)
@@ -154,7 +155,6 @@ class EmulatorCore:
         self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
         self.fleet.boot[row] = now
         noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
-        enc = signing.mavlink(spec.sysid, spec.compid, cfg.signing_key)
         v = HostedVehicle(spec, ap, enc, ep, row, noise_rng, initial)
         self.vehicles[key] = v
         self.rows.append(v)

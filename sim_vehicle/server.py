@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_vehicle import lockstep
+from sim_vehicle import lockstep, signing
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.core import EmulatorCore, HostedVehicle
 from sim_vehicle.fleet import Fleet
@@ -215,7 +215,8 @@ class Emulator:
             tcp = cfg.tcp_base_port
             tcp_port = None if tcp is None else (tcp + 10 * index if tcp else 0)
             ep = await self._open_endpoint(port, shared=False, key=key, tcp_port=tcp_port)
-        return self.core.add(spec, ep, initial)
+        enc = signing.mavlink(spec.sysid, spec.compid, cfg.signing_key)
+        return self.core.add(spec, ep, initial, enc)
 
     def set_impairment(self, uplink: Impairment, downlink: Impairment) -> None:
         """Change every link's impairments from now on (each keeps its seeded
