@@ -4,15 +4,21 @@ one hand-advanced clock (aioquic's client/server ``transfer`` in its tests).
 Station side: ``gcs_swarm.swarm.SwarmCore`` behind one listening
 ``LinkState`` (every vehicle on one ``udpin`` link, each from its own
 address, as MAVProxy or a radio bridge would). Vehicle side: one
-``sim_vehicle.Autopilot`` per vehicle (its own pymavlink encoder and parser:
-the emulator never shares the station's codec) and one ``sim_vehicle.Fleet``
-for the point masses. Between them, datagrams as bytes, which a test may
-drop (seeded), forge or silence. No sockets, no event loop, no sleeps: a
-second of flight is 50 physics steps and whatever the core asks for.
+``sim_vehicle.Autopilot`` per vehicle, ArduCopter or PX4 (``Px4Autopilot``)
+as the mission's ``autopilot`` says (its own pymavlink encoder and parser:
+the emulator never shares the station's codec), and one ``sim_vehicle.Fleet``
+for the point masses. Between them, datagrams as bytes through the
+emulator's own seeded impairments (``sim_vehicle.impairments``: loss,
+duplicates, delay and jitter, per vehicle and direction, released at the
+physics steps as the emulator releases them), which a test may also forge
+or silence; ``station_off`` stops the station's side altogether (its
+timers, HEARTBEAT and setpoints), so the vehicles' own failsafes act. No
+sockets, no event loop, no sleeps: a second of flight is 50 physics steps
+and whatever the core asks for.
 
-The wiring follows ``sim_vehicle/server.py`` (``_deliver``, ``_sync``,
-``_emit``) and ``runtime/station.py`` (``_after``, ``_on_timer``,
-``_control_task``), reduced to what an ideal, unimpaired emulator does.
+The wiring follows ``sim_vehicle/core.py`` (``_deliver``, ``sync``,
+``emit``) and ``runtime/station.py`` (``_after``, ``_on_timer``,
+``_control_task``), reduced to what an emulator without noise does.
 """
 
 from __future__ import annotations
@@ -31,10 +37,12 @@ from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.runtime import emulator_config, station_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
-from sim_vehicle import signing
+from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.fleet import Fleet
+from sim_vehicle.impairments import DelayLine, Impairer, impair
 from sim_vehicle.params import ParamStore
+from sim_vehicle.px4 import PX4_OVERRIDES, Px4Autopilot, Px4ParamStore
 from sim_vehicle.telemetry import Kin
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
@@ -68,6 +76,10 @@ class SimVehicle:
     enc: Any
     parser: Any
     addr: tuple[str, int]
+    up: Impairer
+    """The link towards the vehicle (setpoints, commands)."""
+    down: Impairer
+    """The link towards the station (telemetry, replies)."""
     target: ControlTarget | None = None
     version: int = -1
     lpn_next: float = float("inf")
@@ -79,16 +91,16 @@ class SimVehicle:
 class Sky:
     """Station core and emulated vehicles wired together (module docstring).
 
-    ``drop_down``/``drop_up``: the chance [0, 1) that a datagram to the
-    station (telemetry) / to a vehicle (setpoints, commands) is lost, drawn
-    from ``numpy.random.default_rng(seed)``."""
+    ``downlink``/``uplink``: the impairment of every datagram to the station
+    (telemetry) / to a vehicle (setpoints, commands), each vehicle's two
+    seeded as the emulator seeds them (``seed``, its system id)."""
 
     def __init__(
         self,
         mission: Mission,
         *,
-        drop_down: float = 0.0,
-        drop_up: float = 0.0,
+        downlink: Impairment | None = None,
+        uplink: Impairment | None = None,
         seed: int = 0,
     ) -> None:
         cfg = station_config(mission, {v.sysid: LINK for v in mission.vehicles})
@@ -106,9 +118,11 @@ class Sky:
         self.dt = 1.0 / emu.rate_hz
         self.fleet = Fleet()
         self.vehicles: dict[int, SimVehicle] = {}
-        self.drop_down, self.drop_up = drop_down, drop_up
-        self.rng = np.random.default_rng(seed)
         self.lost_down = self.lost_up = 0
+        self.duplicated_down = self.duplicated_up = 0
+        self.station_running = True
+        self._down_line: DelayLine[Datagram] = DelayLine()
+        self._up_line: DelayLine[tuple[SimVehicle, bytes]] = DelayLine()
         self.steps = 0
         self.answered: Counter[int] = Counter()
         """Setpoints of the control steps per vehicle (the station's answers)."""
@@ -116,12 +130,14 @@ class Sky:
         self._next_status = 1.0
         self._to_station: list[Datagram] = []
         for spec in emu.vehicles:
-            params = ParamStore(
-                {"SIM_EKF_DELAY": 0.0, "SIM_BOOT_S": 0.0, "SIM_ACC_TAU": emu.tau_s,
-                 "SIM_ACC_SHAPE": 0.0}
-            )  # fmt: skip
             start = spec.start_ned_m
-            ap = Autopilot(
+            quick = {"SIM_EKF_DELAY": 0.0, "SIM_BOOT_S": 0.0}
+            if spec.autopilot == "px4":  # its measured lag (docs/emulator.md), no shaping
+                quick["SIM_PREARM_S"] = 0.0  # its pre-arm checks pass at once, like the EKF
+                params: ParamStore = Px4ParamStore({**PX4_OVERRIDES, **quick})
+            else:
+                params = ParamStore({**quick, "SIM_ACC_TAU": emu.tau_s, "SIM_ACC_SHAPE": 0.0})
+            ap = (Px4Autopilot if spec.autopilot == "px4" else Autopilot)(
                 spec.sysid,
                 spec.origin,
                 params,
@@ -134,8 +150,12 @@ class Sky:
             self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
             parser = mav.MAVLink(None)
             parser.robust_parsing = True
+            # as the emulator seeds each endpoint's two directions (server._open_endpoint)
+            ss = np.random.SeedSequence([seed, spec.key, 7])
+            up, down = (np.random.default_rng(q) for q in ss.spawn(2))
             v = SimVehicle(ap, row, signing.mavlink(spec.sysid, spec.compid, None), parser,
-                           address(spec.sysid))  # fmt: skip
+                           address(spec.sysid), Impairer(uplink or Impairment(), up),
+                           Impairer(downlink or Impairment(), down))  # fmt: skip
             self.vehicles[spec.sysid] = v
             self._sync(v)
 
@@ -169,8 +189,14 @@ class Sky:
         return bytes(msg.pack(v.enc))
 
     def _radio(self, v: SimVehicle, frames: list[bytes]) -> None:
-        if frames and not v.silent:
-            self._to_station.append((v.addr, b"".join(frames)))
+        """One datagram of ``frames`` from ``v`` towards the station (downlink impairment)."""
+        if not frames or v.silent:
+            return
+        item = (v.addr, b"".join(frames))
+        fate = impair(v.down, self._down_line, self.now, item)
+        self.lost_down += fate.copies == 0
+        self.duplicated_down += fate.copies > 1
+        self._to_station.extend([item] * fate.now)
 
     def _to_vehicle(self, v: SimVehicle, data: bytes) -> None:
         """A datagram from the station arrives at ``v`` (server ``_deliver``)."""
@@ -215,10 +241,11 @@ class Sky:
             v = by_addr.get(peer)
             if v is None:
                 continue  # to the forger: nobody listens there
-            if self.drop_up and self.rng.random() < self.drop_up:
-                self.lost_up += 1
-                continue
-            self._to_vehicle(v, data)
+            fate = impair(v.up, self._up_line, self.now, (v, data))
+            self.lost_up += fate.copies == 0
+            self.duplicated_up += fate.copies > 1
+            for _ in range(fate.now):
+                self._to_vehicle(v, data)
 
     def _station_sends(self) -> None:
         core = self.core
@@ -228,10 +255,18 @@ class Sky:
                 self.link.send(spec, sysid)
         self._deliver(self.link.datagrams_to_send())
 
+    def station_off(self) -> None:
+        """The station's side stops for good (killed): no timer, no HEARTBEAT, no
+        setpoint, nothing heard; the vehicles fly on and their failsafes act."""
+        self.station_running = False
+
     def transfer(self) -> None:
         """Pass datagrams both ways until nobody has anything to say (at ``now``)."""
         core, link = self.core, self.link
         for _ in range(100):
+            if not self.station_running:
+                self._to_station.clear()
+                return
             self._station_sends()
             if core.step_wanted:
                 core.control_step(self.now, self._write)
@@ -242,9 +277,8 @@ class Sky:
                 return
             batch, self._to_station = self._to_station, []
             for sender, data in batch:
-                if self.drop_down and self.rng.random() < self.drop_down:
-                    self.lost_down += 1
-                    continue
+                if not self.station_running:
+                    continue  # nobody listens any more
                 for item in link.receive(data, sender, self.now, datagram=True):
                     if type(item) is list:
                         core.receive_positions(item, LINK, self.now, self.now)
@@ -259,15 +293,18 @@ class Sky:
         end = self.now + seconds - 1e-9
         while self.now < end:
             tick = self.now + self.dt
-            while (due := self.core.get_timer()) is not None and due <= tick:
+            while (
+                self.station_running and (due := self.core.get_timer()) is not None and due <= tick
+            ):
                 self.now = max(self.now, due)
                 self.core.handle_timer(self.now)
                 self.transfer()
-            if self._next_hb <= tick:  # the station's 1 Hz HEARTBEAT (its shell's task)
+            if self.station_running and self._next_hb <= tick:  # its shell's 1 Hz HEARTBEAT
                 self._next_hb += 1.0
                 self.link.send(b.heartbeat())
             self.fleet.step(self.dt)
             self.now = tick
+            self._release_delayed()
             changed, self.fleet.changed = set(self.fleet.changed), []
             for v in self.vehicles.values():
                 ap = v.ap
@@ -280,10 +317,17 @@ class Sky:
                     v.lpn_next = max(v.lpn_next + iv, self.now + 0.5 * iv)
                     self._radio(v, [self._lpn(v)])
             self.transfer()
-            if self._next_status <= self.now:  # the shell's status task, every second
+            if self.station_running and self._next_status <= self.now:  # its status task
                 self._next_status += 1.0
                 self.core.check_alive(self.now)
                 self.transfer()
+
+    def _release_delayed(self) -> None:
+        """The delayed copies due by ``now``, both ways (the emulator's ``emit``)."""
+        while (up := self._up_line.pop_due(self.now)) is not None:
+            self._to_vehicle(*up)
+        while (down := self._down_line.pop_due(self.now)) is not None:
+            self._to_station.append(down)
 
     def run_until(self, done: Callable[[], bool], limit_s: float) -> None:
         """Advance a step at a time until ``done()``; fail after ``limit_s`` [s]."""

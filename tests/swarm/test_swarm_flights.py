@@ -12,6 +12,7 @@ from swarm_harness import Sky, address, mission_from
 
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Event, Mission
+from sim_vehicle import Impairment
 
 
 def _tetrahedron(duration: float, **changes: object) -> Mission:
@@ -65,7 +66,8 @@ def test_lossy_links_fly_on_without_losing_anyone() -> None:
     # 20 % of the datagrams each way lost (seeded): the step runs on the
     # fallback when a report is missing; nobody goes stale (1 s without a
     # report would take 50 losses in a row).
-    sky = Sky(_tetrahedron(3.0), drop_down=0.2, drop_up=0.2, seed=7)
+    lossy = Impairment(loss=0.2)
+    sky = Sky(_tetrahedron(3.0), downlink=lossy, uplink=lossy, seed=7)
     sky.ready()
     sky.start()
     heard0 = {s: v.setpoints_heard for s, v in sky.vehicles.items()}
