@@ -1,7 +1,8 @@
 """The lockstep rule's tests on the fleet rows. NO I/O.
 
 The rule itself (rules 1-4) is written in the ``sim_vehicle`` package
-docstring and in docs/emulator.md ("Lockstep"). Here: which vehicle blocks
+docstring (docs/emulator.md, "How the code is laid out", says where each
+piece lives). Here: which vehicle blocks
 the next step (rules 2-3: ``blocked``), when the answers count (``answered``:
 a setpoint heard, even one the uplink then loses), when the clock may start
 (``started``, rule 1) and how long an unblocked clock waits (``pace_delay``,
