@@ -1,15 +1,16 @@
 """The emulator without its sockets: vehicles, sim time, delivery, telemetry. NO I/O.
 
 Owns ``EmulatorCore``: the hosted vehicles (autopilot, fleet row, encoder,
-noise stream), the physics step and what follows it (``schedule``: polls
-and the LOCAL_POSITION_NED stream), inbound messages (peer rules, lockstep
-answers, the uplink impairment, delivery to the autopilots) and outbound
-frames (sequence numbers, datagram joining, the downlink impairment,
-``impairments``). It is driven by ``step()`` and ``receive(port, msgs, addr,
-wall_s)``; it hands datagrams to each ``Port.sendto`` and never waits. The
-asyncio shell (``server.Emulator``) owns the sockets, the clock task and the
-lockstep wait (``lockstep``). ``wall_s``: the wall clock, which only the
-GCS failsafe reads in lockstep (``Autopilot.wall_s``); the shell passes it.
+noise stream; ``VehicleState`` is a snapshot of one), the physics step and
+what follows it (``schedule``: polls and the LOCAL_POSITION_NED stream),
+inbound messages (peer rules, lockstep answers, the uplink impairment,
+delivery to the autopilots) and outbound frames (sequence numbers, datagram
+joining, the downlink impairment, ``impairments``). It is driven by
+``step()`` and ``receive(port, msgs, addr, wall_s)``; it hands datagrams to
+each ``Port.sendto`` and never waits. The asyncio shell (``server.Emulator``)
+owns the sockets, the clock task and the lockstep wait (``lockstep``).
+``wall_s``: the wall clock, which only the GCS failsafe reads in lockstep
+(``Autopilot.wall_s``); the shell passes it.
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ from sim_vehicle.params import PARAM_TABLE, ParamStore
 from sim_vehicle.px4 import PX4_OVERRIDES, Px4Autopilot, Px4ParamStore
 from sim_vehicle.small import few
 from sim_vehicle.stats import EmulatorStats
-from sim_vehicle.telemetry import Kin
+from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["MAX_PEERS", "EmulatorCore", "HostedVehicle", "Port", "autopilot_for"]
+__all__ = ["MAX_PEERS", "EmulatorCore", "HostedVehicle", "Port", "VehicleState", "autopilot_for"]
 
 Addr = tuple[str, int]
 MAX_PEERS = 8
@@ -60,6 +61,30 @@ class Port(Protocol):
     def sendto(self, data: bytes, addr: Addr) -> None: ...
 
     def close(self) -> None: ...  # the shell's: the core never closes a port
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """Snapshot of one vehicle (local NED relative to its origin; SI units)."""
+
+    sysid: int
+    mode: int
+    mode_name: str
+    armed: bool
+    landed: bool
+    ekf_ready: bool
+    holding: bool
+    pos_ned_m: Vec3
+    vel_ned_m_s: Vec3
+    accel_ned_m_s2: Vec3
+    sim_time_s: float
+    origin: Vec3
+    home_ned_m: Vec3
+    endpoint: Addr
+    params: dict[str, float]
+    control: str = ""  # what GUIDED tracks now: "accel" once the station's law flies it
+    tcp_endpoint: Addr | None = None  # (host, port) of its TCP server, if served over TCP
+    landed_state: int = 0  # EXTENDED_SYS_STATE.landed_state (1 ground, 2 air, 3 up, 4 down)
 
 
 @dataclass(eq=False)
@@ -203,6 +228,30 @@ class EmulatorCore:
                 kins = self._kins = schedule.kins(f)
             return kins[v.row]
         return schedule.kin(f, v.row)
+
+    def snapshot(self, v: HostedVehicle, endpoint: Addr, tcp: Addr | None) -> VehicleState:
+        """``v`` now, served on ``endpoint`` (and TCP ``tcp``)."""
+        k, ap = self.kin(v), v.ap
+        return VehicleState(
+            sysid=v.spec.key,
+            mode=ap.mode,
+            mode_name=ap.mode_name,
+            armed=ap.armed,
+            landed=k.landed,
+            ekf_ready=ap.ekf_ready,
+            holding=ap.holding,
+            pos_ned_m=k.pos,
+            vel_ned_m_s=k.vel,
+            accel_ned_m_s2=k.acc,
+            sim_time_s=self.sim_time_s,
+            origin=v.spec.origin,
+            home_ned_m=ap.home,
+            endpoint=endpoint,
+            params=dict(ap.params.values),
+            control=ap.control,
+            tcp_endpoint=tcp,
+            landed_state=ap.landed_state,
+        )
 
     def contact(self, v: HostedVehicle) -> None:
         """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""

@@ -8,7 +8,7 @@ task steps the core in real time or in lockstep; the lockstep rule is written
 in the ``sim_vehicle`` package docstring, its tests on the fleet are
 ``lockstep``, and the waiting is ``_lockstep_wait`` here with ``_step_now``
 (the datagram that brings the last answer takes the step at once, without
-waking the clock task). Also ``VehicleState``, a snapshot of one vehicle.
+waking the clock task).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
@@ -24,38 +23,13 @@ import numpy as np
 
 from sim_vehicle import lockstep, signing
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
-from sim_vehicle.core import EmulatorCore, HostedVehicle
+from sim_vehicle.core import EmulatorCore, HostedVehicle, VehicleState
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.link import Addr, Endpoint, TcpPort, bind_udp
 from sim_vehicle.stats import EmulatorStats
-from sim_vehicle.telemetry import Vec3
 
 __all__ = ["Emulator", "EmulatorStats", "VehicleState"]
-
-
-@dataclass(frozen=True)
-class VehicleState:
-    """Snapshot of one vehicle (local NED relative to its origin; SI units)."""
-
-    sysid: int
-    mode: int
-    mode_name: str
-    armed: bool
-    landed: bool
-    ekf_ready: bool
-    holding: bool
-    pos_ned_m: Vec3
-    vel_ned_m_s: Vec3
-    accel_ned_m_s2: Vec3
-    sim_time_s: float
-    origin: Vec3
-    home_ned_m: Vec3
-    endpoint: Addr
-    params: dict[str, float]
-    control: str = ""  # what GUIDED tracks now: "accel" once the station's law flies it
-    tcp_endpoint: Addr | None = None  # (host, port) of its TCP server, if served over TCP
-    landed_state: int = 0  # EXTENDED_SYS_STATE.landed_state (1 ground, 2 air, 3 up, 4 down)
 
 
 class Emulator:
@@ -248,27 +222,9 @@ class Emulator:
     def vehicle_state(self, sysid: int) -> VehicleState:
         """Snapshot of one vehicle."""
         v = self.core.vehicle(sysid)
-        k, ap, ep = self.core.kin(v), v.ap, _endpoint(v)
-        return VehicleState(
-            sysid=sysid,
-            mode=ap.mode,
-            mode_name=ap.mode_name,
-            armed=ap.armed,
-            landed=k.landed,
-            ekf_ready=ap.ekf_ready,
-            holding=ap.holding,
-            pos_ned_m=k.pos,
-            vel_ned_m_s=k.vel,
-            accel_ned_m_s2=k.acc,
-            sim_time_s=self.sim_time_s,
-            origin=v.spec.origin,
-            home_ned_m=ap.home,
-            endpoint=ep.address,
-            params=dict(ap.params.values),
-            control=ap.control,
-            tcp_endpoint=ep.tcp.address if ep.tcp is not None else None,
-            landed_state=ap.landed_state,
-        )
+        ep = _endpoint(v)
+        tcp = ep.tcp.address if ep.tcp is not None else None
+        return self.core.snapshot(v, ep.address, tcp)
 
     def set_param(self, sysid: int, name: str, value: float) -> None:
         """Set a parameter directly (as PARAM_SET would, without a reply)."""
