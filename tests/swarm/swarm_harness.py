@@ -39,6 +39,7 @@ from gcs_swarm.runtime import emulator_config, station_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
 from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot, ControlTarget
+from sim_vehicle.codec import lpn_frames_small
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import DelayLine, Impairer, impair
 from sim_vehicle.params import ParamStore
@@ -183,10 +184,15 @@ class Sky:
             v.lpn_next = self.now + iv
 
     def _lpn(self, v: SimVehicle) -> bytes:
-        f, r = self.fleet, v.row
+        """v's LOCAL_POSITION_NED now, by the emulator's encoder (pymavlink's bytes)."""
+        f, r, enc = self.fleet, v.row, v.enc
         t_ms = round((self.now - v.ap.boot) * 1000.0)
-        msg = mav.MAVLink_local_position_ned_message(t_ms, *f.pos[r].tolist(), *f.vel[r].tolist())
-        return bytes(msg.pack(v.enc))
+        pos, vel = f.pos[r].tolist(), f.vel[r].tolist()
+        frames = lpn_frames_small([t_ms], [pos], [vel], [enc.seq], [v.ap.sysid], [v.ap.compid])
+        if frames is None:  # a value beyond float32: pymavlink's rules
+            return bytes(mav.MAVLink_local_position_ned_message(t_ms, *pos, *vel).pack(enc))
+        enc.seq = (enc.seq + 1) & 0xFF
+        return frames[0]
 
     def _radio(self, v: SimVehicle, frames: list[bytes]) -> None:
         """One datagram of ``frames`` from ``v`` towards the station (downlink impairment)."""
