@@ -8,9 +8,8 @@ stream, whose interval it publishes as ``lpn_interval_s``).
 
 It never touches the dynamics arrays: it publishes a ``ControlTarget`` and
 bumps ``version`` whenever that target (or a dynamics parameter) changes; the
-server copies it into the vectorised tracking law (dynamics Eq. D3); what each
-control state tracks is built in ``targets``.
-``deadline`` is the sim time at which ``poll`` must next run (habit: time is
+emulator's core copies it into the vectorised tracking law (dynamics Eq.
+D3); what each control state tracks is built in ``targets``. ``deadline`` is the sim time at which ``poll`` must next run (habit: time is
 an argument). READING of the protocol sheet: setpoints are honoured only in
 GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
@@ -88,7 +87,7 @@ class Autopilot:
         self.rejected = 0  # messages refused for non-finite or absurd numbers
         self.streaming = airborne_at is not None  # lockstep rule 2
         self.lpn_interval_s: float | None = None
-        self.lpn_kick = False  # the server sends one LOCAL_POSITION_NED at once, then clears it
+        self.lpn_kick = False  # the core sends one LOCAL_POSITION_NED at once, then clears it
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
         self.hold_ned: Vec3 = airborne_at or ZERO
@@ -100,7 +99,7 @@ class Autopilot:
         self._tk_alt_d = 0.0
         self.last_gcs_hb: float | None = None
         self.wall_s: float | None = None
-        """Wall-clock time [s] of this call, set by the server in lockstep (None in
+        """Wall-clock time [s] of this call, set by the emulator in lockstep (None in
         real time). The ground station is not sped up with the emulator, so in
         lockstep the GCS failsafe counts FS_GCS_TIMEOUT in wall-clock seconds of
         silence; in real time sim time is the wall clock (times the speed-up, as
