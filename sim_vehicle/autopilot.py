@@ -9,8 +9,9 @@ stream, whose interval it publishes as ``lpn_interval_s``).
 It never touches the dynamics arrays: it publishes a ``ControlTarget`` and
 bumps ``version`` whenever that target (or a dynamics parameter) changes; the
 emulator's core copies it into the vectorised tracking law (dynamics Eq.
-D3); what each control state tracks is built in ``targets``. ``deadline`` is the sim time at which ``poll`` must next run (habit: time is
-an argument). READING of the protocol sheet: setpoints are honoured only in
+D3); what each control state tracks is built in ``targets``. ``deadline``
+is the sim time at which ``poll`` must next run (habit: time is an
+argument). READING of the protocol sheet: setpoints are honoured only in
 GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
 a hover and stays in GUIDED.

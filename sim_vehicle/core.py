@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import lockstep, schedule
 from sim_vehicle.autopilot import Autopilot, ControlTarget
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
@@ -34,7 +35,15 @@ from sim_vehicle.small import few
 from sim_vehicle.stats import EmulatorStats
 from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["MAX_PEERS", "EmulatorCore", "HostedVehicle", "Port", "VehicleState", "autopilot_for"]
+__all__ = [
+    "MAX_PEERS",
+    "EmulatorCore",
+    "HostedVehicle",
+    "Port",
+    "VehicleState",
+    "autopilot_for",
+    "join_frames",
+]
 
 Addr = tuple[str, int]
 MAX_PEERS = 8
@@ -43,8 +52,8 @@ _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 
 class Port(Protocol):
-    """What the core uses of one endpoint (``link.Endpoint``): its bookkeeping,
-    datagram joining and a non-blocking ``sendto``."""
+    """What the core uses of one endpoint (``link.Endpoint``; a test's radio): its
+    bookkeeping and a non-blocking ``sendto``."""
 
     shared: bool
     uplink: Impairer
@@ -55,8 +64,6 @@ class Port(Protocol):
     outbox: list[tuple[bytes, int]]
     signing_key: bytes | None
     silent: bool
-
-    def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]: ...
 
     def sendto(self, data: bytes, addr: Addr) -> None: ...
 
@@ -146,6 +153,25 @@ def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopil
         airborne_at=start if spec.airborne else None,
         streams=dict(cfg.streams),
     )
+
+
+def join_frames(frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
+    """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
+    (``datagram_bounds``); each datagram with the nonzero keys of its frames
+    (the vehicles whose LOCAL_POSITION_NED it carries)."""
+    if not frames:
+        return []
+    datas, keys = zip(*frames, strict=True)
+    bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
+    if len(bounds) == 1:  # the usual case
+        return [(b"".join(datas), [k for k in keys if k])]
+    data = b"".join(datas)
+    out: list[tuple[bytes, list[int]]] = []
+    first = start = 0
+    for stop, end in bounds:
+        out.append((data[start:end], [k for k in keys[first:stop] if k]))
+        first, start = stop, end
+    return out
 
 
 class EmulatorCore:
@@ -345,7 +371,7 @@ class EmulatorCore:
             frame, key = frames[0]
             batches = [(frame, [key] if key else [])]
         else:
-            batches = ep.batch(frames)
+            batches = join_frames(frames)
         stats, now, line = self.stats.link, self.sim_time_s, self._delayed_out
         clean = not ep.downlink.imp.active  # the hot case: no impairment, no random draw
         for data, lpn in batches:

@@ -8,10 +8,9 @@ client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
 go straight to the non-blocking socket (a full socket buffer drops the
 datagram and counts it, as a radio would); receives come through asyncio.
 Datagrams are batched per peer up to ``mavwire.MAX_DATAGRAM_BYTES`` (the
-station's limit too). A TCP client is
-one more peer of its endpoint, under the address ``("tcp:HOST", PORT)``
-(``TCP_PREFIX``): everything sent to the endpoint's peers goes to it too, as
-a byte stream.
+station's limit too; ``core.join_frames``). A TCP client is one more peer of
+its endpoint, under the address ``("tcp:HOST", PORT)`` (``TCP_PREFIX``):
+everything sent to the endpoint's peers goes to it too, as a byte stream.
 """
 
 from __future__ import annotations
@@ -24,8 +23,8 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.crc import frame_crc
-from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import signing
+from sim_vehicle.core import join_frames
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.stats import LinkStats
 
@@ -133,22 +132,8 @@ class Endpoint(asyncio.DatagramProtocol):
         parser.have_prefix_error = False
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
-        """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
-        (``datagram_bounds``); each datagram with the nonzero keys of its frames
-        (the vehicles whose LOCAL_POSITION_NED it carries)."""
-        if not frames:
-            return []
-        datas, keys = zip(*frames, strict=True)
-        bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
-        if len(bounds) == 1:  # the usual case
-            return [(b"".join(datas), [k for k in keys if k])]
-        data = b"".join(datas)
-        out: list[tuple[bytes, list[int]]] = []
-        first = start = 0
-        for stop, end in bounds:
-            out.append((data[start:end], [k for k in keys[first:stop] if k]))
-            first, start = stop, end
-        return out
+        """``core.join_frames``: (frame, key) pairs joined into datagrams."""
+        return join_frames(frames)
 
     def sendto(self, data: bytes, addr: Addr) -> None:
         """Send one datagram now (no impairment here; see ``core.EmulatorCore.transmit``)."""
