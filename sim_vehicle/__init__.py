@@ -130,9 +130,9 @@ at run time by typing ``add SYSID [N,E,D]`` / ``remove SYSID`` / ``list`` on std
 from __future__ import annotations
 
 from sim_vehicle.config import DEFAULT_ORIGIN, EmulatorConfig, Impairment, VehicleSpec
-from sim_vehicle.core import VehicleState
 from sim_vehicle.server import Emulator
 from sim_vehicle.stats import EmulatorStats
+from sim_vehicle.vehicles import VehicleState
 
 __all__ = [
     "DEFAULT_ORIGIN",

@@ -23,11 +23,12 @@ import numpy as np
 
 from sim_vehicle import lockstep, signing
 from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
-from sim_vehicle.core import EmulatorCore, HostedVehicle, VehicleState
+from sim_vehicle.core import EmulatorCore
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.link import Addr, Endpoint, TcpPort, bind_udp
 from sim_vehicle.stats import EmulatorStats
+from sim_vehicle.vehicles import HostedVehicle, VehicleState
 
 __all__ = ["Emulator", "EmulatorStats", "VehicleState"]
 

@@ -37,9 +37,10 @@ from gcs_swarm.runtime import emulator_config, station_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
 from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot
-from sim_vehicle.core import EmulatorCore, HostedVehicle
+from sim_vehicle.core import EmulatorCore
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.stats import LinkStats
+from sim_vehicle.vehicles import HostedVehicle
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 LINK = "udpin:0.0.0.0:14550"
