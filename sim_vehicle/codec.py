@@ -6,7 +6,7 @@ shares), byte-identical to pymavlink's ``MAVLink_local_position_ned_message.pack
 (tests check it), so the per-vehicle Python cost of the 50 Hz stream is one
 slice and one ``sendto``; and ``lpn_frames_small``, the same bytes one frame
 at a time with ``struct`` for a handful of vehicles, where numpy's per-call
-cost outweighs the work. Frame layout (MAVLink 2, unsigned)::
+cost outweighs the work (``small.SMALL_N``). Frame layout (MAVLink 2, unsigned)::
 
     0xFD len incompat=0 compat=0 seq sysid compid msgid(3, LE) payload[len] crc(2, LE)
 
@@ -35,9 +35,6 @@ _PAYLOAD = np.dtype([("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4
 vx, vy, vz as ``vel``."""
 _FRAMES = FrameBuilder(LPN_MSGID, LPN_CRC_EXTRA, _PAYLOAD)
 
-_SMALL_N = 64
-"""Below this many frames ``Fleet.lpn_frames`` packs frame by frame with
-``struct`` (numpy's per-call cost is more than the whole frame in plain Python)."""
 _LPN_PAYLOAD = struct.Struct("<Iffffff")
 
 
