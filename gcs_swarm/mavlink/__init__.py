@@ -6,8 +6,8 @@ conversion, and the per-vehicle protocol state machine (time is an argument).
 from __future__ import annotations
 
 from gcs_swarm.mavlink.codec import STATION_COMPID, STATION_SYSID, Codec, CodecStats, MessageSpec
-from gcs_swarm.mavlink.frames import (
-    GeoPoint,
+from gcs_swarm.mavlink.coordinates import (
+    GeoOrigin,
     mission_to_ned,
     ned_to_mission,
     origin_offset_m,
@@ -23,7 +23,7 @@ __all__ = [
     "STATION_SYSID",
     "Codec",
     "CodecStats",
-    "GeoPoint",
+    "GeoOrigin",
     "Inbound",
     "MessageSpec",
     "Phase",

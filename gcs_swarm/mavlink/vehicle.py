@@ -46,12 +46,12 @@ from gcs_swarm.control.velocity_bias import VelocityBiasObserver
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
-from gcs_swarm.mavlink.events import describe as describe_event
-from gcs_swarm.mavlink.frames import (
-    GeoPoint,
+from gcs_swarm.mavlink.coordinates import (
+    GeoOrigin,
     mission_to_ned,
     origin_offset_m,
 )
+from gcs_swarm.mavlink.events import describe as describe_event
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
     EkfStatus,
@@ -135,8 +135,8 @@ class VehicleProtocol:
         self.position: LocalPositionNed | None = None
         self.position_at = -math.inf
         self.target_echo: PositionTarget | None = None
-        self.origin: GeoPoint | None = None
-        self.reference: GeoPoint | None = config.mission_origin
+        self.origin: GeoOrigin | None = None
+        self.reference: GeoOrigin | None = config.mission_origin
         self.offset_m: FloatArray | None = None
         self.last_accel_ned: FloatArray = np.zeros(3)
         self.failure: str | None = None
@@ -281,7 +281,7 @@ class VehicleProtocol:
         if self.phase is Phase.CONNECTING and self.heartbeat is not None:
             self._start_configuring(now)
 
-    def set_reference(self, reference: GeoPoint) -> None:
+    def set_reference(self, reference: GeoOrigin) -> None:
         """Fix the mission origin when it is learnt at run time (``first-vehicle``
         with a real first vehicle): offsets exist only once it is known."""
         self.reference = reference
@@ -583,7 +583,7 @@ class VehicleProtocol:
             self._decide(now)
 
     def _on_origin(self, msg: GpsGlobalOrigin, now: float) -> None:
-        origin = GeoPoint.from_mavlink(msg.lat_e7, msg.lon_e7, msg.alt_mm)
+        origin = GeoOrigin.from_mavlink(msg.lat_e7, msg.lon_e7, msg.alt_mm)
         self.origin = origin
         self._timers.pop("origin", None)
         self._event(
