@@ -99,7 +99,7 @@ class Sky:
             LINK,
             unix_clock=lambda: 1.7e9 + self.now,
             sysids=[v.sysid for v in mission.vehicles],
-            raw_positions=True,
+            telemetry=self.core.table,
             on_notice=self.notices.append,
         )
         emu = emulator_config(mission, airborne=True)
@@ -245,11 +245,10 @@ class Sky:
                 if self.drop_down and self.rng.random() < self.drop_down:
                     self.lost_down += 1
                     continue
-                for item in link.receive(data, sender, self.now, datagram=True):
-                    if type(item) is list:
-                        core.receive_positions(item, LINK, self.now, self.now)
-                    else:
-                        core.receive(item, LINK, self.now, self.now)
+                for msg in link.receive(data, sender, self.now, datagram=True):
+                    core.receive(msg, LINK, self.now, self.now)
+                if link.positions_written:
+                    core.telemetry_written(self.now)
         raise AssertionError("the two sides kept talking at one instant")
 
     # -------------------------------------------------------------- clock
