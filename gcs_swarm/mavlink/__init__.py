@@ -1,6 +1,7 @@
 """MAVLink layer of the station, with no I/O: codec per peer, message builders
 returning plain specs, typed inbound messages, the NED <-> mission frame
-conversion, and the per-vehicle protocol state machine (time is an argument).
+conversion (coordinates.py), the per-vehicle protocol state machine (time is
+an argument) and the flying vehicles' telemetry table (telemetry_table.py).
 """
 
 from __future__ import annotations
