@@ -101,8 +101,11 @@ class CodecStats:
 class RawPosition(NamedTuple):
     """An unsigned LOCAL_POSITION_NED frame decoded without pymavlink's
     message objects (``Codec.decode(..., raw_positions=True)``): the hot
-    inbound message, 50 Hz per vehicle. ``values`` are the payload's fields
-    in wire order: (time_boot_ms, x, y, z, vx, vy, vz)."""
+    inbound message, 50 Hz per vehicle, for the link state to write into the
+    telemetry table (swarm/link_state.py, mavlink/telemetry_table.py);
+    ``Codec.message`` makes pymavlink's message of one the table does not
+    take. ``values`` are the payload's fields in wire order:
+    (time_boot_ms, x, y, z, vx, vy, vz)."""
 
     sysid: int
     compid: int
@@ -243,15 +246,14 @@ class Codec:
     ) -> list[Any]:
         """Parse ``data``; return the good messages, count and drop the rest.
 
-        Unsigned datagrams take a fast path for LOCAL_POSITION_NED (50 Hz per
-        vehicle): each such frame is CRC-checked and unpacked with the
-        dialect's own struct into the dialect's own message class, without
-        pymavlink's byte-by-byte parser; every other whole unsigned frame goes
-        straight to pymavlink's ``decode`` (its parser's own last step); from
-        the first frame that is not whole and well-formed on, ``parse_buffer``
-        as before, so the messages and counters are the same.
-        With ``raw_positions`` those LOCAL_POSITION_NED frames come out as
-        ``RawPosition`` tuples instead of pymavlink messages.
+        Unsigned datagrams skip pymavlink's byte-by-byte parser: each whole
+        unsigned frame goes straight to pymavlink's ``decode`` (its parser's
+        own last step); from the first frame that is not whole and
+        well-formed on, ``parse_buffer`` as before, so the messages and
+        counters are the same. With ``raw_positions`` a LOCAL_POSITION_NED
+        frame (50 Hz per vehicle) is instead CRC-checked and unpacked with
+        the dialect's own struct into a ``RawPosition`` (the telemetry
+        table's input), without a pymavlink object.
         """
         if not datagram or self.signing_key is not None:
             good = self._parse(data, datagram=datagram)
@@ -265,11 +267,11 @@ class Codec:
             end = i + 12 + data[i + 1]
             if end > n:
                 break
-            if data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
+            if raw_positions and data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
                 raw = _raw_lpn(data, i, end)
                 if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
-                good.append(raw if raw_positions else _lpn_message(raw, data, i, end))
+                good.append(raw)
             else:
                 msg = self._decode_frame(data, i, end)
                 if msg is None:
@@ -281,6 +283,14 @@ class Codec:
             good.extend(self._parse(data[i:], datagram=True))
         self.stats.received += len(good)
         return good
+
+    def message(self, raw: RawPosition) -> Any:
+        """The pymavlink message of a ``RawPosition`` from ``decode``, made by
+        pymavlink's own ``decode`` of its frame (for a report that goes
+        through a vehicle's protocol rather than the telemetry table)."""
+        msg = self._decode_frame(raw.frame, 0, len(raw.frame))
+        assert msg is not None and msg is not _SKIP  # its CRC and length were checked
+        return msg
 
     def _decode_frame(self, data: bytes, i: int, end: int) -> Any:
         """The whole unsigned MAVLink 2 frame ``data[i:end]`` through pymavlink's
@@ -356,17 +366,6 @@ def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
         return None
     payload = frame[10:-2] if plen == _LPN_SIZE else frame[10:-2] + bytes(_LPN_SIZE - plen)
     return RawPosition(data[i + 5], data[i + 6], data[i + 4], frame, _LPN_UNPACK(payload))
-
-
-def _lpn_message(raw: RawPosition, data: bytes, i: int, end: int) -> Any:
-    """``raw`` as the pymavlink message its parser would return."""
-    msg = _LPN(*raw.values)
-    plen = end - i - 12
-    msg._header = _dialect.MAVLink_header(_LPN.id, 0, 0, plen, raw.seq, raw.sysid, raw.compid)
-    msg._payload = bytearray(data[i + 6 : end - 2])  # what pymavlink's decode stores
-    msg._msgbuf = bytearray(raw.frame)
-    msg._crc = data[end - 2] | (data[end - 1] << 8)
-    return msg
 
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message

@@ -128,7 +128,7 @@ class Sky:
             LINK,
             unix_clock=lambda: 1.7e9 + self.now,
             sysids=[v.sysid for v in mission.vehicles],
-            raw_positions=True,
+            telemetry=self.core.table,
             on_notice=self.notices.append,
         )
         # The emulator as the mission starts it, airborne, with a quick start-up: the
@@ -235,11 +235,10 @@ class Sky:
                 return
             batch, self._to_station = self._to_station, []
             for sender, data in batch:
-                for item in link.receive(data, sender, self.now, datagram=True):
-                    if type(item) is list:
-                        core.receive_positions(item, LINK, self.now, self.now)
-                    else:
-                        core.receive(item, LINK, self.now, self.now)
+                for msg in link.receive(data, sender, self.now, datagram=True):
+                    core.receive(msg, LINK, self.now, self.now)
+                if link.positions_written:
+                    core.telemetry_written(self.now)
         raise AssertionError("the two sides kept talking at one instant")
 
     # -------------------------------------------------------------- clock
