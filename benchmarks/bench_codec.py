@@ -106,7 +106,7 @@ def main() -> float:
     def gcs_decode() -> object:
         return [from_pymavlink(m) for m in codec.decode(frame)]
 
-    def gcs_decode_raw() -> object:  # the station's path: RawPosition -> LocalPositionNed
+    def gcs_decode_raw() -> object:  # the raw decoder, the telemetry table's input
         return [LocalPositionNed(r.sysid, r.compid, *r.values)
                 for r in codec.decode(frame, raw_positions=True)]  # fmt: skip
 

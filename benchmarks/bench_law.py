@@ -39,7 +39,7 @@ from gcs_swarm.control import (  # noqa: E402
     repulsion_force,
 )
 from gcs_swarm.control.supervisor import Mode  # noqa: E402
-from gcs_swarm.simulation import simulate  # noqa: E402
+from gcs_swarm.integrator import integrate  # noqa: E402
 
 
 def _median_ms(fn: Callable[[], object], repeats: int, inner: int = 1) -> float:
@@ -110,7 +110,7 @@ def bench_station_path() -> list[str]:
     look-ahead of one episode (6 vehicles, Scenario-3-like box pass)."""
     starts = [(2, 1, 2), (-1, -1, -1), (3, 4, 2), (4, 2, 2), (3, 3, 3), (-2, -2, -2)]
     cfg = _episode_config()
-    res = simulate(cfg, starts, duration=40.0, dt=0.02)
+    res = integrate(cfg, starts, duration=40.0, dt=0.02)
     k0 = int(np.flatnonzero(res.behaviour == "avoidance")[0])
     ids = list(range(1, 7))
     q = np.full(6, 10.0)

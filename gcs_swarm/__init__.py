@@ -49,7 +49,7 @@ from gcs_swarm.errors import (
 if TYPE_CHECKING:
     from gcs_swarm.api import fly, run, simulate
     from gcs_swarm.mission import Mission, load_mission, parse_mission
-    from gcs_swarm.missionsim import MissionSimResult
+    from gcs_swarm.offline import MissionSimResult
     from gcs_swarm.runtime.summary import RunSummary
 
 __version__ = "0.1.0"
@@ -82,7 +82,7 @@ _LAZY = {
     "Mission": "gcs_swarm.mission",
     "load_mission": "gcs_swarm.mission",
     "parse_mission": "gcs_swarm.mission",
-    "MissionSimResult": "gcs_swarm.missionsim",
+    "MissionSimResult": "gcs_swarm.offline",
     "RunSummary": "gcs_swarm.runtime.summary",
 }
 

@@ -21,16 +21,16 @@ from gcs_swarm.control.params import Box
 
 __all__ = [
     "Bipyramid",
-    "SwarmSummary",
+    "FormationFigures",
     "classify_bipyramid",
     "command_demand",
+    "formation_figures",
     "group_values",
     "min_box_clearance",
     "min_separation",
     "pairwise_distances",
     "radii",
     "shape_name",
-    "summarize",
     "time_to_form",
 ]
 
@@ -132,8 +132,8 @@ def classify_bipyramid(pos_m: F64, centre_m: F64) -> Bipyramid:
 
 
 @dataclass(frozen=True)
-class SwarmSummary:
-    """Figures of one run (``summarize``)."""
+class FormationFigures:
+    """Figures of one run (``formation_figures``)."""
 
     n_vehicles: int
     final_radii_m: F64
@@ -169,7 +169,7 @@ class SwarmSummary:
         return "\n".join(lines)
 
 
-def summarize(
+def formation_figures(
     times_s: F64,
     pos_m: F64,
     leader_pos_m: F64,
@@ -177,7 +177,7 @@ def summarize(
     *,
     episodes: int = 0,
     form_tol: float = 0.01,
-) -> SwarmSummary:
+) -> FormationFigures:
     """Summarize a trajectory ``pos_m (T, N, 3)`` (NaN = inactive) around the
     leader path ``leader_pos_m (T, 3)``."""
     final_act = ~np.isnan(pos_m[-1, :, 0])
@@ -212,7 +212,7 @@ def summarize(
         ttf = time_to_form(times_s[first:], np.hstack([rr, dd]), rel_tol=form_tol)
     else:
         ttf = math.nan
-    return SwarmSummary(
+    return FormationFigures(
         n_vehicles=int(final_act.sum()),
         final_radii_m=r_fin,
         final_distances_m=d_fin,

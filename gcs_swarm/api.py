@@ -34,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gcs_swarm.mission import Mission, load_mission
-from gcs_swarm.missionsim import MissionSimResult, simulate_mission
+from gcs_swarm.offline import MissionSimResult, simulate_mission
 from gcs_swarm.runtime.run import run_mission
 from gcs_swarm.runtime.summary import RunSummary
 

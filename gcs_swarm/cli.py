@@ -5,7 +5,7 @@ Subcommands (their work lives in the library modules):
 
 - ``run MISSION``: fly the mission over MAVLink (``gcs_swarm.runtime``);
 - ``simulate MISSION``: the deterministic in-process reference
-  (``gcs_swarm.missionsim``);
+  (``gcs_swarm.offline``);
 - ``check MISSION...``: validate without flying (``gcs_swarm.mission``);
 - ``schema``: print the JSON Schema of mission files;
 - ``report RUN_FOLDER_OR_TLOG``: rebuild a run's summary and picture from
@@ -79,12 +79,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _check_envelope(path: str) -> None:
     """``check``'s demand warning (docs/vehicle-envelope.md): when the mission
     states ``limits.envelope``, simulate it on the ideal point mass (RK4 step
-    ``missionsim.DEMAND_DT_S``, coarse so check stays fast) and print one
+    ``offline.DEMAND_DT_S``, coarse so check stays fast) and print one
     warning line at the gains if the peaks exceed it, with the time scale
     that fits. A warning, not an error: the exit code stays 0."""
     from gcs_swarm.mission import load_mission
     from gcs_swarm.mission.checks import key_line
-    from gcs_swarm.missionsim import demand_report
+    from gcs_swarm.offline import demand_report
 
     mission = load_mission(path)
     envelope = mission.law.limits.envelope
@@ -105,7 +105,7 @@ def _cmd_schema(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from gcs_swarm.mission import load_mission
-    from gcs_swarm.missionsim import simulate_mission
+    from gcs_swarm.offline import simulate_mission
 
     _check_simulate_args(args)
     view = _address("--view", args.view)

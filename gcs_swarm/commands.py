@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gcs_swarm.errors import MissionError
-from gcs_swarm.mission import Mission, load_mission, summary
+from gcs_swarm.mission import Mission, describe, load_mission
 
 if TYPE_CHECKING:
     from gcs_swarm.report.artefacts import RunFolder
@@ -46,7 +46,7 @@ def check_command(path: str) -> int:
         for line in str(err).splitlines():
             print(line, file=sys.stderr)
         return 2
-    print(f"OK: {path}: {summary(mission)}")
+    print(f"OK: {path}: {describe(mission)}")
     return 0
 
 

@@ -8,7 +8,13 @@ and nothing of either end's state machines or message semantics.
 - ``mavwire.crc``: the MAVLink checksum, pymavlink's C CRC when installed
   (``frame_crc``, ``MCRF4XX``), and its column-wise numpy step (``crc_step``);
 - ``mavwire.datagrams``: frames joined into UDP datagrams of at most
-  ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``).
+  ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``);
+- ``mavwire.framing``: unsigned MAVLink 2 frames of one message type built
+  many at once from numpy columns, or one from a packed payload
+  (``FrameBuilder``, ``FrameBatch``);
+- ``mavwire.protocols``: typed views of the pymavlink objects used
+  (``MAVLinkInterface``, ``MAVLinkMessage``, ``MAVLinkSigning``,
+  ``MAVLinkHeader``).
 
 Imports only the standard library, numpy and pymavlink's generated dialect
 (a test says so); does no I/O and reads no clock.
@@ -18,6 +24,8 @@ from __future__ import annotations
 
 from mavwire.crc import CRC_INIT, CRC_TABLE, MCRF4XX, crc_step, frame_crc
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
+from mavwire.framing import HEADER_BYTES, FrameBatch, FrameBuilder
+from mavwire.protocols import MAVLinkHeader, MAVLinkInterface, MAVLinkMessage, MAVLinkSigning
 from mavwire.signing import (
     SIGNING_KEY_BYTES,
     SigningMAVLink,
@@ -29,9 +37,16 @@ from mavwire.signing import (
 __all__ = [
     "CRC_INIT",
     "CRC_TABLE",
+    "HEADER_BYTES",
     "MAX_DATAGRAM_BYTES",
     "MCRF4XX",
     "SIGNING_KEY_BYTES",
+    "FrameBatch",
+    "FrameBuilder",
+    "MAVLinkHeader",
+    "MAVLinkInterface",
+    "MAVLinkMessage",
+    "MAVLinkSigning",
     "SigningMAVLink",
     "crc_step",
     "datagram_bounds",

@@ -24,6 +24,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
+from mavwire.protocols import MAVLinkInterface
+
 __all__ = [
     "SIGNING_KEY_BYTES",
     "SigningMAVLink",
@@ -43,7 +45,7 @@ def signing_timestamp(unix_s: float) -> int:
     return max(0, int((unix_s - _SIGNING_EPOCH_S) * 1e5))
 
 
-def _allow_unsigned(mav: Any, msg_id: int) -> bool:
+def _allow_unsigned(mav: Any, msg_id: int) -> bool:  # pymavlink's callback signature
     return msg_id in _UNSIGNED_OK
 
 
@@ -63,7 +65,7 @@ class SigningMAVLink(_dialect.MAVLink):  # type: ignore[misc]
         return ok
 
 
-def setup_signing(mav: Any, key: bytes, unix_s: float, *, link_id: int = 0) -> None:
+def setup_signing(mav: MAVLinkInterface, key: bytes, unix_s: float, *, link_id: int = 0) -> None:
     """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends with ``key``,
     timestamps starting at Unix time ``unix_s``, and accept only well-signed,
     fresh frames (RADIO_STATUS may be unsigned). ValueError unless ``key``
@@ -79,7 +81,7 @@ def setup_signing(mav: Any, key: bytes, unix_s: float, *, link_id: int = 0) -> N
 
 def mavlink(
     sysid: int, compid: int, key: bytes | None = None, *, unix_s: float | None = None
-) -> Any:
+) -> MAVLinkInterface:
     """A ``SigningMAVLink`` for (``sysid``, ``compid``) with robust parsing;
     with a ``key`` it signs and checks (``setup_signing`` from ``unix_s``,
     the Unix time now, which a key requires: ValueError without it)."""

@@ -4,9 +4,13 @@ An independent MAVLink 2 peer (dialect ``ardupilotmega``; it never imports
 ``gcs_swarm``) hosting many vehicles in one process, vectorised. It follows
 ``shared/spec/mavlink-protocol.md`` wherever that sheet gives a behaviour.
 
-Layers: ``dynamics`` (pure numpy point mass), ``autopilot`` (no I/O: decoded
-messages + ``now`` -> mode, arming, setpoints, failsafe, replies),
-``server`` (asyncio endpoints, clock, lockstep, impairments), ``cli``.
+Layers: ``dynamics`` (pure numpy point mass, the reference; ``dynamics_rows``
+its plain-float variant for few vehicles), ``autopilot`` / ``px4`` (no I/O:
+decoded messages + ``now`` -> mode, arming, setpoints, failsafe, replies),
+``core`` (no I/O: the hosted vehicles, delivery, ``impairments``, the step,
+the telemetry ``schedule``, ``lockstep``'s tests), ``server`` (the asyncio
+shell: endpoints, the clock task, lockstep's wait), ``cli``. Where each
+piece lives: docs/emulator.md, "How the code is laid out".
 
 Test / embedding API
 --------------------
@@ -126,7 +130,9 @@ at run time by typing ``add SYSID [N,E,D]`` / ``remove SYSID`` / ``list`` on std
 from __future__ import annotations
 
 from sim_vehicle.config import DEFAULT_ORIGIN, EmulatorConfig, Impairment, VehicleSpec
-from sim_vehicle.server import Emulator, EmulatorStats, VehicleState
+from sim_vehicle.server import Emulator
+from sim_vehicle.stats import EmulatorStats
+from sim_vehicle.vehicles import VehicleState
 
 __all__ = [
     "DEFAULT_ORIGIN",

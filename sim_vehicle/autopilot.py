@@ -8,9 +8,10 @@ stream, whose interval it publishes as ``lpn_interval_s``).
 
 It never touches the dynamics arrays: it publishes a ``ControlTarget`` and
 bumps ``version`` whenever that target (or a dynamics parameter) changes; the
-server copies it into the vectorised tracking law (dynamics Eq. D3).
-``deadline`` is the sim time at which ``poll`` must next run (habit: time is
-an argument). READING of the protocol sheet: setpoints are honoured only in
+emulator's core copies it into the vectorised tracking law (dynamics Eq.
+D3); what each control state tracks is built in ``targets``. ``deadline``
+is the sim time at which ``poll`` must next run (habit: time is an
+argument). READING of the protocol sheet: setpoints are honoured only in
 GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
 a hover and stays in GUIDED.
@@ -26,23 +27,19 @@ tracks a target: a mode change then changes nothing physical.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import commands, guards, reports, telemetry
-from sim_vehicle.dynamics import GRAVITY_M_S2
 from sim_vehicle.guards import LAND_DETECT_S
 from sim_vehicle.params import ParamStore
+from sim_vehicle.targets import ZERO, ControlTarget, TargetBuilder
 from sim_vehicle.telemetry import Kin, Vec3
 
 __all__ = ["MODE_NAMES", "Autopilot", "ControlTarget"]
 
 STABILIZE, GUIDED, LOITER, RTL, LAND, BRAKE = 0, 4, 5, 6, 9, 17
-_SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
-"""ATC_ACCEL_R/P_MAX default (110000 cdeg/s^2) times g: the snap of Eq. D5a (per m, m/s^4)."""
-_INF = math.inf
 MODE_NAMES = {
     0: "STABILIZE",
     2: "ALT_HOLD",
@@ -57,31 +54,7 @@ _GUIDED_LIKE = {4, 5, 6, 16, 17}
 ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
 """MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
-ZERO: Vec3 = (0.0, 0.0, 0.0)
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
-
-
-@dataclass(frozen=True)
-class ControlTarget:
-    """Inputs of dynamics Eq. D3 for one vehicle (NED, SI units); see ``dynamics.Targets``."""
-
-    a_ff: Vec3 = ZERO
-    p_t: Vec3 = ZERO
-    v_t: Vec3 = ZERO
-    wp: Vec3 = ZERO
-    wv: float = 0.0
-    vmax_xy: float = 10.0
-    vmax_up: float = 2.5
-    vmax_dn: float = 1.5
-    acc_lim: float = 5.0
-    acc_max: float = 5.0
-    tau_s: float = 0.2
-    jerk_xy: float = _INF
-    jerk_z: float = _INF
-    lean_acc: float = _INF
-    drag: float = 0.0
-    """Eq. D7's drag over mass (1/s): on raw acceleration setpoints (SIM_DRAG) and,
-    what a velocity loop leaves of it, on velocity setpoints (SIM_DRAG_VEL)."""
 
 
 class Autopilot:
@@ -115,7 +88,7 @@ class Autopilot:
         self.rejected = 0  # messages refused for non-finite or absurd numbers
         self.streaming = airborne_at is not None  # lockstep rule 2
         self.lpn_interval_s: float | None = None
-        self.lpn_kick = False  # the server sends one LOCAL_POSITION_NED at once, then clears it
+        self.lpn_kick = False  # the core sends one LOCAL_POSITION_NED at once, then clears it
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
         self.hold_ned: Vec3 = airborne_at or ZERO
@@ -127,7 +100,7 @@ class Autopilot:
         self._tk_alt_d = 0.0
         self.last_gcs_hb: float | None = None
         self.wall_s: float | None = None
-        """Wall-clock time [s] of this call, set by the server in lockstep (None in
+        """Wall-clock time [s] of this call, set by the emulator in lockstep (None in
         real time). The ground station is not sped up with the emulator, so in
         lockstep the GCS failsafe counts FS_GCS_TIMEOUT in wall-clock seconds of
         silence; in real time sim time is the wall clock (times the speed-up, as
@@ -139,9 +112,7 @@ class Autopilot:
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
         self.target = ControlTarget()
-        self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
-        self._drag = 0.0  # SIM_DRAG as of the cached base target
-        self._drag_vel = 0.0  # SIM_DRAG_VEL likewise
+        self._targets = TargetBuilder(params)  # what each control tracks (Eq. D3 inputs)
         self.set_control(self._ctl, now, Kin(self.hold_ned, ZERO, ZERO, airborne_at is None))
 
     # ------------------------------------------------------------------ state
@@ -340,92 +311,16 @@ class Autopilot:
     def _timeout_s(self) -> float:
         return max(self.params["GUID_TIMEOUT"], 0.1)
 
-    def _base_target(self) -> ControlTarget:
-        """The limits every target starts from (cached until a parameter changes)."""
-        p = self.params
-        if self._base is not None and self._base[0] == p.generation:
-            return self._base[1]
-        acc_max = p["SIM_ACC_MAX"]
-        vxy, vup, vdn = p["WPNAV_SPEED"] / 100, p["WPNAV_SPEED_UP"] / 100, p["WPNAV_SPEED_DN"] / 100
-        jxy = jz = lean = _INF
-        if p["SIM_ACC_SHAPE"] != 0:
-            # Eq. D5a (AC_PosControl::set_max_speed_accel_xy): the horizontal jerk is
-            # PSC_JERK_XY, at most 0.5 sqrt(WPNAV_ACCEL * snap); WPNAV_ACCEL <= 0 -> 250 cm/s^2.
-            wp_acc = p["WPNAV_ACCEL"] / 100 if p["WPNAV_ACCEL"] > 0 else 2.5
-            jxy = max(0.0, min(p["PSC_JERK_XY"], 0.5 * math.sqrt(wp_acc * _SNAP_RAD_S4)))
-            jz = max(0.0, p["PSC_JERK_Z"])
-            # Eq. D6: lean-angle cap g tan(ANGLE_MAX), ANGLE_MAX in cdeg (kept below 85 deg).
-            angle = math.radians(min(max(p["ANGLE_MAX"], 0.0), 8500.0) / 100)
-            lean = GRAVITY_M_S2 * math.tan(angle)
-        base = ControlTarget(
-            vmax_xy=vxy, vmax_up=vup, vmax_dn=vdn, tau_s=p["SIM_ACC_TAU"],
-            acc_lim=acc_max, acc_max=acc_max, jerk_xy=jxy, jerk_z=jz, lean_acc=lean,
-        )  # fmt: skip
-        self._base = (p.generation, base)
-        self._drag = p["SIM_DRAG"]  # the same float object while unchanged (Fleet.set_target)
-        self._drag_vel = p["SIM_DRAG_VEL"]
-        return base
-
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
+        """Fly ``ctl`` from ``now``: its target (``targets.TargetBuilder``) replaces the
+        published one (``version`` bumped); a moving phase is polled at once."""
         self._ctl = ctl
         self._t_phase = now
-        p = self.params
-        hold = kin.pos
-        b = base = self._base_target()
-        one: Vec3 = (1.0, 1.0, 1.0)
-        sp = self.sp
-        # The streamed kinds build their target field by field: ``replace`` costs
-        # several times more, 50 times a second per vehicle.
-        if ctl == "accel":
-            tg = ControlTarget(
-                sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self._drag,
-            )  # fmt: skip
-        elif ctl == "vel":
-            tg = ControlTarget(
-                sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self._drag_vel,
-            )  # fmt: skip
-        elif ctl in ("pos", "posvel"):
-            self.hold_ned = sp["p"]
-            tg = ControlTarget(
-                sp.get("a", ZERO), sp["p"], sp.get("v", ZERO), one, 1.0, b.vmax_xy, b.vmax_up,
-                b.vmax_dn, b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc,
-            )  # fmt: skip
-        elif ctl in ("ground", "spool"):
-            tg = base
-        elif ctl == "fall":
-            g = GRAVITY_M_S2
-            tg = replace(  # motors off: no position controller, no jerk limit
-                base, a_ff=(0.0, 0.0, g), acc_lim=g, acc_max=g, jerk_xy=_INF, jerk_z=_INF,
-                lean_acc=_INF,
-            )  # fmt: skip
-        elif ctl == "brake":
-            # ArduCopter brakes with input_vel_accel(0, 0) at WPNAV_ACCEL, jerk-limited (Eq. D5);
-            # without shaping (ideal) the deceleration fitted to the sheet's 18.7 m
-            shaped = p["SIM_ACC_SHAPE"] != 0 and p["WPNAV_ACCEL"] > 0
-            acc = p["WPNAV_ACCEL"] / 100 if shaped else p["SIM_BRAKE_ACC"]
-            tg = replace(base, wv=1.0, acc_lim=acc)
-        elif ctl == "land":
-            self.hold_ned = hold
-            low = self.home[2] - kin.pos[2] < p["LAND_ALT_LOW"] / 100
-            speed = p["LAND_SPEED"] / 100 if low else base.vmax_dn
-            tg = replace(base, p_t=hold, v_t=(0.0, 0.0, speed), wp=(1.0, 1.0, 0.0), wv=1.0)
+        tg, self.hold_ned, low = self._targets.target(
+            ctl, kin, self.sp, self.hold_ned, self.home, self._tk_alt_d
+        )
+        if low is not None:
             self._land_low = low
-        else:
-            if ctl == "takeoff":
-                self.hold_ned = (hold[0], hold[1], self._tk_alt_d)
-            elif ctl == "rtl_climb":
-                self.hold_ned = (hold[0], hold[1], min(hold[2], self.home[2] - p["RTL_ALT"] / 100))
-            elif ctl in ("rtl_return", "rtl_loiter"):
-                self.hold_ned = (self.home[0], self.home[1], self.hold_ned[2])
-            elif ctl != "hold":  # pragma: no cover - programming error
-                raise AssertionError(ctl)
-            tg = replace(base, p_t=self.hold_ned, wp=one, wv=1.0)
-            if ctl == "takeoff":
-                tg = replace(tg, acc_lim=p["WPNAV_ACCEL_Z"] / 100)
-        if ctl == "brake":
-            self.hold_ned = hold
         self.target = tg
         self.version += 1
         if ctl in _MOVING:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.protocols import MAVLinkMessage
 from sim_vehicle import telemetry
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
@@ -88,12 +89,12 @@ def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-def _for_me(ap: Autopilot, msg: Any) -> bool:
+def _for_me(ap: Autopilot, msg: MAVLinkMessage) -> bool:
     ts, tc = msg.target_system, msg.target_component
     return ts in (0, ap.sysid) and tc in (0, ap.compid)
 
 
-def dispatch(ap: Autopilot, msg: Any, now: float, kin: Kin) -> Msgs:
+def dispatch(ap: Autopilot, msg: MAVLinkMessage, now: float, kin: Kin) -> Msgs:
     """Handle one decoded message addressed (or broadcast) to ``ap``; return replies."""
     kind = msg.get_type()
     if kind == "HEARTBEAT":  # ArduPilot: any HEARTBEAT from SYSID_MYGCS, whatever its type
@@ -140,11 +141,13 @@ def dispatch(ap: Autopilot, msg: Any, now: float, kin: Kin) -> Msgs:
     return []
 
 
-def _ack(command: int, result: int, msg: Any) -> mav.MAVLink_message:
+def _ack(command: int, result: int, msg: MAVLinkMessage) -> mav.MAVLink_message:
     return telemetry.command_ack(command, result, msg.get_srcSystem(), msg.get_srcComponent())
 
 
-def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float, kin: Kin) -> Msgs:
+def _command(
+    ap: Autopilot, cmd: int, p: tuple[float, ...], msg: MAVLinkMessage, now: float, kin: Kin
+) -> Msgs:
     if not _finite(*p[:2]) or (cmd == mav.MAV_CMD_NAV_TAKEOFF and not ap.takeoff_params_ok(p)):
         ap.rejected += 1
         return [_ack(cmd, DENIED, msg)]
@@ -186,7 +189,7 @@ def _command(ap: Autopilot, cmd: int, p: tuple[float, ...], msg: Any, now: float
     return out + after
 
 
-def _param(ap: Autopilot, kind: str, msg: Any, now: float, kin: Kin) -> Msgs:
+def _param(ap: Autopilot, kind: str, msg: MAVLinkMessage, now: float, kin: Kin) -> Msgs:
     store: ParamStore = ap.params
     if kind == "PARAM_REQUEST_LIST":
         return list(store.all_messages())
@@ -208,7 +211,7 @@ def _param(ap: Autopilot, kind: str, msg: Any, now: float, kin: Kin) -> Msgs:
     return []
 
 
-def _pid(msg: Any) -> str:
+def _pid(msg: MAVLinkMessage) -> str:
     pid = msg.param_id
     if isinstance(pid, bytes):
         pid = pid.decode("ascii", "replace")
@@ -220,7 +223,7 @@ def _rot(yaw: float, v: Vec3) -> Vec3:
     return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
 
 
-def _setpoint(ap: Autopilot, msg: Any, now: float, kin: Kin) -> None:
+def _setpoint(ap: Autopilot, msg: MAVLinkMessage, now: float, kin: Kin) -> None:
     ap.setpoint_heard(now)
     if ap.mode != 4 or not ap.armed or kin.landed:
         return  # honoured only in GUIDED, armed and airborne; silently ignored otherwise

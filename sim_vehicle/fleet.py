@@ -14,10 +14,11 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_vehicle import dynamics
-from sim_vehicle.autopilot import ControlTarget
-from sim_vehicle.codec import _SMALL_N, encode_local_position_ned, lpn_frames_small
+from sim_vehicle import dynamics, dynamics_rows
+from sim_vehicle.codec import encode_local_position_ned, lpn_frames_small
 from sim_vehicle.dynamics import DynParams, KinState, Targets
+from sim_vehicle.small import few
+from sim_vehicle.targets import ControlTarget
 
 __all__ = ["KP_1_S", "KV_1_S", "Fleet"]
 
@@ -33,8 +34,6 @@ _V1 = (
 _INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
 _I1 = ("seq", "sysid", "compid")
 _B1 = ("landed", "awaiting", "holding")
-_SMALL_STEP = 24
-"""Below this many vehicles ``step`` runs ``dynamics.advance_small`` (plain floats, same bits)."""
 
 
 class Fleet:
@@ -162,21 +161,22 @@ class Fleet:
         if self.n == 0:
             return
         before = self.landed
-        if not (self.n < _SMALL_STEP and self._step_small(dt)):
+        small = few(self.n)  # plain floats (dynamics_rows), the same bits as numpy's
+        if not (small and self._step_small(dt)):
             self.step_numpy(dt)
-        if self.n < _SMALL_STEP:
+        if small:
             now_landed = self.landed.tolist()
             self.changed = [r for r, a in enumerate(before.tolist()) if a != now_landed[r]]
         else:
             self.changed = np.flatnonzero(before != self.landed).tolist()
 
     def _step_small(self, dt: float) -> bool:
-        """``step`` through ``dynamics.advance_small``; False (nothing changed) where it
+        """``step`` through ``dynamics_rows.advance_small``; False (nothing changed) where it
         cannot run (a math domain error, a non-finite result): numpy decides then."""
         tau = self.tau.tolist()
         lag = self._lag
         if lag is None or lag[0] != tau or lag[1] != dt:
-            lag = self._lag = (tau, dt, dynamics.lag_factors(self.tau, dt))
+            lag = self._lag = (tau, dt, dynamics_rows.lag_factors(self.tau, dt))
         tg = (
             self.a_ff.tolist(), self.p_t.tolist(), self.v_t.tolist(), self.wp.tolist(),
             self.wv.tolist(), self.vmax_xy.tolist(), self.vmax_up.tolist(),
@@ -189,7 +189,7 @@ class Fleet:
                 self.jerk_z.tolist(),
                 self.lean.tolist(),
             )
-            pos, vel, acc, landed, shp = dynamics.advance_small(
+            pos, vel, acc, landed, shp = dynamics_rows.advance_small(
                 self.pos.tolist(), self.vel.tolist(), self.acc.tolist(), tg,
                 self.acc_max.tolist(), self.ground.tolist(), lag[2], dt, KP_1_S, KV_1_S,
                 shaping, self.drag.tolist(),
@@ -272,7 +272,7 @@ class Fleet:
         vel: NDArray[np.float64],
     ) -> list[bytes]:
         """The frames of ``encode_lpn`` as bytes, one per row (plain ``struct`` for a few)."""
-        if len(rows) < _SMALL_N:
+        if few(len(rows)):
             seq = self.seq[rows]
             frames = lpn_frames_small(
                 time_boot_ms.tolist(), pos.tolist(), vel.tolist(), seq.tolist(),

@@ -1,17 +1,16 @@
-"""UDP (and TCP) endpoints of the emulator and the seeded link impairments.
+"""UDP (and TCP) endpoints of the emulator.
 
-Owns ``Impairer`` (pure: per datagram, lost / delayed / duplicated, from a
-seeded ``numpy.random.Generator``), ``Endpoint`` (one bound UDP socket
-hosting one or several system ids: the peers it has heard, its outbox and its
-parser) and ``TcpPort`` (the same vehicle also served as a MAVLink TCP
-server, one client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
+Owns ``Endpoint`` (one bound UDP socket hosting one or several system ids:
+the peers it has heard, its outbox, its parser and its two
+``impairments.Impairer``; ``core.Port`` is what the core uses of it) and
+``TcpPort`` (the same vehicle also served as a MAVLink TCP server, one
+client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
 go straight to the non-blocking socket (a full socket buffer drops the
 datagram and counts it, as a radio would); receives come through asyncio.
 Datagrams are batched per peer up to ``mavwire.MAX_DATAGRAM_BYTES`` (the
-station's limit too). A TCP client is
-one more peer of its endpoint, under the address ``("tcp:HOST", PORT)``
-(``TCP_PREFIX``): everything sent to the endpoint's peers goes to it too, as
-a byte stream.
+station's limit too; ``core.join_frames``). A TCP client is one more peer of
+its endpoint, under the address ``("tcp:HOST", PORT)`` (``TCP_PREFIX``):
+everything sent to the endpoint's peers goes to it too, as a byte stream.
 """
 
 from __future__ import annotations
@@ -21,54 +20,18 @@ import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.crc import frame_crc
-from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import signing
-from sim_vehicle.config import Impairment
+from sim_vehicle.core import join_frames
+from sim_vehicle.impairments import Impairer
+from sim_vehicle.stats import LinkStats
 
-__all__ = ["TCP_PREFIX", "Endpoint", "Impairer", "LinkStats", "TcpPort"]
+__all__ = ["TCP_PREFIX", "Endpoint", "TcpPort", "bind_udp"]
 
 TCP_PREFIX = "tcp:"
 Addr = tuple[str, int]
-
-
-@dataclass
-class LinkStats:
-    """Counters over every endpoint of an emulator."""
-
-    rx_datagrams: int = 0
-    tx_datagrams: int = 0
-    rx_lost: int = 0
-    tx_lost: int = 0
-    duplicated: int = 0
-    tx_dropped_full: int = 0
-    bad_frames: int = 0
-    unknown_frames: int = 0
-    signature_rejected: int = 0
-
-
-class Impairer:
-    """Seeded per-datagram impairment of one link direction (pure, no I/O)."""
-
-    def __init__(self, imp: Impairment, rng: np.random.Generator) -> None:
-        self.imp = imp
-        self.rng = rng
-
-    def delivery_delays(self) -> list[float]:
-        """Delays (s) at which this datagram arrives: [] lost, one entry, or two (duplicated)."""
-        imp = self.imp
-        if not imp.active:
-            return [0.0]
-        u = self.rng.random(4)
-        if u[0] < imp.loss:
-            return []
-        first = imp.delay_s + imp.jitter_s * u[1]
-        if u[2] < imp.duplicate:
-            return [first, imp.delay_s + imp.jitter_s * u[3]]
-        return [first]
 
 
 @dataclass
@@ -169,25 +132,11 @@ class Endpoint(asyncio.DatagramProtocol):
         parser.have_prefix_error = False
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
-        """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
-        (``datagram_bounds``); each datagram with the nonzero keys of its frames
-        (the vehicles whose LOCAL_POSITION_NED it carries)."""
-        if not frames:
-            return []
-        datas, keys = zip(*frames, strict=True)
-        bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
-        if len(bounds) == 1:  # the usual case
-            return [(b"".join(datas), [k for k in keys if k])]
-        data = b"".join(datas)
-        out: list[tuple[bytes, list[int]]] = []
-        first = start = 0
-        for stop, end in bounds:
-            out.append((data[start:end], [k for k in keys[first:stop] if k]))
-            first, start = stop, end
-        return out
+        """``core.join_frames``: (frame, key) pairs joined into datagrams."""
+        return join_frames(frames)
 
     def sendto(self, data: bytes, addr: Addr) -> None:
-        """Send one datagram now (no impairment here; see ``Emulator``)."""
+        """Send one datagram now (no impairment here; see ``core.EmulatorCore.transmit``)."""
         if addr[0].startswith(TCP_PREFIX):
             if self.tcp is not None and self.tcp.write(data, addr):
                 self.stats.tx_datagrams += 1

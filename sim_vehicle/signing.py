@@ -14,13 +14,13 @@ is never shown.
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import mavwire
+from mavwire.protocols import MAVLinkInterface
 
 __all__ = ["mavlink"]
 
 
-def mavlink(sysid: int, compid: int, key: bytes | None) -> Any:
+def mavlink(sysid: int, compid: int, key: bytes | None) -> MAVLinkInterface:
     """A pymavlink ``MAVLink`` for (sysid, compid), signing with ``key`` if given."""
     return mavwire.mavlink(sysid, compid, key, unix_s=time.time())

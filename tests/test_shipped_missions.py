@@ -12,7 +12,7 @@ import pytest
 
 from gcs_swarm.analysis import group_values, pairwise_distances, radii
 from gcs_swarm.mission import load_mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 
 MISSIONS = sorted((Path(__file__).parent.parent / "config" / "missions").glob("*.yaml"))
 #: Smoke-run cap [s]: long enough for every scenario's first events (the

@@ -1,5 +1,5 @@
 """What the safety filter did: one cycle's ``SafetyReport``, a run's
-``SafetyStats`` and its ``SafetySummary`` (re-exported by
+``SafetyStats`` and its ``SafetyTotals`` (re-exported by
 ``gcs_swarm.control.safety``). Pure numpy, no I/O.
 """
 
@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from gcs_swarm.control.limits import BoolArray, FloatArray
 
-__all__ = ["SafetyReport", "SafetyStats", "SafetySummary"]
+__all__ = ["SafetyReport", "SafetyStats", "SafetyTotals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,8 +42,8 @@ class SafetyReport:
 
 
 @dataclass(frozen=True)
-class SafetySummary:
-    """A run's totals (``SafetyStats.summary``), for the run summary and report."""
+class SafetyTotals:
+    """A run's totals (``SafetyStats.totals``), for the run summary and report."""
 
     cycles: int
     vehicle_cycles: int
@@ -92,10 +92,10 @@ class SafetyStats:
             self.min_clearance_m = min(self.min_clearance_m, float(report.min_clearance_m.min()))
             self.min_separation_m = min(self.min_separation_m, float(report.min_separation_m.min()))
 
-    def summary(self) -> SafetySummary:
+    def totals(self) -> SafetyTotals:
         """The totals so far."""
         mean = self.sum_correction_mps2 / self.interventions if self.interventions else 0.0
-        return SafetySummary(
+        return SafetyTotals(
             cycles=self.cycles,
             vehicle_cycles=self.vehicle_cycles,
             interventions=self.interventions,

@@ -1,13 +1,14 @@
 """MAVLink layer of the station, with no I/O: codec per peer, message builders
 returning plain specs, typed inbound messages, the NED <-> mission frame
-conversion, and the per-vehicle protocol state machine (time is an argument).
+conversion (coordinates.py), the per-vehicle protocol state machine (time is
+an argument) and the flying vehicles' telemetry table (telemetry_table.py).
 """
 
 from __future__ import annotations
 
 from gcs_swarm.mavlink.codec import STATION_COMPID, STATION_SYSID, Codec, CodecStats, MessageSpec
-from gcs_swarm.mavlink.frames import (
-    GeoPoint,
+from gcs_swarm.mavlink.coordinates import (
+    GeoOrigin,
     mission_to_ned,
     ned_to_mission,
     origin_offset_m,
@@ -23,7 +24,7 @@ __all__ = [
     "STATION_SYSID",
     "Codec",
     "CodecStats",
-    "GeoPoint",
+    "GeoOrigin",
     "Inbound",
     "MessageSpec",
     "Phase",

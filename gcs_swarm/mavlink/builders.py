@@ -4,7 +4,7 @@ Numbers and semantics follow ``shared/spec/mavlink-protocol.md``; each
 builder names the section it implements. Frames: every position, velocity
 and acceleration here is already in the vehicle's LOCAL_NED frame (north,
 east, down, metres, relative to its own EKF origin); the mission-frame
-conversion lives in ``gcs_swarm.mavlink.frames``.
+conversion lives in ``gcs_swarm.mavlink.coordinates``.
 """
 
 from __future__ import annotations

@@ -17,8 +17,10 @@ received frame is accepted only if its signature is good and its timestamp
 newer than the last of its stream (link id, system, component): unsigned,
 wrongly signed and replayed frames are counted in ``signature_rejected`` and
 dropped. Only RADIO_STATUS may come unsigned, as on ArduPilot. The key is
-never logged or shown (``repr`` hides it). The signing set-up and the CRC
-are ``mavwire``'s, shared with the emulator. Nothing here does I/O.
+never logged or shown (``repr`` hides it). The signing set-up, the CRC and
+the column-wise frame building (``mavwire.FrameBuilder``) are ``mavwire``'s,
+shared with the emulator; ``self._mav`` is typed by ``mavwire.protocols``.
+Nothing here does I/O.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -33,8 +36,9 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
-from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
+from mavwire.framing import FrameBuilder
+from mavwire.protocols import MAVLinkInterface, MAVLinkMessage
 from mavwire.signing import SIGNING_KEY_BYTES, mavlink
 
 _register_event()  # PX4's EVENT (410) is not in pymavlink's dialect (events.py)
@@ -97,8 +101,11 @@ class CodecStats:
 class RawPosition(NamedTuple):
     """An unsigned LOCAL_POSITION_NED frame decoded without pymavlink's
     message objects (``Codec.decode(..., raw_positions=True)``): the hot
-    inbound message, 50 Hz per vehicle. ``values`` are the payload's fields
-    in wire order: (time_boot_ms, x, y, z, vx, vy, vz)."""
+    inbound message, 50 Hz per vehicle, for the link state to write into the
+    telemetry table (swarm/link_state.py, mavlink/telemetry_table.py);
+    ``Codec.message`` makes pymavlink's message of one the table does not
+    take. ``values`` are the payload's fields in wire order:
+    (time_boot_ms, x, y, z, vx, vy, vz)."""
 
     sysid: int
     compid: int
@@ -130,7 +137,9 @@ class Codec:
     unix_s: float | None = None
 
     def __post_init__(self) -> None:
-        self._mav: Any = mavlink(self.sysid, self.compid, self.signing_key, unix_s=self.unix_s)
+        self._mav: MAVLinkInterface = mavlink(
+            self.sysid, self.compid, self.signing_key, unix_s=self.unix_s
+        )
         if self.signing_key is not None and self.streams is not None:
             self._mav.signing.stream_timestamps = self.streams
 
@@ -154,7 +163,7 @@ class Codec:
                 key: (value.encode("ascii") if isinstance(value, str) else value)
                 for key, value in spec.fields.items()
             }
-            msg = encoder(**fields)
+            msg: MAVLinkMessage = encoder(**fields)
             buf = msg.pack(self._mav)
         self._advance(1, len(buf))
         return buf
@@ -187,22 +196,17 @@ class Codec:
         back to back and the length of one (all the same): exactly what k
         ``encode_setpoint`` calls would give, sequence numbers included.
 
-        One control step's setpoints for a whole formation: the header and
-        payload fields are filled column-wise in one structured array and
-        only the CRC is computed frame by frame. A few rows, a signing codec,
-        a zero ``coordinate_frame`` (MAVLink 2 would trim the payload) or an
-        acceleration float32 cannot hold take the one-frame path."""
+        One control step's setpoints for a whole formation, built column-wise
+        by ``mavwire.FrameBuilder`` (only the CRC frame by frame). A few rows,
+        a signing codec (pymavlink signs each frame), a zero
+        ``coordinate_frame`` (MAVLink 2 would trim the payload, and the frames
+        would differ in length) or an acceleration float32 cannot hold take
+        the one-frame path."""
         k = len(targets)
         fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX))
         if vel_ned is not None:
             fits = fits and bool(np.all(np.abs(vel_ned) <= _F32_MAX))
-        if (
-            k < _BATCH_FROM
-            or self._mav.signing.sign_outgoing
-            or coordinate_frame == 0
-            or _MCRF4XX is None
-            or not fits
-        ):
+        if k < _BATCH_FROM or self._mav.signing.sign_outgoing or coordinate_frame == 0 or not fits:
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
             vel = [zero] * k if vel_ned is None else vel_ned.tolist()
             masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
@@ -213,30 +217,22 @@ class Codec:
             ]
             return b"".join(frames), (len(frames[0]) if frames else 0)
         mav = self._mav
-        arr = np.zeros(k, dtype=_SP_FRAME)
-        arr["magic"] = 0xFD
-        arr["len"] = _SP_SIZE
-        arr["seq"] = (mav.seq + np.arange(k)) & 0xFF
-        arr["sysid"] = mav.srcSystem
-        arr["compid"] = mav.srcComponent
-        arr["msgid"] = _SP.id
-        arr["time_boot_ms"] = np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF
-        arr["afx"] = accel_ned[:, 0]
-        arr["afy"] = accel_ned[:, 1]
-        arr["afz"] = accel_ned[:, 2]
+        columns: dict[str, npt.ArrayLike] = {
+            "time_boot_ms": np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF,
+            "acc": accel_ned,
+            "type_mask": type_mask,
+            # (system, component) pairs flattened by fromiter: half the cost of
+            # numpy reading a list of tuples; out-of-range ids raise as before
+            "target": np.fromiter(chain.from_iterable(targets), np.uint8, 2 * k).reshape(k, 2),
+            "coordinate_frame": coordinate_frame,
+        }
         if vel_ned is not None:
-            arr["vel"] = vel_ned
-        arr["type_mask"] = type_mask if isinstance(type_mask, int) else list(type_mask)
-        arr["target"] = targets
-        arr["coordinate_frame"] = coordinate_frame
-        size = _SP_FRAME.itemsize
-        view = memoryview(arr.tobytes())
-        crc = _MCRF4XX
-        arr["crc"] = [
-            crc(_SP_EXTRA, crc(view[j + 1 : j + size - 2])) for j in range(0, k * size, size)
-        ]
+            columns["vel"] = vel_ned
+        seq = mav.seq + np.arange(k)
+        batch = _SP_FRAMES.build(seq, mav.srcSystem, mav.srcComponent, columns)
+        size = batch.rows.shape[1]  # never trimmed: coordinate_frame, the last byte, is not 0
         self._advance(k, k * size)
-        return arr.tobytes(), size
+        return batch.tobytes(), size
 
     def _advance(self, frames: int, nbytes: int) -> None:
         """Count ``frames`` sent. pymavlink's MAVLink.send() would write to a
@@ -250,15 +246,14 @@ class Codec:
     ) -> list[Any]:
         """Parse ``data``; return the good messages, count and drop the rest.
 
-        Unsigned datagrams take a fast path for LOCAL_POSITION_NED (50 Hz per
-        vehicle): each such frame is CRC-checked and unpacked with the
-        dialect's own struct into the dialect's own message class, without
-        pymavlink's byte-by-byte parser; every other whole unsigned frame goes
-        straight to pymavlink's ``decode`` (its parser's own last step); from
-        the first frame that is not whole and well-formed on, ``parse_buffer``
-        as before, so the messages and counters are the same.
-        With ``raw_positions`` those LOCAL_POSITION_NED frames come out as
-        ``RawPosition`` tuples instead of pymavlink messages.
+        Unsigned datagrams skip pymavlink's byte-by-byte parser: each whole
+        unsigned frame goes straight to pymavlink's ``decode`` (its parser's
+        own last step); from the first frame that is not whole and
+        well-formed on, ``parse_buffer`` as before, so the messages and
+        counters are the same. With ``raw_positions`` a LOCAL_POSITION_NED
+        frame (50 Hz per vehicle) is instead CRC-checked and unpacked with
+        the dialect's own struct into a ``RawPosition`` (the telemetry
+        table's input), without a pymavlink object.
         """
         if not datagram or self.signing_key is not None:
             good = self._parse(data, datagram=datagram)
@@ -272,11 +267,11 @@ class Codec:
             end = i + 12 + data[i + 1]
             if end > n:
                 break
-            if data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
+            if raw_positions and data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
                 raw = _raw_lpn(data, i, end)
                 if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
-                good.append(raw if raw_positions else _lpn_message(raw, data, i, end))
+                good.append(raw)
             else:
                 msg = self._decode_frame(data, i, end)
                 if msg is None:
@@ -288,6 +283,14 @@ class Codec:
             good.extend(self._parse(data[i:], datagram=True))
         self.stats.received += len(good)
         return good
+
+    def message(self, raw: RawPosition) -> Any:
+        """The pymavlink message of a ``RawPosition`` from ``decode``, made by
+        pymavlink's own ``decode`` of its frame (for a report that goes
+        through a vehicle's protocol rather than the telemetry table)."""
+        msg = self._decode_frame(raw.frame, 0, len(raw.frame))
+        assert msg is not None and msg is not _SKIP  # its CRC and length were checked
+        return msg
 
     def _decode_frame(self, data: bytes, i: int, end: int) -> Any:
         """The whole unsigned MAVLink 2 frame ``data[i:end]`` through pymavlink's
@@ -365,53 +368,29 @@ def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
     return RawPosition(data[i + 5], data[i + 6], data[i + 4], frame, _LPN_UNPACK(payload))
 
 
-def _lpn_message(raw: RawPosition, data: bytes, i: int, end: int) -> Any:
-    """``raw`` as the pymavlink message its parser would return."""
-    msg = _LPN(*raw.values)
-    plen = end - i - 12
-    msg._header = _dialect.MAVLink_header(_LPN.id, 0, 0, plen, raw.seq, raw.sysid, raw.compid)
-    msg._payload = bytearray(data[i + 6 : end - 2])  # what pymavlink's decode stores
-    msg._msgbuf = bytearray(raw.frame)
-    msg._crc = data[end - 2] | (data[end - 1] << 8)
-    return msg
-
-
 _SP = _dialect.MAVLink_set_position_target_local_ned_message
 _SP_NAMES = tuple(_SP.ordered_fieldnames)
-_SP_EXTRA = bytes((_SP.crc_extra,))
 _SP_PACK = _SP.unpacker.pack
-_V2_HEADER = struct.Struct("<BBBBBBBHB")
-
-
-_SP_SIZE: int = _SP.unpacker.size
 _F32_MAX = float(np.finfo(np.float32).max)
 _BATCH_FROM = 8
-"""From this many frames ``encode_accel_setpoints`` fills arrays (below it,
-numpy's per-call cost is more than packing frame by frame)."""
-_SP_FRAME = np.dtype([
-    ("magic", "u1"), ("len", "u1"), ("incompat", "u1"), ("compat", "u1"), ("seq", "u1"),
-    ("sysid", "u1"), ("compid", "u1"), ("msgid", "<u2"), ("msgid_hi", "u1"),
-    # SET_POSITION_TARGET_LOCAL_NED's payload in wire order (53 bytes, never
-    # trimmed when coordinate_frame, its last byte, is not zero).
-    ("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4", (3,)),
-    ("afx", "<f4"), ("afy", "<f4"), ("afz", "<f4"), ("yaw", "<f4"), ("yaw_rate", "<f4"),
-    ("type_mask", "<u2"), ("target", "u1", (2,)), ("coordinate_frame", "u1"),
-    ("crc", "<u2"),
+"""From this many frames ``encode_accel_setpoints`` builds column-wise (below
+it, numpy's per-call cost is more than packing frame by frame)."""
+_SP_PAYLOAD = np.dtype([
+    ("time_boot_ms", "<u4"), ("pos", "<f4", (3,)), ("vel", "<f4", (3,)), ("acc", "<f4", (3,)),
+    ("yaw", "<f4"), ("yaw_rate", "<f4"), ("type_mask", "<u2"), ("target", "u1", (2,)),
+    ("coordinate_frame", "u1"),
 ])  # fmt: skip
-"""One unsigned MAVLink 2 SET_POSITION_TARGET_LOCAL_NED frame (65 bytes)."""
+"""SET_POSITION_TARGET_LOCAL_NED's payload in wire order (53 bytes): x, y, z
+as ``pos``, vx, vy, vz as ``vel``, afx, afy, afz as ``acc``, target system
+and component as ``target``."""
+_SP_FRAMES = FrameBuilder(_SP.id, _SP.crc_extra, _SP_PAYLOAD)
 
 SETPOINT_FIELDS: tuple[str, ...] = _SP_NAMES
 """SET_POSITION_TARGET_LOCAL_NED's field names in wire order (``encode_setpoint``)."""
 
 
-def _pack_setpoint(mav: Any, values: Sequence[FieldValue]) -> bytes:
+def _pack_setpoint(mav: MAVLinkInterface, values: Sequence[FieldValue]) -> bytes:
     """SET_POSITION_TARGET_LOCAL_NED field ``values`` (wire order) as
     pymavlink's unsigned MAVLink 2 ``pack`` would frame them with ``mav``'s
     ids and sequence."""
-    payload: bytes = _SP_PACK(*values)
-    plen = len(payload)
-    while plen > 1 and payload[plen - 1] == 0:  # MAVLink 2 trims trailing zeros
-        plen -= 1
-    frame = _V2_HEADER.pack(0xFD, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent,
-                            _SP.id & 0xFFFF, _SP.id >> 16) + payload[:plen]  # fmt: skip
-    return frame + _frame_crc(memoryview(frame)[1:], _SP_EXTRA).to_bytes(2, "little")
+    return _SP_FRAMES.pack(mav.seq, mav.srcSystem, mav.srcComponent, _SP_PACK(*values))

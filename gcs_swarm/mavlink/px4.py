@@ -33,9 +33,9 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.inbound import ParamValue
+from gcs_swarm.mavlink.param_values import GRAVITY_MPS2, EndAction, ParamProfile, Setting
 from gcs_swarm.mavlink.personality import Health, Personality
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
-from gcs_swarm.mavlink.vehicle_params import GRAVITY_MPS2, EndAction, ParamProfile, Setting
 
 __all__ = [
     "HOLD",

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.frames import GeoPoint
+from gcs_swarm.mavlink.coordinates import GeoOrigin
 
 __all__ = [
     "AIRBORNE_PHASES",
@@ -132,7 +132,7 @@ class ProtocolConfig:
     end_mode: int = b.COPTER_MODES["BRAKE"]
     end_confirm_timeout_s: float = 3.0
     offboard_lead_s: float = 1.0
-    mission_origin: GeoPoint | None = None
+    mission_origin: GeoOrigin | None = None
     velocity_bias: BiasSettings = field(default_factory=BiasSettings)
 
 

@@ -9,7 +9,7 @@ described in ``docs/mission-format.md``.
 
 from __future__ import annotations
 
-from gcs_swarm.mission.loader import load_mission, parse_mission, summary
+from gcs_swarm.mission.loader import describe, load_mission, parse_mission
 from gcs_swarm.mission.model import (
     DEFAULT_SIM_HOME,
     Emulator,
@@ -41,10 +41,10 @@ __all__ = [
     "Signing",
     "Startup",
     "Vehicle",
+    "describe",
     "enu_offset_m",
     "geodetic_at",
     "load_mission",
     "parse_mission",
     "schema",
-    "summary",
 ]

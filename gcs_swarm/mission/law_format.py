@@ -31,19 +31,13 @@ from gcs_swarm.control.params import (
 from gcs_swarm.errors import ExpressionError
 from gcs_swarm.mission.bounds import GAIN_MAX, GAIN_MIN, POSITION_LIMIT_M, SPEED_LIMIT_MPS
 from gcs_swarm.mission.context import TAG, Context, describe_node
-from gcs_swarm.mission.fields import (
-    INVALID,
-    REQUIRED,
+from gcs_swarm.mission.declarations import INVALID, REQUIRED, ByKind, Field, Key, ListOf, Obj
+from gcs_swarm.mission.scalars import (
     Bool,
-    ByKind,
     Const,
     Enum,
-    Field,
-    Key,
-    ListOf,
     NonNeg,
     Num,
-    Obj,
     Pos,
     Vec3,
 )

@@ -22,7 +22,7 @@ from gcs_swarm.control.params import Avoidance, LawConfig, Limits, Safety
 from gcs_swarm.errors import MissionError
 from gcs_swarm.mission.checks import run_checks
 from gcs_swarm.mission.context import Context, Problem
-from gcs_swarm.mission.fields import INVALID
+from gcs_swarm.mission.declarations import INVALID
 from gcs_swarm.mission.format import MISSION
 from gcs_swarm.mission.model import Emulator, Mission, Settings, Signing, Vehicle
 from gcs_swarm.mission.source import (
@@ -37,9 +37,9 @@ from gcs_swarm.mission.source import (
 __all__ = [
     "MAX_FILE_BYTES",
     "MAX_PROBLEMS",
+    "describe",
     "load_mission",
     "parse_mission",
-    "summary",
 ]
 
 #: A mission file is a few kilobytes; anything over this is refused unread.
@@ -258,7 +258,7 @@ def _fill_sim_origins(vehicles: tuple[Vehicle, ...], emulator: Emulator) -> tupl
     return tuple(out)
 
 
-def summary(mission: Mission) -> str:
+def describe(mission: Mission) -> str:
     """One line describing a valid mission, for ``gcs-swarm check``."""
     n = len(mission.vehicles)
     sim = sum(v.is_sim for v in mission.vehicles)

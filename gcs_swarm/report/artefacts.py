@@ -305,11 +305,11 @@ def summary_text(summary: dict[str, Any]) -> str:
 def from_sim_result(
     result: Any, *, name: str = "", safety: Any | None = None, rate_hz: float | None = None
 ) -> FlightRecord:
-    """The flight record of a ``gcs_swarm.simulation.SimResult`` (or a
+    """The flight record of a ``gcs_swarm.integrator.SimResult`` (or a
     ``MissionSimResult``, whose safety totals then go to the summary).
     Every step's acceleration is the (filtered) law's command; there are no
     setpoints or telemetry in a simulation."""
-    from gcs_swarm.simulation import SimResult
+    from gcs_swarm.integrator import SimResult
 
     if not isinstance(result, SimResult):
         safety = getattr(result, "safety", safety)

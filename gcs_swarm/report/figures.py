@@ -1,6 +1,6 @@
 """The run summary: a ``FlightRecord`` in numbers, as a JSON-ready dict.
 
-Overall figures come from ``gcs_swarm.analysis.summarize`` (final radii and
+Overall figures come from ``gcs_swarm.analysis.formation_figures`` (final radii and
 pairwise distances, minimum separation and box clearance, time to form:
 every radius and distance within 1 % of its final value); this module adds
 the per-vehicle figures, who and when, behaviour switches, commanded
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.analysis import pairwise_distances, summarize, time_to_form
+from gcs_swarm.analysis import formation_figures, pairwise_distances, time_to_form
 from gcs_swarm.control.obstacles import Ellipsoids, box_signed_distance
 from gcs_swarm.report.record import FlightRecord
 
@@ -155,14 +155,14 @@ def summarize_record(rec: FlightRecord, *, form_tol: float = 0.01) -> dict[str, 
         return out
     ser = series(rec)
     t = rec.times_s
-    swarm = summarize(t, rec.pos_m, rec.leader_pos_m, rec.boxes, episodes=int(rec.episode[-1]),
-                      form_tol=form_tol)  # fmt: skip
+    swarm = formation_figures(t, rec.pos_m, rec.leader_pos_m, rec.boxes,
+                              episodes=int(rec.episode[-1]), form_tol=form_tol)  # fmt: skip
     final = ~np.isnan(rec.pos_m[-1, :, 0])
     final_ids = [ids[j] for j in np.flatnonzero(final)]
     switches = [{"t_s": ts, "event": ev, "episode": ep} for ts, ev, ep in rec.switches()]
     events = [{"t_s": ts, "action": a, "sysid": s} for ts, a, s in rec.events]
 
-    # Trailing stretch where the final set is active (as analysis.summarize).
+    # Trailing stretch where the final set is active (as analysis.formation_figures).
     gaps = np.flatnonzero(np.isnan(rec.pos_m[:, final, 0]).any(axis=1))
     first = int(gaps[-1]) + 1 if gaps.size else 0
     vehicles: dict[str, Any] = {}

@@ -3,7 +3,7 @@
 Positions: each vehicle's LOCAL_POSITION_NED (north, east, down from its
 own EKF origin) plus the offset of its GPS_GLOBAL_ORIGIN from the mission
 origin, ``p = (e, n, -d) + o_i`` (formation-law.md s1, the station's own
-conversion in ``gcs_swarm.mavlink.frames``). The mission origin is the
+conversion in ``gcs_swarm.mavlink.coordinates``). The mission origin is the
 mission file's, or (``first-vehicle`` with a real first vehicle) that
 vehicle's GPS_GLOBAL_ORIGIN, as the station does. Commanded accelerations:
 the acceleration of each SET_POSITION_TARGET_LOCAL_NED the station (system
@@ -40,7 +40,7 @@ from pymavlink.dialects.v20 import ardupilotmega as _dialect
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.safety import filter_acts
 from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
-from gcs_swarm.mavlink.frames import GeoPoint, origin_offset_m, vector_ned_to_mission
+from gcs_swarm.mavlink.coordinates import GeoOrigin, origin_offset_m, vector_ned_to_mission
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.notes import parse_note
 from gcs_swarm.report.record import F64, FlightRecord, FlightRecorder
@@ -89,9 +89,9 @@ class _State:
 
     def __init__(self, mission: Mission) -> None:
         geo = mission.origin_geo()
-        self.reference = None if geo is None else GeoPoint(geo.lat, geo.lon, geo.alt)
+        self.reference = None if geo is None else GeoOrigin(geo.lat, geo.lon, geo.alt)
         self.first = mission.vehicles[0].sysid
-        self.origins: dict[int, GeoPoint] = {}
+        self.origins: dict[int, GeoOrigin] = {}
         self.lpn: dict[int, Any] = {}
         self.mav: Any = _dialect.MAVLink(None)
         self.mav.robust_parsing = True
@@ -107,7 +107,7 @@ class _State:
         if msg.get_msgId() == _LPN:
             self.lpn[sysid] = msg
         else:
-            origin = GeoPoint.from_mavlink(int(msg.latitude), int(msg.longitude),
+            origin = GeoOrigin.from_mavlink(int(msg.latitude), int(msg.longitude),
                                            int(msg.altitude))  # fmt: skip
             self.origins[sysid] = origin
             if self.reference is None and sysid == self.first:

@@ -14,7 +14,7 @@ from gcs_swarm.runtime.run import (
     station_config,
 )
 from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
-from gcs_swarm.runtime.summary import RunSummary, VehicleSummary
+from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
 
 __all__ = [
     "END_MODES",
@@ -26,8 +26,8 @@ __all__ = [
     "Station",
     "StationConfig",
     "StepResult",
+    "VehicleAtEnd",
     "VehiclePlan",
-    "VehicleSummary",
     "emulator_config",
     "parse_connection",
     "run_mission",

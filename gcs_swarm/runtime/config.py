@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.control.velocity_bias import BiasSettings
-from gcs_swarm.mavlink.frames import GeoPoint
+from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mavlink.states import ProtocolConfig
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 
@@ -55,7 +55,7 @@ class StationConfig:
     start_tolerance_m: float = ProtocolConfig.goto_tolerance_m
     start_speed_tolerance_mps: float = ProtocolConfig.goto_speed_tolerance_mps
     """At its start (READY) within this distance [m] and below this speed [m/s]."""
-    mission_origin: GeoPoint | None = None
+    mission_origin: GeoOrigin | None = None
     events: tuple[tuple[float, str, int], ...] = ()
     lockstep: bool = False
     delay_compensation: bool = False

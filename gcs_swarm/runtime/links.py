@@ -28,7 +28,8 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.errors import LinkError
-from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import MessageSpec
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.runtime.endpoints import Endpoint, LatencyRing, LinkStats, parse_connection
 from gcs_swarm.runtime.lifetime import close_task_group
 from gcs_swarm.swarm.link_state import (
@@ -55,10 +56,9 @@ _RECONNECT_S = 1.0
 
 OnMessage = Callable[[Any, "Link"], None]
 """Called with each decoded pymavlink message and the link it came on."""
-OnPosition = Callable[[list[RawPosition], "Link"], None]
-"""Called with runs of unsigned LOCAL_POSITION_NED (decoded without
-pymavlink's objects; consecutive ones of a datagram together, in order with
-the other messages) and their link, when the owner asks for them apart."""
+OnTelemetry = Callable[["Link"], None]
+"""Called after a datagram (or stream chunk) whose flying vehicles' reports
+went into the telemetry table, with the link."""
 
 
 class _Udp(asyncio.DatagramProtocol):
@@ -86,15 +86,17 @@ class Link:
         on_message: OnMessage,
         *,
         on_frame: OnFrame | None = None,
-        on_position: OnPosition | None = None,
+        telemetry: TelemetryTable | None = None,
+        on_telemetry: OnTelemetry | None = None,
         signing_key: bytes | None = None,
         sysids: Collection[int] | None = None,
         allow_rebind: bool = False,
         on_notice: Callable[[str], None] | None = None,
     ) -> None:
-        """``on_message`` gets every decoded message, except that with
-        ``on_position`` the unsigned LOCAL_POSITION_NED frames go there as
-        lists of ``RawPosition`` tuples (the station's hot path).
+        """``on_message`` gets every decoded message, except the flying
+        vehicles' reports written into ``telemetry`` (``LinkState``); after a
+        datagram that wrote some, ``on_telemetry`` is called (the station's
+        hot path).
         ``sysids``: the system ids this link serves (None: any); only they
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
         only (``LinkState``). ``on_notice`` gets one line per refused or
@@ -108,14 +110,14 @@ class Link:
             signing_key=signing_key,
             sysids=sysids,
             allow_rebind=allow_rebind,
-            raw_positions=on_position is not None,
+            telemetry=telemetry,
             on_frame=on_frame,
             on_notice=on_notice,
         )
         self.latency = LatencyRing()
         """Telemetry-arrival-to-setpoint-write times of this link's setpoints."""
         self._on_message = on_message
-        self._on_position = on_position
+        self._on_telemetry = on_telemetry
         self._wake = asyncio.Event()
         self._udp: asyncio.DatagramTransport | None = None
         self._streams: list[_Stream] = []
@@ -263,12 +265,11 @@ class Link:
         if state.peer_added:
             state.peer_added = False
             self._wake.set()  # flush what was queued while nobody was connected
-        on_position, on_message = self._on_position, self._on_message
+        on_message = self._on_message
         for item in items:
-            if type(item) is list:
-                on_position(item, self)  # type: ignore[misc]
-            else:
-                on_message(item, self)
+            on_message(item, self)
+        if state.positions_written and self._on_telemetry is not None:
+            self._on_telemetry(self)
 
     async def _read_stream(self, reader: asyncio.StreamReader, stream: _Stream) -> None:
         self._streams.append(stream)

@@ -28,7 +28,7 @@ from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
-from gcs_swarm.mavlink.frames import GeoPoint, mission_to_ned, origin_offset_m
+from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned, origin_offset_m
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, Vehicle
@@ -38,7 +38,7 @@ from gcs_swarm.mission.source import (
     read_regular,
     signing_key_bytes,
 )
-from gcs_swarm.missionsim import demand_report, envelope_demand
+from gcs_swarm.offline import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.report.replay import safety_applied
@@ -82,8 +82,8 @@ LOCKSTEP_GROUND_SPEEDUP = 20.0
 """Pace of a lockstep emulator's ground phases (take-off etc.), x real time."""
 
 
-def _geo(point: MissionGeoPoint | None) -> GeoPoint | None:
-    return None if point is None else GeoPoint(point.lat, point.lon, point.alt)
+def _geo(point: MissionGeoPoint | None) -> GeoOrigin | None:
+    return None if point is None else GeoOrigin(point.lat, point.lon, point.alt)
 
 
 def _key_bytes(raw: bytes, where: str) -> bytes:
@@ -211,7 +211,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
     if origin is None:
         raise StartupError("sim vehicles need a mission origin or a sim first vehicle")
     homes = mission.sim_origins(origin)
-    ref = GeoPoint(origin.lat, origin.lon, origin.alt)
+    ref = GeoOrigin(origin.lat, origin.lon, origin.alt)
     specs = []
     for v in mission.vehicles:
         if not v.is_sim:
@@ -263,8 +263,8 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
     )
 
 
-def _snap(point: MissionGeoPoint) -> GeoPoint:
-    return GeoPoint(round(point.lat * 1e7) / 1e7, round(point.lon * 1e7) / 1e7,
+def _snap(point: MissionGeoPoint) -> GeoOrigin:
+    return GeoOrigin(round(point.lat * 1e7) / 1e7, round(point.lon * 1e7) / 1e7,
                     round(point.alt * 1e3) / 1e3)  # fmt: skip
 
 

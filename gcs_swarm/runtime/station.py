@@ -26,7 +26,7 @@ from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
@@ -160,7 +160,8 @@ class Station:
             for key in self.core.links:
                 served = [p.sysid for p in self.config.vehicles if p.link == key]
                 link = Link(key, self._on_message, on_frame=self._on_frame,
-                            on_position=self._on_positions,
+                            telemetry=self.core.table,
+                            on_telemetry=self._on_telemetry,
                             signing_key=self.config.signing_key, sysids=served,
                             allow_rebind=self.config.allow_rebind,
                             on_notice=self.warn)  # fmt: skip
@@ -268,9 +269,9 @@ class Station:
         self.core.receive(msg, link.connection, self.now(), link.rx_time_s)
         self._after()
 
-    def _on_positions(self, raws: list[RawPosition], link: Link) -> None:
+    def _on_telemetry(self, link: Link) -> None:
         core = self.core
-        core.receive_positions(raws, link.connection, self.now(), link.rx_time_s)
+        core.telemetry_written(self.now())
         if core.outbound or core.step_wanted or core.timer_moved or core.changed:
             self._after()
 

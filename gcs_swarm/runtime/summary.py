@@ -16,11 +16,11 @@ import numpy.typing as npt
 from gcs_swarm.control.params import Vec3
 from gcs_swarm.runtime.station import Station
 
-__all__ = ["RunSummary", "VehicleSummary"]
+__all__ = ["RunSummary", "VehicleAtEnd"]
 
 
 @dataclass(frozen=True)
-class VehicleSummary:
+class VehicleAtEnd:
     """One vehicle at the end: its phase and Copter mode, position [m] and
     radius to the leader [m] at the last control step (None if it was not
     flying then), the last acceleration the station commanded [m/s^2, NED]
@@ -59,7 +59,7 @@ class RunSummary:
     steps: int
     behaviour: str
     leader_pos_m: Vec3
-    vehicles: tuple[VehicleSummary, ...]
+    vehicles: tuple[VehicleAtEnd, ...]
     min_separation_m: float
     min_clearance_m: float
     episodes: int
@@ -100,7 +100,7 @@ class RunSummary:
                 p = last.pos_m[i]
                 at[sysid] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
         vehicles = tuple(
-            VehicleSummary(
+            VehicleAtEnd(
                 sysid=s,
                 phase=vp.phase.value,
                 mode=vp.mode_name,
@@ -143,7 +143,7 @@ class RunSummary:
             spoofed=sum(lk.stats.spoofed for lk in links),
             signature_rejected=sum(lk.stats.signature_rejected for lk in links),
             safety=(
-                str(station.control.safety_stats.summary())
+                str(station.control.safety_stats.totals())
                 if station.control.filtering
                 else "safety filter: off (limits.safety.enabled false or all-sim default, "
                 "no finite limit)"

@@ -2,8 +2,9 @@
 
 ``SwarmCore`` is the ground station with its sockets and tasks taken out,
 driven as aioquic drives a connection (STYLE.md habit 1): messages go in with
-the link they came on and the time (``receive``, ``receive_positions``),
-``handle_timer(now)`` when ``get_timer()`` is due, ``control_step(now,
+the link they came on and the time (``receive``; a flying vehicle's
+LOCAL_POSITION_NED is written into ``table`` by the link state, then
+``telemetry_written``), ``handle_timer(now)`` when ``get_timer()`` is due, ``control_step(now,
 write)`` when ``step_wanted``; what the vehicles' protocols queued waits in
 ``outbound`` as ``(link, spec, sysid)``; ``changed`` and ``finished`` tell
 the shell (``runtime.station.Station``) that a phase moved or the mission
@@ -44,11 +45,11 @@ from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.control.tracking import VelocityReference
-from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
 from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import Phase, ProtocolEvent
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.swarm.step import READYING, Write, run_step
 
@@ -60,8 +61,6 @@ if TYPE_CHECKING:  # plain data of the layer above, for the types only
 __all__ = ["SwarmCore"]
 
 _log = logging.getLogger("gcs_swarm.station")
-
-_FLYING = Phase.FLYING
 
 
 class SwarmCore:
@@ -92,6 +91,10 @@ class SwarmCore:
             )
             for p in config.vehicles
         }
+        self.table = TelemetryTable([p.sysid for p in config.vehicles])
+        """The flying vehicles' telemetry (the links write it, the step reads it)."""
+        if recorder is not None:
+            self.table.on_inbound = recorder.inbound
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
                                    config.rate_hz)  # fmt: skip
         self.links = list(dict.fromkeys(p.link for p in config.vehicles))
@@ -133,9 +136,6 @@ class SwarmCore:
         """Plane look-aheads to run off the step (``resolve_lookahead``); the shell empties it."""
         self._events = sorted(config.events)
         self._origin = config.mission_origin
-        self._fresh: dict[int, int] = {}
-        self.arrival: dict[int, float] = {}
-        """Arrival time [s] of each fresh report (the setpoints' latency)."""
         self._deadlines: dict[int, float] = {}
         self._heap: list[tuple[float, int]] = []
         self._fallback_at: float | None = None
@@ -145,7 +145,7 @@ class SwarmCore:
     @property
     def reports_waiting(self) -> int:
         """Reports accepted since the last control step (answered at the next)."""
-        return len(self._fresh)
+        return self.table.fresh_count
 
     # ------------------------------------------------------------ inbound
     def receive(self, msg: Any, link: str, now: float, rx_s: float) -> None:
@@ -166,35 +166,19 @@ class SwarmCore:
         if inbound is not None:
             self._handle(vp, inbound, now, rx_s)
 
-    def receive_positions(
-        self, raws: list[RawPosition], link: str, now: float, rx_s: float
-    ) -> None:
-        """Unsigned LOCAL_POSITION_NED reports (a datagram's run of them): the
-        handling ``receive`` gives each, written as one loop because it runs
-        for every vehicle 50 times a second."""
-        recorder = self.recorder
-        armed, fresh, arrival = self._deadlines, self._fresh, self.arrival
-        accepted = 0
-        for raw in raws:
-            sysid = raw.sysid
-            if recorder is not None:
-                recorder.inbound(sysid, raw.compid, raw.seq, b.MSG_ID_LOCAL_POSITION_NED)
-            vp = self._vehicle(sysid, link)
-            if vp is None:
-                continue
-            pos = LocalPositionNed(sysid, raw.compid, *raw.values)
-            if vp.phase is not _FLYING or sysid not in armed:
-                self._handle(vp, pos, now, rx_s)
-            # FLYING with its deadline armed: what _handle does, without the
-            # calls that change nothing here (see the end of _handle).
-            elif vp.flying_position(pos, now):
-                fresh[sysid] = pos.time_boot_ms
-                arrival[sysid] = rx_s
-                accepted += 1
-                if vp.outbound_waiting:  # the rate watch asked for the interval again
-                    self._service(vp, now)
-        if accepted:
-            self.reports_in += accepted
+    def telemetry_written(self, now: float) -> None:
+        """The links wrote flying vehicles' reports into ``table`` (``LinkState.receive``):
+        count them, let a protocol whose rate window asked for the interval
+        again send it, and see whether a step is due."""
+        table = self.table
+        taken = table.taken
+        if table.attention:
+            waiting, table.attention = table.attention, []
+            for sysid in waiting:
+                self._service(self.vehicles[sysid], now)
+        if taken:
+            table.taken = 0
+            self.reports_in += taken
             self._maybe_step(now)
 
     def _vehicle(self, sysid: int, link: str) -> VehicleProtocol | None:
@@ -210,23 +194,14 @@ class SwarmCore:
         return vp
 
     def _handle(self, vp: VehicleProtocol, inbound: Inbound, now: float, rx_s: float) -> None:
-        vp.handle_message(inbound, now)
-        if (
-            isinstance(inbound, LocalPositionNed)
-            and vp.phase is Phase.FLYING
-            and vp.position is inbound  # not refused as implausible, duplicated or old
-        ):
-            sysid = vp.sysid
-            self._fresh[sysid] = inbound.time_boot_ms
-            self.reports_in += 1
-            self.arrival[sysid] = rx_s
-            self._maybe_step(now)
-            if sysid in self._deadlines and not vp.outbound_waiting:
-                # Accepted telemetry in FLYING queues nothing (but the rate
-                # watch's request), raises no event and only moves the
-                # protocol's deadlines later, so the armed (earlier) one
-                # stands: ``_service`` would change nothing.
+        if type(inbound) is LocalPositionNed and vp.sysid in self.flying:
+            # A flying vehicle's report that came as a message (after another
+            # message of it in one datagram, or signed): its table row takes it.
+            table = self.table
+            if table.write(table.slot[vp.sysid], inbound.compid, -1, inbound[2:], now, rx_s):
+                self.telemetry_written(now)
                 return
+        vp.handle_message(inbound, now)
         self._service(vp, now)
 
     def service(self, sysid: int, now: float) -> None:
@@ -259,8 +234,7 @@ class SwarmCore:
             return
         sysid = vp.sysid
         if sysid in self.flying and vp.phase is not Phase.FLYING:
-            self.flying.discard(sysid)
-            self._fresh.pop(sysid, None)
+            self.flying.discard(sysid)  # its table row was detached with the phase
             self.control.forget(sysid)
             self.reference.forget(sysid)
             if self.recorder is not None:
@@ -340,7 +314,7 @@ class SwarmCore:
 
     def _join(self, vp: VehicleProtocol, now: float) -> None:
         if vp.phase is Phase.READY:
-            vp.begin_flying(now)
+            vp.begin_flying(now, self.table)
             self.flying.add(vp.sysid)
             self.flown.add(vp.sysid)
             if self.recorder is not None:
@@ -387,11 +361,12 @@ class SwarmCore:
 
     # --------------------------------------------------------- control step
     def _maybe_step(self, now: float) -> None:
-        if not self.started or self.ending or not self._fresh or self.failure is not None:
+        fresh = self.table.fresh_count
+        if not self.started or self.ending or not fresh or self.failure is not None:
             return
-        # _fresh holds flying vehicles only (a vehicle leaving is popped), so the
-        # subset test runs once per step, not once per report.
-        if len(self._fresh) >= len(self.flying) and self.flying <= self._fresh.keys():
+        # Only flying vehicles' rows take reports (a vehicle leaving is detached),
+        # so the fresh count is enough.
+        if fresh >= len(self.flying):
             self.step_wanted = True
         elif self._fallback_at is None:
             # Lockstep: a generous wait keeps runs repeatable; real time: half a period.
@@ -408,7 +383,7 @@ class SwarmCore:
         self._fallback_at = None
         if self.ending:
             return
-        fresh, self._fresh = self._fresh, {}
+        fresh = self.table.take_fresh()
         t = self.control.advance_clock(fresh)
         self._run_events(t, now)
         run_step(self, fresh, t, now, write)

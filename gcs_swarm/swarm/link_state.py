@@ -31,6 +31,15 @@ codec only once it is bound to one of the link's ``sysids``, so garbage from
 any number of ports keeps no state and draws no reply. A peer that no
 longer speaks for any system id (rebound away) loses its codec.
 
+Flying telemetry (issue 16): with a ``telemetry`` table, an unsigned
+LOCAL_POSITION_NED of a vehicle the link serves, from its bound peer, goes
+straight into that vehicle's row (``TelemetryTable.write``) when the row
+takes it (the vehicle is FLYING, the report plausible and newer); anything
+else comes out of ``receive`` as the message pymavlink's own decoder makes
+of the frame, in order. A vehicle's report after another message of it in
+the same datagram comes out as a message too, so that what the protocol
+hears keeps the datagram's order (a HEARTBEAT may end its flight).
+
 Datagram joining: one control step's frames to one peer go out joined into
 datagrams of at most ``mavwire.MAX_DATAGRAM_BYTES``.
 """
@@ -53,6 +62,7 @@ from gcs_swarm.mavlink.builders import (
     TYPE_MASK_VEL_ACCEL,
 )
 from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawPosition
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 
 __all__ = ["MESSAGE_QUEUE_SIZE", "REBIND_S", "LinkState", "LinkStats", "Write"]
@@ -101,7 +111,7 @@ class LinkState:
         signing_key: bytes | None = None,
         sysids: Collection[int] | None = None,
         allow_rebind: bool = False,
-        raw_positions: bool = False,
+        telemetry: TelemetryTable | None = None,
         on_frame: OnFrame | None = None,
         on_notice: Callable[[str], None] | None = None,
     ) -> None:
@@ -109,8 +119,8 @@ class LinkState:
         ``unix_clock``: the Unix time now (signing timestamps of new codecs).
         ``sysids``: the system ids this link serves (None: any); only they
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
-        only. ``raw_positions``: unsigned LOCAL_POSITION_NED frames come out
-        of ``receive`` as runs of ``RawPosition`` (the station's hot path).
+        only. ``telemetry``: the table flying vehicles' reports are written
+        to (module docstring); it needs ``sysids``.
         ``on_notice`` gets one line per refused (the first) or accepted
         rebinding of a vehicle."""
         self.name = name
@@ -118,7 +128,13 @@ class LinkState:
         self._signing_key = signing_key
         self._sysids = None if sysids is None else frozenset(sysids)
         self._allow_rebind = allow_rebind and signing_key is not None
-        self._raw = raw_positions
+        self._table = telemetry
+        self._rows: dict[int, int] = {}
+        """Table row of each system id this link serves."""
+        if telemetry is not None and self._sysids is not None:
+            self._rows = {s: telemetry.slot[s] for s in self._sysids if s in telemetry.slot}
+        self.positions_written = 0
+        """Reports the last ``receive`` wrote into the table."""
         self._on_frame = on_frame
         self._on_notice = on_notice
         self.stats = LinkStats()
@@ -177,9 +193,11 @@ class LinkState:
     # ---------------------------------------------------------- receiving
     def receive(self, data: bytes, peer: Peer, now: float, *, datagram: bool) -> list[Any]:
         """Decode ``data`` from ``peer`` (arrived at ``now``) and keep what
-        its peer may say: pymavlink messages, and with ``raw_positions``
-        lists of consecutive ``RawPosition`` (in order with the messages)."""
+        its peer may say: pymavlink messages, in order; flying vehicles'
+        reports the telemetry table took are not among them (counted in
+        ``positions_written``)."""
         self.rx_time_s = now
+        self.positions_written = 0
         codec = self._codecs.get(peer)
         if codec is None:
             # An address not bound to any vehicle: the shared decoder, no state
@@ -189,33 +207,43 @@ class LinkState:
             codec = self._stranger
         cs = codec.stats
         bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
-        msgs = codec.decode(data, datagram=datagram, raw_positions=self._raw)
+        table = self._table
+        msgs = codec.decode(data, datagram=datagram, raw_positions=table is not None)
         stats = self.stats
         stats.bad_packets += cs.bad_packets - bad
         stats.unknown_messages += cs.unknown_messages - unknown
         stats.signature_rejected += cs.signature_rejected - rejected
         on_frame = self._on_frame
         out: list[Any] = []
-        run: list[RawPosition] = []
+        rows = self._rows
+        spoke: set[int] = set()
+        """System ids with a message already out of this datagram."""
+        written = 0
         for msg in msgs:
             raw = type(msg) is RawPosition
-            if not self._bound(msg.sysid if raw else msg.get_srcSystem(), peer, now):
+            sysid = msg.sysid if raw else msg.get_srcSystem()
+            if not self._bound(sysid, peer, now):
                 stats.spoofed += 1
                 continue
             stats.received += 1
             if raw:
                 if on_frame is not None:
                     on_frame(msg.frame, "in")
-                run.append(msg)
-                continue
-            if run:
-                out.append(run)
-                run = []
-            if on_frame is not None:
+                k = rows.get(sysid)
+                if (
+                    k is not None
+                    and sysid not in spoke
+                    and table is not None
+                    and table.write(k, msg.compid, msg.seq, msg.values, now, now)
+                ):
+                    written += 1
+                    continue
+                msg = codec.message(msg)  # pymavlink's own decoder, off the hot path
+            elif on_frame is not None:
                 on_frame(bytes(msg.get_msgbuf()), "in")
+            spoke.add(sysid)
             out.append(msg)
-        if run:
-            out.append(run)
+        self.positions_written = written
         return out
 
     def _bound(self, sysid: int, peer: Peer, now: float) -> bool:

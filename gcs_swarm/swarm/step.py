@@ -3,11 +3,12 @@ vehicles' fresh reports, and each link's setpoints (``SwarmCore.control_step``
 calls ``run_step`` once the events of the step's time have run).
 
 The path (docs/architecture.md, "From a datagram to a setpoint", steps 4-5):
-the mission-frame states (``mavlink.batch.mission_states``), the delay
-compensator's prediction when there is one, ``ControlLoop.command`` (the
-leader, the law, the safety filter, the shaper), the checks that end a
-mission as failed, then the setpoints: mission frame -> NED
-(``mavlink.batch.accel_ned``), Eq. V1 for velocity-tracked vehicles
+the mission-frame states read from the telemetry table
+(``TelemetryTable.mission_states``), the delay compensator's prediction when
+there is one, ``ControlLoop.command`` (the leader, the law, the safety
+filter, the shaper), the checks that end a mission as failed, then the
+setpoints: mission frame -> NED (``TelemetryTable.answer``), Eq. V1 for
+velocity-tracked vehicles
 (docs/setpoints.md), written link by link before the bookkeeping, so that
 a setpoint's latency does not include it.
 """
@@ -21,7 +22,6 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.errors import SwarmError
-from gcs_swarm.mavlink.batch import accel_ned, mission_states
 from gcs_swarm.mavlink.states import Phase
 
 if TYPE_CHECKING:
@@ -65,12 +65,14 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     flying vehicles, answering those in ``fresh`` (sysid -> report time)."""
     ids = sorted(core.flying)
     if ids:
-        pos, vel = mission_states([core.vehicles[s] for s in ids])
+        table = core.table
+        ks = table.slots(ids)
+        pos, vel = table.mission_states(ks)
         if core.delay is not None:
             for i, s in enumerate(ids):
-                last = core.vehicles[s].position
-                if last is not None:
-                    t_s = last.time_boot_ms * 1e-3
+                k = int(ks[i])
+                if table.position(k) is not None:
+                    t_s = table.boot_ms(k) * 1e-3
                     pos[i], vel[i] = core.delay.predict(s, t_s, now, pos[i], vel[i])
         try:
             # Overflow is judged below, on the leader (and counted, on the setpoints).
@@ -94,7 +96,7 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
                                out.episode, accel_mps2=accel, sent=fresh.keys(),
                                correction_mps2=cor)  # fmt: skip
         rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-        _answer(core, [ids[i] for i in rows], accel[rows], now, t, vel[rows], write)
+        _answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
         core.control.account(ids, pos, out, accel, report)
         job = core.control.pending_lookahead()
         if job is not None:
@@ -111,6 +113,7 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
 def _answer(
     core: SwarmCore,
     sysids: list[int],
+    ks: npt.NDArray[np.intp],
     accel: FloatArray,
     now: float,
     t: float,
@@ -118,11 +121,11 @@ def _answer(
     write: Write,
 ) -> None:
     """One acceleration setpoint (mission frame ``accel (K, 3)``) for each
-    of ``sysids``, each link's at once. A velocity-tracked vehicle's goes
-    with its velocity setpoint (Eq. V1, from ``vel``, the velocity the law
-    saw, at mission time ``t``)."""
-    vps = [core.vehicles[s] for s in sysids]
-    ned = accel_ned(vps, accel)
+    of ``sysids`` (rows ``ks`` of the telemetry table), each link's at once.
+    A velocity-tracked vehicle's goes with its velocity setpoint (Eq. V1,
+    from ``vel``, the velocity the law saw, at mission time ``t``)."""
+    table = core.table
+    ned = table.answer(ks, accel)
     vel_ned: FloatArray | None = None
     tracked = [k for k, s in enumerate(sysids) if s in core.velocity_tracked]
     if tracked:
@@ -130,7 +133,7 @@ def _answer(
         sent = np.stack([ned[tracked, 1], ned[tracked, 0], -ned[tracked, 2]], axis=1)
         ref = core.reference.setpoints([sysids[k] for k in tracked], t, vel[tracked], sent)
         vel_ned = np.full((len(sysids), 3), np.nan)
-        bias = np.array([vps[k].vel_correction_ned for k in tracked], dtype=np.float64)
+        bias = table.bias_ned[ks[tracked]]
         # The vehicle flies its own (biased) velocity estimate to the setpoint.
         vel_ned[tracked, 0] = ref[:, 1] + bias[:, 0]
         vel_ned[tracked, 1] = ref[:, 0] + bias[:, 1]
@@ -139,7 +142,9 @@ def _answer(
     link_of = core.link_of
     for k, sysid in enumerate(sysids):
         rows.setdefault(link_of[sysid], []).append(k)
-    arrival = core.arrival
+    vehicles = core.vehicles
+    boot_ms = [table.boot_ms(k) for k in ks.tolist()]
+    arrival = table.arrival_s[ks].tolist()
     for link in core.links:
         idx = rows.get(link)
         if idx is None:
@@ -150,10 +155,10 @@ def _answer(
             link,
             SetpointBatch(
                 [sysids[k] for k in idx],
-                [vps[k].compid for k in idx],
-                [vps[k].boot_ms() for k in idx],
+                [vehicles[sysids[k]].compid for k in idx],
+                boot_ms if whole else [boot_ms[k] for k in idx],
                 ned if whole else ned[idx],
-                [arrival.get(sysids[k]) for k in idx],
+                arrival if whole else [arrival[k] for k in idx],
                 vel_ned if vel_ned is None or whole else vel_ned[idx],
             ),
         )

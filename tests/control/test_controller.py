@@ -20,7 +20,7 @@ from gcs_swarm.control import (
     rho,
 )
 from gcs_swarm.control.obstacles import Ellipsoids
-from gcs_swarm.simulation import SimResult, simulate
+from gcs_swarm.integrator import SimResult, integrate
 
 STARTS = [(2, 1, 2), (-1, -1, -1), (3, 4, 2), (4, 2, 2), (3, 3, 3), (-2, -2, -2)]
 IDS = [11, 12, 13, 14, 15, 16]
@@ -40,7 +40,7 @@ def _config(**avoid: object) -> LawConfig:
 @cache
 def _pass_run() -> SimResult:
     # The formation (1 m/s along +x) meets the box at ~32 s, is past it by ~50 s.
-    return simulate(_config(), STARTS, duration=60.0, dt=DT, ids=IDS)
+    return integrate(_config(), STARTS, duration=60.0, dt=DT, ids=IDS)
 
 
 def test_one_episode_per_obstacle_pass() -> None:

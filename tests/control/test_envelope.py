@@ -20,7 +20,7 @@ from gcs_swarm.control.envelope import (
 )
 from gcs_swarm.control.params import ExpressionForce, Gains, LawConfig, Leader
 from gcs_swarm.control.reaction import reaction_bound, stop_distance
-from gcs_swarm.simulation import simulate
+from gcs_swarm.integrator import integrate
 
 RNG = np.random.default_rng(14)
 
@@ -75,8 +75,8 @@ def test_time_scale_flies_the_same_solution_lambda_times_slower() -> None:
     base = LawConfig(gains=Gains(k_s=5.0, k_r=5.0), leader=leader)
     slow = replace(base, gains=replace(base.gains, time_scale=lam))
     starts = [(2.6, 2.6, 2.6), (2.6, -0.6, -0.6), (-0.6, 2.6, -0.6), (-0.6, -0.6, 2.6)]
-    fast = simulate(base, starts, duration=15.0, dt=0.01)
-    slow_run = simulate(slow, starts, duration=15.0 * lam, dt=0.01 * lam)
+    fast = integrate(base, starts, duration=15.0, dt=0.01)
+    slow_run = integrate(slow, starts, duration=15.0 * lam, dt=0.01 * lam)
     np.testing.assert_allclose(slow_run.pos_m, fast.pos_m, rtol=0, atol=1e-9)
     np.testing.assert_allclose(slow_run.leader_pos_m, fast.leader_pos_m, rtol=0, atol=1e-9)
     np.testing.assert_allclose(slow_run.vel_mps * lam, fast.vel_mps, rtol=0, atol=1e-9)
@@ -154,7 +154,7 @@ def test_example1_arducopter_forms_inside_the_envelope() -> None:
     from pathlib import Path
 
     from gcs_swarm.mission import load_mission
-    from gcs_swarm.missionsim import simulate_mission
+    from gcs_swarm.offline import simulate_mission
 
     path = Path(__file__).resolve().parents[2] / "config/missions/example1_arducopter.yaml"
     mission = load_mission(path)
@@ -164,7 +164,7 @@ def test_example1_arducopter_forms_inside_the_envelope() -> None:
     res = out.result
     r = np.linalg.norm(res.pos_m[-1] - res.leader_pos_m[-1], axis=-1)
     np.testing.assert_allclose(r, 2.48418, rtol=0.01)
-    assert res.summary().min_separation_m >= 1.0
+    assert res.figures().min_separation_m >= 1.0
     a = res.accel_mps2
     assert np.linalg.norm(a[..., :2], axis=-1).max() <= 1.0 + 1e-9  # a_max 1 inside 2.5
     assert np.abs(a[..., 2]).max() <= 1.0 + 1e-9
@@ -183,8 +183,8 @@ def test_time_scale_keeps_the_avoidance_episode() -> None:
     law = load_mission(path).law
     starts = [(2.6, 2.6, 2.6), (2.6, -0.6, -0.6), (-0.6, 2.6, -0.6), (-0.6, -0.6, 2.6)]
     lam = 2.5
-    fast = simulate(law, starts, duration=20.0, dt=0.01)
-    slow = simulate(replace(law, gains=replace(law.gains, time_scale=lam)), starts,
+    fast = integrate(law, starts, duration=20.0, dt=0.01)
+    slow = integrate(replace(law, gains=replace(law.gains, time_scale=lam)), starts,
                     duration=20.0 * lam, dt=0.01 * lam)  # fmt: skip
     assert len(fast.switches) == len(slow.switches) == 1
     assert slow.switches[0][0] == pytest.approx(lam * fast.switches[0][0])

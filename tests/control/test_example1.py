@@ -21,7 +21,7 @@ import pytest
 
 from gcs_swarm.analysis import group_values, pairwise_distances, radii
 from gcs_swarm.control import LawConfig, Readings
-from gcs_swarm.simulation import SimResult, simulate
+from gcs_swarm.integrator import SimResult, integrate
 
 STARTS = [(2, 1, 2), (-1, -1, -1), (3, 4, 2), (4, 2, 2), (3, 3, 3), (-2, -2, -2)]
 DT = 0.05
@@ -30,7 +30,7 @@ SETTLE_S = 200.0
 
 @cache
 def _run(n: int) -> SimResult:
-    return simulate(LawConfig(), STARTS[:n], duration=SETTLE_S, dt=DT)
+    return integrate(LawConfig(), STARTS[:n], duration=SETTLE_S, dt=DT)
 
 
 def _octahedron_radius(k_s: float, k_r: float, q: float, alpha: float) -> float:
@@ -83,7 +83,7 @@ def test_octahedron_matches_analytic_equilibrium() -> None:
 
 def test_settling_time_is_about_52_s() -> None:
     # Spec s10: every radius and distance within 1 % of final after ~52 s.
-    summary = _run(6).summary()
+    summary = _run(6).figures()
     assert 45.0 < summary.time_to_form_s < 60.0
 
 
@@ -92,7 +92,7 @@ def test_eq11_printed_diverges_within_one_second() -> None:
     # The literal law blows up in finite time (|f| grows as r^3), so the state
     # overflows to inf shortly after crossing 100 m: that is the expected result.
     with np.errstate(over="ignore", invalid="ignore"):
-        res = simulate(cfg, STARTS, duration=1.0, dt=0.001)
+        res = integrate(cfg, STARTS, duration=1.0, dt=0.001)
     with np.errstate(over="ignore", invalid="ignore"):
         r = np.linalg.norm(res.pos_m - res.leader_pos_m[:, None, :], axis=-1)
     # Spec: radius > 100 within 0.44 s; the issue asks for > 100 in under 1 s.
@@ -103,7 +103,7 @@ def test_eq11_printed_diverges_within_one_second() -> None:
 
 def test_eq12_printed_settles_at_2_0158() -> None:
     cfg = LawConfig(readings=Readings(eq12_printed=True))
-    res = simulate(cfg, STARTS, duration=SETTLE_S, dt=DT)
+    res = integrate(cfg, STARTS, duration=SETTLE_S, dt=DT)
     r = radii(res.pos_m[-1], res.leader_pos_m[-1])
     # R^5 = k_r q^2 S / k_s for the printed Eq. 12 (no alpha^2).
     r_star = (0.2 * 100.0 * (math.sqrt(2.0) + 0.25)) ** 0.2

@@ -14,7 +14,7 @@ import pytest
 
 from gcs_swarm.control import Avoidance, Box
 from gcs_swarm.control.fields import field_gain
-from gcs_swarm.simulation import VehicleRun, simulate_vehicle
+from gcs_swarm.integrator import VehicleRun, integrate_vehicle
 
 BOX = Box((16.0, 14.0, 4.0), (3.0, 2.0, 1.0))
 START = (16.0, 6.0, 4.0)
@@ -24,7 +24,7 @@ FORCE = (0.0, 2.0, 0.0)
 @cache
 def _run(method: str, sense: str, duration: float) -> VehicleRun:
     av = Avoidance(method=method, sense=sense, r0=2.0)  # type: ignore[arg-type]
-    return simulate_vehicle(
+    return integrate_vehicle(
         START, [BOX], duration=duration, dt=0.01, desired_force_n=FORCE, avoidance=av
     )
 

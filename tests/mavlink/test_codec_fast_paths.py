@@ -132,6 +132,7 @@ def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
                 assert g.frame == bytes(m.get_msgbuf())
                 names = ("time_boot_ms", "x", "y", "z", "vx", "vy", "vz")
                 assert g.values == tuple(getattr(m, f) for f in names)
+                assert _view(fast.message(g)) == _view(m)  # pymavlink's own message of it
                 raw_n += 1
             else:
                 assert _view(g) == _view(m)

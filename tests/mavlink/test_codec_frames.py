@@ -8,7 +8,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from gcs_swarm.mavlink import (
     Codec,
-    GeoPoint,
+    GeoOrigin,
     from_pymavlink,
     mission_to_ned,
     ned_to_mission,
@@ -84,12 +84,12 @@ def test_builders_match_the_protocol_sheet() -> None:
 
 
 def test_origin_offset_flat_earth() -> None:
-    ref = GeoPoint(-35.363261, 149.165230, 584.0)
+    ref = GeoOrigin(-35.363261, 149.165230, 584.0)
     # Measured on SITL: homes 5 m apart east give origins 5.01 m apart.
     dlon = 5.0 / (6378137.0 * np.cos(np.radians(ref.lat_deg))) * 180 / np.pi
-    east = GeoPoint(ref.lat_deg, ref.lon_deg + dlon, 584.0)
+    east = GeoOrigin(ref.lat_deg, ref.lon_deg + dlon, 584.0)
     np.testing.assert_allclose(origin_offset_m(east, ref), [5.0, 0.0, 0.0], atol=1e-9)
-    north_up = GeoPoint(ref.lat_deg + 1e-4, ref.lon_deg, 590.0)
+    north_up = GeoOrigin(ref.lat_deg + 1e-4, ref.lon_deg, 590.0)
     np.testing.assert_allclose(
         origin_offset_m(north_up, ref), [0.0, np.radians(1e-4) * 6378137.0, 6.0], atol=1e-9
     )

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gcs_swarm.control.params import Envelope
-from gcs_swarm.mavlink import GeoPoint, MessageSpec, Phase, ProtocolConfig, VehicleProtocol
+from gcs_swarm.mavlink import GeoOrigin, MessageSpec, Phase, ProtocolConfig, VehicleProtocol
 from gcs_swarm.mavlink.builders import (
     COPTER_MODES,
     MAV_CMD_COMPONENT_ARM_DISARM,
@@ -39,9 +39,9 @@ from gcs_swarm.mavlink.vehicle_params import (
 
 SYS = 2
 GUIDED, LAND, BRAKE, STABILIZE = (COPTER_MODES[k] for k in ("GUIDED", "LAND", "BRAKE", "STABILIZE"))
-REF = GeoPoint(-35.0, 149.0, 600.0)
+REF = GeoOrigin(-35.0, 149.0, 600.0)
 #: The vehicle's EKF origin (home): 2 m below the mission origin, right on it.
-HOME = GeoPoint(-35.0, 149.0, 598.0)
+HOME = GeoOrigin(-35.0, 149.0, 598.0)
 BOX = ((-50.0, -40.0, 0.0), (50.0, 40.0, 30.0))
 ON = ParamSettings(
     read_envelope=True,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gcs_swarm.mavlink import GeoPoint, MessageSpec, Phase, ProtocolConfig, VehicleProtocol
+from gcs_swarm.mavlink import GeoOrigin, MessageSpec, Phase, ProtocolConfig, VehicleProtocol
 from gcs_swarm.mavlink.builders import COPTER_MODES, MAV_CMD_SET_MESSAGE_INTERVAL
 from gcs_swarm.mavlink.inbound import (
     CommandAck,
@@ -21,9 +21,9 @@ SYS = 3
 GUIDED, BRAKE, STABILIZE, LOITER = (
     COPTER_MODES[k] for k in ("GUIDED", "BRAKE", "STABILIZE", "LOITER")
 )
-REF = GeoPoint(-35.0, 149.0, 600.0)
+REF = GeoOrigin(-35.0, 149.0, 600.0)
 # Vehicle origin 100 m north-ish of the mission origin and 10 m below it.
-ORIGIN = GeoPoint(-35.0 + 100 / 6378137.0 * 180 / np.pi, 149.0, 590.0)
+ORIGIN = GeoOrigin(-35.0 + 100 / 6378137.0 * 180 / np.pi, 149.0, 590.0)
 
 
 def hb(mode: int, armed: bool = False) -> Heartbeat:

@@ -31,7 +31,7 @@ from typing import Any
 
 from gcs_swarm.errors import MissionError
 from gcs_swarm.mission import parse_mission
-from gcs_swarm.missionsim import demand_report
+from gcs_swarm.offline import demand_report
 
 __all__ = ["SNIPPETS", "TEMPLATES", "Hang", "check_document", "documents", "watchdog"]
 

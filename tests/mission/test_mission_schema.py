@@ -19,7 +19,7 @@ import yaml
 
 from gcs_swarm.control.params import LawConfig
 from gcs_swarm.mission import Mission, schema
-from gcs_swarm.mission.fields import ByKind, Field, ListOf, Obj
+from gcs_swarm.mission.declarations import ByKind, Field, ListOf, Obj
 from gcs_swarm.mission.format import LAW_SOURCES, MISSION
 
 ROOT = Path(__file__).resolve().parents[2]

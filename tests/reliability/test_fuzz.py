@@ -72,7 +72,7 @@ def test_emulator_receive_path_survives_hostile_datagrams() -> None:
 
     async def main() -> None:
         async with Emulator(cfg) as emu:
-            ep = emu._vehicles[1].ep
+            ep = emu.core.vehicles[1].ep
             peer = ("127.0.0.1", 40002)
             for i, data in enumerate(datagrams(SEED, N, VEHICLE_INBOUND, sysid=255)):
                 ep.datagram_received(data, peer)
@@ -82,10 +82,10 @@ def test_emulator_receive_path_survives_hostile_datagrams() -> None:
             assert stats.bad_frames + stats.unknown_frames > N // 2, stats
             assert stats.unknown_frames > 0, stats
             assert emu.step_count > 0
-            assert emu._vehicles[1].ap.rejected > N // 1000  # NaN / 1e30 commands refused
+            assert emu.core.vehicles[1].ap.rejected > N // 1000  # NaN / 1e30 commands refused
             print(f"emulator path, {N} datagrams: {stats.bad_frames} bad frames,"
                   f" {stats.unknown_frames} unknown ids,"
-                  f" {emu._vehicles[1].ap.rejected} hostile numbers refused")  # fmt: skip
+                  f" {emu.core.vehicles[1].ap.rejected} hostile numbers refused")  # fmt: skip
             f = emu.fleet
             for arr in (f.pos, f.vel, f.acc):
                 assert np.isfinite(arr).all()

@@ -12,7 +12,7 @@ import numpy as np
 
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import Codec, MessageSpec
-from gcs_swarm.mavlink.frames import GeoPoint, origin_offset_m
+from gcs_swarm.mavlink.coordinates import GeoOrigin, origin_offset_m
 from gcs_swarm.mission import Mission, geodetic_at, load_mission
 from gcs_swarm.report import FlightRecord, FlightRecorder
 from gcs_swarm.runtime.tlog import TlogWriter
@@ -41,7 +41,7 @@ def write_run(path: Path, m: Mission) -> FlightRecord:
     """Write the log of the run to ``path``; return the live record."""
     ref_geo = m.origin_geo()
     assert ref_geo is not None
-    ref = GeoPoint(ref_geo.lat, ref_geo.lon, ref_geo.alt)
+    ref = GeoOrigin(ref_geo.lat, ref_geo.lon, ref_geo.alt)
     ids = [v.sysid for v in m.vehicles]
     codecs = {s: Codec(sysid=s, compid=1) for s in ids}
     station = Codec()
@@ -67,7 +67,7 @@ def write_run(path: Path, m: Mission) -> FlightRecord:
             lat, lon, alt = round(home.lat * 1e7), round(home.lon * 1e7), round(home.alt * 1e3)
             fields = {"latitude": lat, "longitude": lon, "altitude": alt, "time_usec": 0}
             receive(sysid, MessageSpec("GPS_GLOBAL_ORIGIN", fields))
-            offsets[sysid] = origin_offset_m(GeoPoint.from_mavlink(lat, lon, alt), ref)
+            offsets[sysid] = origin_offset_m(GeoOrigin.from_mavlink(lat, lon, alt), ref)
             rec.member(0.0, sysid, True)
         members = set(ids)
         latest: dict[int, np.ndarray] = {}

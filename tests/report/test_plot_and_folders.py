@@ -56,7 +56,7 @@ def test_figure_panels_labels_and_legends(tmp_path: Path) -> None:
 
 
 def test_simulation_report(tmp_path: Path) -> None:
-    from gcs_swarm.missionsim import simulate_mission
+    from gcs_swarm.offline import simulate_mission
 
     m = mission()
     out = simulate_mission(m, dt_s=0.05, duration_s=30.0)
@@ -65,7 +65,7 @@ def test_simulation_report(tmp_path: Path) -> None:
     assert (tmp_path / "sim" / "report.png").is_file()
     o = s["overall"]
     assert s["source"] == "simulation" and o["avoidance_episodes"] == out.result.episode[-1]
-    assert o["min_clearance_m"] == pytest.approx(out.result.summary().min_clearance_m)
+    assert o["min_clearance_m"] == pytest.approx(out.result.figures().min_clearance_m)
     assert o["telemetry"] is None and o["setpoints"]["sent"] == 0
     assert o["safety"]["applied"] is False and "interventions" in o["safety"]
 

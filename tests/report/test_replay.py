@@ -12,7 +12,7 @@ import pytest
 from synthetic import LOST, STEPS, mission, write_run
 
 from gcs_swarm.commands import report_command
-from gcs_swarm.mavlink.frames import GeoPoint
+from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.report import (
     FlightRecord,
     record_from_tlog,
@@ -79,13 +79,13 @@ def test_first_vehicle_origin_when_the_mission_has_none(tmp_path: Path) -> None:
     m2 = dataclasses.replace(m, vehicles=(real, *m.vehicles[1:]))
     assert m2.origin_geo() is None
     rec = record_from_tlog(tmp_path / "flight.tlog", m2)
-    from gcs_swarm.mavlink.frames import origin_offset_m
+    from gcs_swarm.mavlink.coordinates import origin_offset_m
     from gcs_swarm.mission import geodetic_at
 
     home = geodetic_at(geo, (0.0, 1.0, -20.0))
-    snapped = GeoPoint.from_mavlink(round(home.lat * 1e7), round(home.lon * 1e7),
+    snapped = GeoOrigin.from_mavlink(round(home.lat * 1e7), round(home.lon * 1e7),
                                     round(home.alt * 1e3))  # fmt: skip
-    shift = origin_offset_m(snapped, GeoPoint(geo.lat, geo.lon, geo.alt))
+    shift = origin_offset_m(snapped, GeoOrigin(geo.lat, geo.lon, geo.alt))
     # Flat earth about a reference 1 m further north: offsets of ~15 m move by
     # ~1e-6 m (cos(lat) and the metres per degree change with the reference).
     np.testing.assert_allclose(rec.pos_m, live.pos_m - shift, atol=1e-5)

@@ -1,6 +1,6 @@
 """The safety filter on a jerk-limited, lagged vehicle (issue 14 item 2).
 
-Closed loop, in process: the vehicle is ``simulation.vehicle_step`` with
+Closed loop, in process: the vehicle is ``integrator.vehicle_step`` with
 ArduCopter's default envelope (jerk 5 m/s^3 horizontally and vertically,
 first-order lag 0.2 s), the model of what SITL did. The filter that assumes a
 point mass (the envelope unknown to the station) loses clearance and
@@ -21,9 +21,9 @@ import pytest
 from gcs_swarm.control.envelope import ARDUCOPTER, CommandShaper
 from gcs_swarm.control.params import Envelope, LawConfig, Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook
+from gcs_swarm.integrator import SimResult, integrate, vehicle_step
 from gcs_swarm.mission import load_mission
-from gcs_swarm.missionsim import EnvelopeHook, simulate_mission
-from gcs_swarm.simulation import SimResult, simulate, vehicle_step
+from gcs_swarm.offline import EnvelopeHook, simulate_mission
 
 MISSIONS_DIR = Path(__file__).resolve().parents[2] / "config" / "missions"
 TOL_M = 0.02
@@ -40,7 +40,7 @@ def _scenario3(station: Envelope) -> tuple[SimResult, LawConfig]:
         if station.bounded
         else SafetyHook(filt)  # one call per step on the vehicle path: no RK4 stages
     )
-    res = simulate(
+    res = integrate(
         law,
         [v.start for v in mission.vehicles],
         duration=SCENARIO_S,
@@ -55,7 +55,7 @@ def test_point_mass_filter_fails_on_the_jerk_limited_vehicle() -> None:
     """The motivating case: the issue-10 filter, right on a point mass, lets the
     SITL-like vehicle into the box and closer than the separation."""
     res, law = _scenario3(Envelope())
-    s = res.summary()
+    s = res.figures()
     assert s.min_clearance_m is not None
     assert s.min_clearance_m < law.safety.clearance - 0.5  # inside the margin by far
     assert s.min_clearance_m < 0.0  # measured -1.9 m: inside the box
@@ -63,7 +63,7 @@ def test_point_mass_filter_fails_on_the_jerk_limited_vehicle() -> None:
 
 def test_envelope_filter_keeps_clearance_and_separation_every_cycle() -> None:
     res, law = _scenario3(ARDUCOPTER)
-    s = res.summary()  # over every sample (every control cycle) of the run
+    s = res.figures()  # over every sample (every control cycle) of the run
     assert s.min_clearance_m is not None
     assert s.min_clearance_m >= law.safety.clearance - TOL_M
     assert s.min_separation_m >= law.safety.separation - TOL_M
@@ -124,7 +124,7 @@ def test_unbounded_envelope_leaves_the_filter_as_it_was() -> None:
 
 @pytest.mark.parametrize("name", ["example1_octahedron", "scenario3_safety"])
 def test_missions_without_envelope_simulate_the_point_mass(name: str) -> None:
-    """No ``limits.envelope``: simulate stays the ideal point mass."""
+    """No ``limits.envelope``: integrate stays the ideal point mass."""
     out = simulate_mission(load_mission(MISSIONS_DIR / f"{name}.yaml"), duration_s=1.0)
     assert out.envelope is None
 

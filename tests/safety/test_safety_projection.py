@@ -305,7 +305,7 @@ def test_hook_accumulates_stats_and_summary_text() -> None:
     hook(DT, [1, 2], np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)))
     # The next step's first stage at the same time, one ulp earlier: same period.
     hook(float(np.nextafter(DT, 0.0)), [1, 2], np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)))
-    summ = hook.stats.summary()
+    summ = hook.stats.totals()
     assert (summ.cycles, summ.vehicle_cycles, summ.interventions) == (2, 4, 1)
     assert summ.max_correction_mps2 == pytest.approx(2.0)
     assert "intervened 1/4" in str(summ)

@@ -19,7 +19,7 @@ import numpy as np
 
 from gcs_swarm.control.params import Avoidance, Box, Gains, LawConfig, Leader, Limits, Safety
 from gcs_swarm.control.safety import SafetyFilter, SafetyHook, box_signed_distance
-from gcs_swarm.simulation import simulate
+from gcs_swarm.integrator import integrate
 
 BOX = Box((16.0, 14.0, 4.0), (3.0, 2.0, 1.0))
 CONFIG = LawConfig(
@@ -38,7 +38,7 @@ def _run(enabled: bool) -> tuple[float, float, SafetyHook]:
         Limits(a_max=5.0, v_max=3.0), Safety(enabled=enabled, clearance=CLEARANCE), [BOX], dt=DT
     )
     hook = SafetyHook(flt)
-    res = simulate(CONFIG, [(16.0, 6.0, 4.0)], duration=60.0, dt=DT, accel_filter=hook)
+    res = integrate(CONFIG, [(16.0, 6.0, 4.0)], duration=60.0, dt=DT, accel_filter=hook)
     pos = res.pos_m[:, 0]
     clear, _ = box_signed_distance(pos, np.array([BOX.centre]), np.array([BOX.half_extents]))
     past = np.flatnonzero(pos[:, 1] > 16.0)
@@ -50,7 +50,7 @@ def test_scenario1_filter_on_passes_without_entering_the_box() -> None:
     clear, t_past, hook = _run(enabled=True)
     # 1e-6 m: the barrier is exact up to rounding (measured 4e-11 m).
     assert clear >= CLEARANCE - 1e-6
-    summary = hook.stats.summary()
+    summary = hook.stats.totals()
     assert summary.vehicle_cycles == 1201  # one report per period, not per RK4 stage
     assert summary.infeasible == 0
     assert summary.interventions > 0  # the filter did have to act
@@ -64,4 +64,4 @@ def test_scenario1_filter_off_reproduces_the_paper_flaw() -> None:
     # Spec s10-11: passes after about 35 s, cutting into the box by ~0.6 m.
     assert 34.0 < t_past < 36.5
     assert -0.7 < clear < -0.5
-    assert hook.stats.summary().interventions == 0
+    assert hook.stats.totals().interventions == 0

@@ -20,9 +20,9 @@ import pytest
 
 from gcs_swarm.control.limits import box_signed_distance
 from gcs_swarm.control.params import Limits, Safety
-from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetySummary
+from gcs_swarm.control.safety import SafetyFilter, SafetyHook, SafetyTotals
+from gcs_swarm.integrator import SimResult, integrate
 from gcs_swarm.mission import load_mission
-from gcs_swarm.simulation import SimResult, simulate
 
 MISSION = Path(__file__).resolve().parents[2] / "config" / "missions" / "scenario3_obstacle.yaml"
 DT = 0.05
@@ -31,7 +31,7 @@ POS_TOL = 1e-6  # the barrier is exact up to rounding (measured >= 0.5 - 1e-12 m
 
 
 @cache
-def _run(enabled: bool, heading: str = "desired") -> tuple[SimResult, SafetySummary]:
+def _run(enabled: bool, heading: str = "desired") -> tuple[SimResult, SafetyTotals]:
     """Filter on or off; ``heading`` of the vertical field: ``desired`` is what
     a mission's ``heading: auto`` picks with the filter on."""
     law = load_mission(MISSION).law
@@ -41,8 +41,8 @@ def _run(enabled: bool, heading: str = "desired") -> tuple[SimResult, SafetySumm
     saf = Safety(enabled=enabled, clearance=CLEARANCE, separation=SEPARATION)
     cfg = dataclasses.replace(law, limits=lim, safety=saf)
     hook = SafetyHook(SafetyFilter(lim, saf, law.obstacles, dt=DT))
-    res = simulate(cfg, starts, duration=40.0, dt=DT, accel_filter=hook)
-    return res, hook.stats.summary()
+    res = integrate(cfg, starts, duration=40.0, dt=DT, accel_filter=hook)
+    return res, hook.stats.totals()
 
 
 def _clearance(res: SimResult) -> np.ndarray:

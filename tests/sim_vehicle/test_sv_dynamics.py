@@ -11,7 +11,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle.codec import encode_local_position_ned, lpn_frames_small
 from sim_vehicle.dynamics import DynParams, KinState, step
-from sim_vehicle.fleet import _SMALL_STEP, Fleet
+from sim_vehicle.fleet import Fleet
+from sim_vehicle.small import SMALL_N
 
 DT = 0.02
 
@@ -128,8 +129,8 @@ def test_dynamics_imports_only_numpy() -> None:
             names.update(a.name.split(".")[0] for a in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module:
             names.add(node.module.split(".")[0])
-    # math: advance_small's sqrt; collections: a type alias. Neither does I/O.
-    assert names <= {"__future__", "collections", "dataclasses", "math", "numpy"}, names
+    # the reference: numpy only (its plain-float variant is dynamics_rows)
+    assert names <= {"__future__", "dataclasses", "numpy"}, names
 
 
 def test_sim_vehicle_never_imports_gcs_swarm() -> None:
@@ -218,15 +219,15 @@ def _random_fleet(rng: np.random.Generator, n: int) -> Fleet:
 
 
 def test_small_step_is_bit_identical_to_numpy() -> None:
-    """advance_small (the Fleet path below _SMALL_STEP vehicles) against the numpy path:
-    the same bits on 3000 random fleets of 1 to _SMALL_STEP - 1 vehicles, several steps
+    """advance_small (the Fleet path below small.SMALL_N vehicles) against the numpy path:
+    the same bits on 3000 random fleets of 1 to SMALL_N - 1 vehicles, several steps
     each, with zeros of both signs, ties, landings, ideal (tau <= 0) vehicles, jerk /
     lean limits (Eqs. D5-D6) infinite, zero or finite, including the shaped command,
     and drag (Eq. D7) zero or not."""
     rng = np.random.default_rng(8)
     small_runs = 0
     for case in range(3000):
-        n = case % (_SMALL_STEP - 1) + 1
+        n = case % (SMALL_N - 1) + 1
         fast = _random_fleet(rng, n)
         ref = Fleet()
         ref.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v)
@@ -248,7 +249,7 @@ def test_small_step_falls_back_to_numpy_on_a_domain_error() -> None:
 
 
 def test_lpn_frames_from_lists_are_byte_identical() -> None:
-    """Fleet.lpn_frames_rows (the server's path below 64 vehicles: lists, round()) against
+    """Fleet.lpn_frames_rows (the schedule's path below small.SMALL_N rows: lists, round()) against
     Fleet.lpn_frames fed as before (numpy arrays, np.rint) on 3000 random cases: the same
     frames and the same sequence numbers afterwards."""
     rng = np.random.default_rng(32)

@@ -16,7 +16,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import signing
 from sim_vehicle.config import Impairment
-from sim_vehicle.link import Endpoint, Impairer, LinkStats, _split_setpoints, bind_udp
+from sim_vehicle.impairments import Impairer
+from sim_vehicle.link import Endpoint, _split_setpoints, bind_udp
+from sim_vehicle.stats import LinkStats
 
 SP = mav.MAVLink_set_position_target_local_ned_message
 UNKNOWN_MSGID = 60000  # not in the ardupilotmega dialect

@@ -30,7 +30,7 @@ import pytest
 
 from gcs_swarm.control.params import Limits
 from gcs_swarm.mission import Mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 from gcs_swarm.runtime import run_mission
 from tests.sitl.mavmonitor import Monitor
 from tests.sitl.sitl_flights import (
@@ -126,7 +126,7 @@ def test_octahedron_in_the_envelope(tmp_path: Path) -> None:
         ),
         settings=dataclasses.replace(mission.settings, duration=150.0),
     )
-    r_eq = float(np.mean(simulate_mission(ideal).result.summary().final_radii_m))
+    r_eq = float(np.mean(simulate_mission(ideal).result.figures().final_radii_m))
     with sitl_swarm(6, tmp_path / "sitl", first=30) as swarm:
         # instances 30-35 (ports 6060-6110), so it can run beside the others
         mission = with_links(mission, swarm.links_from_one())

@@ -29,7 +29,7 @@ import yaml
 
 from gcs_swarm.control.params import Limits
 from gcs_swarm.mission import Mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 from gcs_swarm.runtime import run_mission
 from tests.sitl.px4_harness import (
     Px4Monitor,
@@ -113,7 +113,7 @@ def _equilibrium_radius(mission: Mission) -> float:
         ),
         settings=dataclasses.replace(mission.settings, duration=300.0),
     )  # fmt: skip
-    return float(np.mean(simulate_mission(ideal).result.summary().final_radii_m))
+    return float(np.mean(simulate_mission(ideal).result.figures().final_radii_m))
 
 
 def test_px4_startup_first_try_three_times(tmp_path: Path, request: pytest.FixtureRequest) -> None:

@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import Codec, RawPosition
+from gcs_swarm.mavlink.codec import Codec
 from gcs_swarm.runtime.links import Link, parse_connection
 from mavwire import MAX_DATAGRAM_BYTES
 
@@ -103,34 +103,33 @@ def test_setpoint_slot_is_newest_wins_and_counts_drops() -> None:
 
 
 def test_one_steps_setpoints_to_one_peer_share_datagrams_of_at_most_1200_bytes() -> None:
-    """60 vehicles behind one peer: their reports come to ``on_position`` as
-    one run of ``RawPosition``; the 60 answers go out in the fewest datagrams that each
+    """60 vehicles behind one peer: their reports (one datagram) come to
+    ``on_message`` in order; the 60 answers go out in the fewest datagrams that each
     fit ``MAX_DATAGRAM_BYTES``, every frame whole, and each adds one latency sample."""
 
     async def main() -> None:
-        raws: list[RawPosition] = []
-        runs: list[int] = []
+        raws: list[Any] = []
         all_in = asyncio.Event()
 
-        def on_position(run: list[RawPosition], lk: Link) -> None:
-            runs.append(len(run))
-            raws.extend(run)
+        def on_message(msg: Any, lk: Link) -> None:
+            raws.append(msg)
             if len(raws) == 60:
                 all_in.set()
 
         async with asyncio.timeout(5):
             loop = asyncio.get_running_loop()
             tr, pr = await loop.create_datagram_endpoint(_Peer, local_addr=("127.0.0.1", 0))
-            link = Link("udpin:127.0.0.1:0", lambda m, lk: None, on_position=on_position)
+            link = Link("udpin:127.0.0.1:0", on_message)
             async with link:
                 addr = link.local_address
                 assert addr is not None
                 tr.sendto(b"".join(_frame(s, 1000 + s) for s in range(1, 61)), addr)
                 await all_in.wait()
                 ids = list(range(1, 61))
-                assert [(r.sysid, r.values[0]) for r in raws] == [(s, 1000 + s) for s in ids]
-                assert raws[0].frame == _frame(1, 1001)
-                assert runs == [60]  # one datagram: one run
+                assert [(r.get_srcSystem(), r.time_boot_ms) for r in raws] == [
+                    (s, 1000 + s) for s in ids
+                ]
+                assert bytes(raws[0].get_msgbuf()) == _frame(1, 1001)
                 for s in range(1, 61):
                     spec = b.accel_setpoint(s, 1, 1000 + s, (float(s), 0.0, 0.0))
                     link.send(spec, s, since_s=link.rx_time_s)

@@ -20,7 +20,7 @@ import pytest
 from station_harness import MISSIONS, lockstep_config
 
 from gcs_swarm.mission import load_mission
-from gcs_swarm.missionsim import simulate_mission
+from gcs_swarm.offline import simulate_mission
 from gcs_swarm.report.artefacts import from_sim_result
 from gcs_swarm.runtime import RunSummary, run_mission
 from sim_vehicle import Emulator

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from station_harness import fly, lockstep_config, mission_from, radii
 
-from gcs_swarm.simulation import simulate
+from gcs_swarm.integrator import integrate
 
 
 @pytest.mark.slow
@@ -29,7 +29,7 @@ def test_scenario3_every_vehicle_passes_the_box_and_the_formation_re_forms() -> 
     # the episode's switch and plane choice are sampled at 50 Hz here and the
     # look-ahead lands a few steps later from its worker thread; measured 0.09 m
     # after 60 s at ~1 m/s.
-    ref = simulate(mission.law, [v.start for v in mission.vehicles], duration=60.0, dt=0.02)
+    ref = integrate(mission.law, [v.start for v in mission.vehicles], duration=60.0, dt=0.02)
     np.testing.assert_allclose(pos, ref.pos_m[-1], atol=0.25)
     np.testing.assert_allclose(s.leader_pos_m, ref.leader_pos_m[-1], atol=0.25)
     ref_r = np.linalg.norm(ref.pos_m[-1] - ref.leader_pos_m[-1], axis=1)

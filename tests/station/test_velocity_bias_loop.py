@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from station_harness import fly, lockstep_config, mission_from, radii
 
+from gcs_swarm.integrator import integrate
 from gcs_swarm.mission import Mission
-from gcs_swarm.simulation import simulate
 
 # ArduCopter 4.5.6 SITL's EKF, hovering still (docs/velocity-bias.md), NED m/s.
 BIAS_NED = (-0.015, 0.013, 0.0)
@@ -49,9 +49,9 @@ def _predicted_radii() -> dict[int, float]:
     def biased(t: float, ids: tuple[int, ...], pos: object, vel: object, acc: np.ndarray) -> object:
         return acc + push
 
-    r = simulate(m.law, [v.start for v in m.vehicles], [v.q for v in m.vehicles],
+    r = integrate(m.law, [v.start for v in m.vehicles], [v.q for v in m.vehicles],
                  duration=DURATION_S, dt=0.02, accel_filter=biased)  # fmt: skip
-    return dict(zip([v.sysid for v in m.vehicles], r.summary().final_radii_m.tolist(), strict=True))
+    return dict(zip([v.sysid for v in m.vehicles], r.figures().final_radii_m.tolist(), strict=True))
 
 
 @pytest.mark.slow

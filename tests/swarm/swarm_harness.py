@@ -1,18 +1,22 @@
-"""The station's core against the emulator's autopilots, in one process, on
-one hand-advanced clock (aioquic's client/server ``transfer`` in its tests).
+"""The station's core against the emulator's core, in one process, on one
+hand-advanced clock (aioquic's client/server ``transfer`` in its tests).
 
 Station side: ``gcs_swarm.swarm.SwarmCore`` behind one listening
 ``LinkState`` (every vehicle on one ``udpin`` link, each from its own
-address, as MAVProxy or a radio bridge would). Vehicle side: one
-``sim_vehicle.Autopilot`` per vehicle (its own pymavlink encoder and parser:
-the emulator never shares the station's codec) and one ``sim_vehicle.Fleet``
-for the point masses. Between them, datagrams as bytes, which a test may
-drop (seeded), forge or silence. No sockets, no event loop, no sleeps: a
-second of flight is 50 physics steps and whatever the core asks for.
+address, as MAVProxy or a radio bridge would). Vehicle side: the emulator's
+own I/O-free ``sim_vehicle.core.EmulatorCore`` (the autopilots, ArduCopter
+or PX4 as the mission's ``autopilot`` says, the fleet, delivery, the
+telemetry schedule and the seeded link impairments of
+``sim_vehicle.impairments``: loss, duplicates, delay, jitter), each vehicle
+on a ``Radio``, a ``core.Port`` without a socket. Between them, datagrams as
+bytes, which a test may also forge or silence; ``station_off`` stops the
+station's side altogether (its timers, HEARTBEAT and setpoints), so the
+vehicles' own failsafes act. No sockets, no event loop, no sleeps: a second
+of flight is 50 physics steps and whatever the core asks for.
 
-The wiring follows ``sim_vehicle/server.py`` (``_deliver``, ``_sync``,
-``_emit``) and ``runtime/station.py`` (``_after``, ``_on_timer``,
-``_control_task``), reduced to what an ideal, unimpaired emulator does.
+The station side follows ``runtime/station.py`` (``_after``, ``_on_timer``,
+``_control_task``); the vehicle side is what ``sim_vehicle/server.py`` does
+around the same core, without its sockets and clock task.
 """
 
 from __future__ import annotations
@@ -31,17 +35,17 @@ from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.runtime import emulator_config, station_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
-from sim_vehicle import signing
-from sim_vehicle.autopilot import Autopilot, ControlTarget
-from sim_vehicle.fleet import Fleet
-from sim_vehicle.params import ParamStore
-from sim_vehicle.telemetry import Kin
+from sim_vehicle import Impairment, signing
+from sim_vehicle.autopilot import Autopilot
+from sim_vehicle.core import EmulatorCore
+from sim_vehicle.impairments import Impairer
+from sim_vehicle.stats import LinkStats
+from sim_vehicle.vehicles import HostedVehicle
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 LINK = "udpin:0.0.0.0:14550"
 GCS: tuple[str, int] = ("10.0.0.1", 14550)
 """The station's address as the vehicles see it."""
-_LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 _SETPOINT = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 Datagram = tuple[tuple[str, int], bytes]
@@ -59,36 +63,61 @@ def address(sysid: int) -> tuple[str, int]:
     return ("10.0.1.1", 5760 + 10 * sysid)
 
 
+class Radio:
+    """One vehicle's radio: a ``sim_vehicle.core.Port`` whose ``sendto`` hands the
+    datagram to the sky (towards the station) instead of a socket. Its fixed
+    peer is the station (``out``), as an emulator serving a ``udpin`` station."""
+
+    shared = False
+    signing_key: bytes | None = None
+
+    def __init__(self, sky: Sky, addr: tuple[str, int], up: Impairer, down: Impairer) -> None:
+        self.sky, self.address = sky, addr
+        self.uplink, self.downlink = up, down
+        self.out: tuple[str, int] | None = GCS
+        self.sysids: dict[int, int] = {}
+        self.peers: dict[tuple[str, int], None] = {GCS: None}
+        self.outbox: list[tuple[bytes, int]] = []
+        self.silent = False
+        self.parser = mav.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.setpoints_in = 0
+        """SET_POSITION_TARGET_LOCAL_NED that reached the radio (the uplink's impairment
+        then acts inside the emulator's core: ``Sky.stats.rx_lost``)."""
+
+    def sendto(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.sky.stats.tx_datagrams += 1  # as link.Endpoint counts what it sends
+        self.sky.to_station(self.address, data)
+
+    def close(self) -> None:
+        pass
+
+
 @dataclasses.dataclass(eq=False)
 class SimVehicle:
-    """One emulated vehicle: its autopilot, its fleet row, its radio."""
+    """One emulated vehicle: what the core hosts, and its radio."""
 
-    ap: Autopilot
-    row: int
-    enc: Any
-    parser: Any
-    addr: tuple[str, int]
-    target: ControlTarget | None = None
-    version: int = -1
-    lpn_next: float = float("inf")
-    contacted: bool = False
-    silent: bool = False
-    setpoints_heard: int = 0
+    hosted: HostedVehicle
+    radio: Radio
+
+    @property
+    def ap(self) -> Autopilot:
+        return self.hosted.ap
 
 
 class Sky:
-    """Station core and emulated vehicles wired together (module docstring).
+    """Station core and emulator core wired together (module docstring).
 
-    ``drop_down``/``drop_up``: the chance [0, 1) that a datagram to the
-    station (telemetry) / to a vehicle (setpoints, commands) is lost, drawn
-    from ``numpy.random.default_rng(seed)``."""
+    ``downlink``/``uplink``: the impairment of every datagram to the station
+    (telemetry) / to a vehicle (setpoints, commands), seeded per vehicle and
+    direction from ``seed`` as the emulator seeds its endpoints."""
 
     def __init__(
         self,
         mission: Mission,
         *,
-        drop_down: float = 0.0,
-        drop_up: float = 0.0,
+        downlink: Impairment | None = None,
+        uplink: Impairment | None = None,
         seed: int = 0,
     ) -> None:
         cfg = station_config(mission, {v.sysid: LINK for v in mission.vehicles})
@@ -99,106 +128,67 @@ class Sky:
             LINK,
             unix_clock=lambda: 1.7e9 + self.now,
             sysids=[v.sysid for v in mission.vehicles],
-            raw_positions=True,
+            telemetry=self.core.table,
             on_notice=self.notices.append,
         )
+        # The emulator as the mission starts it, airborne, with a quick start-up: the
+        # EKF ready, boot ended and PX4's pre-arm checks passed at once; no shaping.
         emu = emulator_config(mission, airborne=True)
-        self.dt = 1.0 / emu.rate_hz
-        self.fleet = Fleet()
-        self.vehicles: dict[int, SimVehicle] = {}
-        self.drop_down, self.drop_up = drop_down, drop_up
-        self.rng = np.random.default_rng(seed)
-        self.lost_down = self.lost_up = 0
+        emu = dataclasses.replace(
+            emu, ekf_ready_s=0.0, boot_s=0.0, accel_shaping=False,
+            params={**emu.params, "SIM_PREARM_S": 0.0}, seed=seed,
+            uplink=uplink or Impairment(), downlink=downlink or Impairment(),
+        )  # fmt: skip
+        self.emu = EmulatorCore(emu)
+        self.dt = self.emu.dt
+        self.station_running = True
         self.steps = 0
         self.answered: Counter[int] = Counter()
         """Setpoints of the control steps per vehicle (the station's answers)."""
         self._next_hb = 0.0
         self._next_status = 1.0
         self._to_station: list[Datagram] = []
+        self.vehicles: dict[int, SimVehicle] = {}
+        self._radios: dict[tuple[str, int], Radio] = {}
         for spec in emu.vehicles:
-            params = ParamStore(
-                {"SIM_EKF_DELAY": 0.0, "SIM_BOOT_S": 0.0, "SIM_ACC_TAU": emu.tau_s,
-                 "SIM_ACC_SHAPE": 0.0}
-            )  # fmt: skip
-            start = spec.start_ned_m
-            ap = Autopilot(
-                spec.sysid,
-                spec.origin,
-                params,
-                0.0,
-                compid=spec.compid,
-                airborne_at=start if spec.airborne else None,
-                streams=dict(emu.streams),
-            )
-            row = self.fleet.add(spec.sysid, spec.compid, start, landed=not spec.airborne)
-            self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
-            parser = mav.MAVLink(None)
-            parser.robust_parsing = True
-            v = SimVehicle(ap, row, signing.mavlink(spec.sysid, spec.compid, None), parser,
-                           address(spec.sysid))  # fmt: skip
-            self.vehicles[spec.sysid] = v
-            self._sync(v)
+            # seeded as the emulator seeds each endpoint's two directions
+            # (server._open_endpoint)
+            ss = np.random.SeedSequence([seed, spec.key, 7])
+            up, down = (np.random.default_rng(q) for q in ss.spawn(2))
+            radio = Radio(self, address(spec.sysid), Impairer(emu.uplink, up),
+                          Impairer(emu.downlink, down))  # fmt: skip
+            self.emu.ports.append(radio)
+            enc = signing.mavlink(spec.sysid, spec.compid, None)
+            hosted = self.emu.add(spec, radio, initial=True, enc=enc)
+            self.vehicles[spec.sysid] = SimVehicle(hosted, radio)
+            self._radios[radio.address] = radio
+
+    @property
+    def stats(self) -> LinkStats:
+        """The emulator's link counters: ``tx_lost``/``rx_lost`` the datagrams the
+        downlink/uplink lost, ``duplicated`` those either delivered twice."""
+        return self.emu.stats.link
 
     # ----------------------------------------------------------- vehicles
-    def _kin(self, v: SimVehicle) -> Kin:
-        f, r = self.fleet, v.row
-        return Kin(tuple(f.pos[r].tolist()), tuple(f.vel[r].tolist()),  # type: ignore[arg-type]
-                   tuple(f.acc[r].tolist()), bool(f.landed[r]))  # type: ignore[arg-type]  # fmt: skip
+    def to_station(self, sender: tuple[str, int], data: bytes) -> None:
+        """A datagram towards the station (from a vehicle's radio, or ``inject``)."""
+        self._to_station.append((sender, data))
 
-    def _sync(self, v: SimVehicle) -> None:
-        """The autopilot's published state into its fleet row (server ``_sync``)."""
-        ap = v.ap
-        if ap.version != v.version:
-            v.version = ap.version
-            self.fleet.set_target(v.row, ap.target, v.target)
-            v.target = ap.target
-        iv = ap.lpn_interval_s
-        if iv is None:
-            v.lpn_next = float("inf")
-        elif ap.lpn_kick:  # a newly enabled stream sends its first report at once
-            ap.lpn_kick = False
-            v.lpn_next = self.now + iv
-            self._radio(v, [self._lpn(v)])
-        elif v.lpn_next == float("inf"):
-            v.lpn_next = self.now + iv
-
-    def _lpn(self, v: SimVehicle) -> bytes:
-        f, r = self.fleet, v.row
-        t_ms = round((self.now - v.ap.boot) * 1000.0)
-        msg = mav.MAVLink_local_position_ned_message(t_ms, *f.pos[r].tolist(), *f.vel[r].tolist())
-        return bytes(msg.pack(v.enc))
-
-    def _radio(self, v: SimVehicle, frames: list[bytes]) -> None:
-        if frames and not v.silent:
-            self._to_station.append((v.addr, b"".join(frames)))
-
-    def _to_vehicle(self, v: SimVehicle, data: bytes) -> None:
-        """A datagram from the station arrives at ``v`` (server ``_deliver``)."""
-        if v.silent:
+    def _to_vehicle(self, radio: Radio, data: bytes) -> None:
+        """A datagram from the station arrives at a vehicle's radio (server ``_receive``)."""
+        if radio.silent:
             return
-        ap = v.ap
-        msgs = v.parser.parse_buffer(data) or []
-        if msgs and not v.contacted:
-            v.contacted = True
-            ap.contact(self.now)
-        replies: list[bytes] = []
-        for m in msgs:
-            ts = getattr(m, "target_system", 0)
-            if ts not in (0, ap.sysid):
-                continue
-            if m.get_msgId() == _SETPOINT:
-                v.setpoints_heard += 1
-            replies.extend(bytes(r.pack(v.enc)) for r in ap.handle(m, self.now, self._kin(v)))
-        self._radio(v, replies)
-        self._sync(v)
+        msgs = radio.parser.parse_buffer(data) or []
+        radio.setpoints_in += sum(m.get_msgId() == _SETPOINT for m in msgs)
+        self.emu.receive(radio, msgs, GCS, None)
 
     def set_silent(self, sysid: int, silent: bool = True) -> None:
         """Vehicle ``sysid``'s radio off (it keeps flying) or on again."""
-        self.vehicles[sysid].silent = silent
+        self.emu.set_silent(self.vehicles[sysid].hosted, silent)
 
     def inject(self, sender: tuple[str, int], data: bytes) -> None:
         """A datagram to the station from ``sender`` (a forger, a stray port)."""
-        self._to_station.append((sender, data))
+        self.to_station(sender, data)
 
     # ------------------------------------------------------------ station
     def _write(self, link: str, batch: SetpointBatch | None) -> None:
@@ -210,15 +200,10 @@ class Sky:
         self._deliver(writes)
 
     def _deliver(self, writes: list[tuple[Any, bytes, list[float | None]]]) -> None:
-        by_addr = {v.addr: v for v in self.vehicles.values()}
         for peer, data, _since in writes:
-            v = by_addr.get(peer)
-            if v is None:
-                continue  # to the forger: nobody listens there
-            if self.drop_up and self.rng.random() < self.drop_up:
-                self.lost_up += 1
-                continue
-            self._to_vehicle(v, data)
+            radio = self._radios.get(peer)
+            if radio is not None:  # else to the forger: nobody listens there
+                self._to_vehicle(radio, data)
 
     def _station_sends(self) -> None:
         core = self.core
@@ -228,10 +213,18 @@ class Sky:
                 self.link.send(spec, sysid)
         self._deliver(self.link.datagrams_to_send())
 
+    def station_off(self) -> None:
+        """The station's side stops for good (killed): no timer, no HEARTBEAT, no
+        setpoint, nothing heard; the vehicles fly on and their failsafes act."""
+        self.station_running = False
+
     def transfer(self) -> None:
         """Pass datagrams both ways until nobody has anything to say (at ``now``)."""
         core, link = self.core, self.link
         for _ in range(100):
+            if not self.station_running:
+                self._to_station.clear()  # nobody listens any more
+                return
             self._station_sends()
             if core.step_wanted:
                 core.control_step(self.now, self._write)
@@ -242,45 +235,35 @@ class Sky:
                 return
             batch, self._to_station = self._to_station, []
             for sender, data in batch:
-                if self.drop_down and self.rng.random() < self.drop_down:
-                    self.lost_down += 1
-                    continue
-                for item in link.receive(data, sender, self.now, datagram=True):
-                    if type(item) is list:
-                        core.receive_positions(item, LINK, self.now, self.now)
-                    else:
-                        core.receive(item, LINK, self.now, self.now)
+                for msg in link.receive(data, sender, self.now, datagram=True):
+                    core.receive(msg, LINK, self.now, self.now)
+                if link.positions_written:
+                    core.telemetry_written(self.now)
         raise AssertionError("the two sides kept talking at one instant")
 
     # -------------------------------------------------------------- clock
     def advance(self, seconds: float) -> None:
-        """Fly ``seconds`` [s]: physics steps of ``dt``, each followed by the
-        vehicles' timers and telemetry; the core's timers at their own times."""
+        """Fly ``seconds`` [s]: the emulator's physics steps of ``dt`` (each with its
+        polls, telemetry and delayed datagrams), the core's timers at their own times."""
         end = self.now + seconds - 1e-9
+        if self.emu.step_count == 0 and self.now == 0.0:
+            self.emu.emit(0.0)  # what is due at once (the emulator's clock task)
+            self.transfer()
         while self.now < end:
             tick = self.now + self.dt
-            while (due := self.core.get_timer()) is not None and due <= tick:
+            while (
+                self.station_running and (due := self.core.get_timer()) is not None and due <= tick
+            ):
                 self.now = max(self.now, due)
                 self.core.handle_timer(self.now)
                 self.transfer()
-            if self._next_hb <= tick:  # the station's 1 Hz HEARTBEAT (its shell's task)
+            if self.station_running and self._next_hb <= tick:  # its shell's 1 Hz HEARTBEAT
                 self._next_hb += 1.0
                 self.link.send(b.heartbeat())
-            self.fleet.step(self.dt)
+            self.emu.step()
             self.now = tick
-            changed, self.fleet.changed = set(self.fleet.changed), []
-            for v in self.vehicles.values():
-                ap = v.ap
-                if ap.deadline <= self.now + 1e-9 or v.row in changed:
-                    frames = [bytes(m.pack(v.enc)) for m in ap.poll(self.now, self._kin(v))]
-                    self._radio(v, frames)
-                    self._sync(v)
-                if v.lpn_next <= self.now + 1e-9:
-                    iv = ap.lpn_interval_s or float("inf")
-                    v.lpn_next = max(v.lpn_next + iv, self.now + 0.5 * iv)
-                    self._radio(v, [self._lpn(v)])
             self.transfer()
-            if self._next_status <= self.now:  # the shell's status task, every second
+            if self.station_running and self._next_status <= self.now:  # its status task
                 self._next_status += 1.0
                 self.core.check_alive(self.now)
                 self.transfer()

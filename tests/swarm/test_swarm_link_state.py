@@ -7,7 +7,10 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import RawPosition
+from gcs_swarm.mavlink.inbound import LocalPositionNed
+from gcs_swarm.mavlink.states import Phase, ProtocolConfig
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.swarm import MESSAGE_QUEUE_SIZE, REBIND_S, LinkState
 from mavwire import MAX_DATAGRAM_BYTES
 from mavwire.signing import mavlink
@@ -34,10 +37,9 @@ def _parse(data: bytes) -> list[object]:
 
 
 def test_a_system_id_stays_on_its_first_address_and_others_are_refused() -> None:
-    st, notices = _state(raw_positions=True)
+    st, notices = _state()
     items = st.receive(_lpn(1) + _lpn(2), A, 0.0, datagram=True)
-    assert [[r.sysid for r in run] for run in items] == [[1, 2]]
-    assert all(type(r) is RawPosition for r in items[0])
+    assert [m.get_srcSystem() for m in items] == [1, 2]  # type: ignore[attr-defined]
     for k in range(5):
         assert st.receive(_lpn(1, 2 + k), C, 1.0 + k, datagram=True) == []
     assert st.stats.spoofed == 5 and st.rebinds_refused == {1: 5}
@@ -45,6 +47,41 @@ def test_a_system_id_stays_on_its_first_address_and_others_are_refused() -> None
     assert st.peer_count == 1 and st.route(1) == A  # the forger got nothing
     st.send(b.heartbeat())
     assert [peer for peer, _, _ in st.datagrams_to_send()] == [A]
+
+
+def _flying(table: TelemetryTable, sysid: int) -> VehicleProtocol:
+    """A READY vehicle (its last report at 1 ms) put into FLYING with ``table``."""
+    vp = VehicleProtocol(sysid, ProtocolConfig(), goto_m=(0.0, 0.0, 0.0))
+    vp.phase = Phase.READY
+    vp.offset_m = np.zeros(3)
+    vp.position = LocalPositionNed(sysid, 1, 1, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0)
+    vp.begin_flying(0.0, table)
+    return vp
+
+
+def test_a_flying_vehicles_reports_go_into_the_table_in_the_datagrams_order() -> None:
+    """With a telemetry table: a FLYING vehicle's newer report from its own
+    address is written into its row and not handed on; a report of a
+    vehicle not flying, a stale one, and one after another message of the
+    same vehicle in the datagram come out as pymavlink's messages, in order;
+    a forged one is refused before the table sees it."""
+    table = TelemetryTable([1, 2])
+    st, _ = _state(telemetry=table)
+    vp = _flying(table, 1)
+    items = st.receive(_lpn(1, 20) + _lpn(2, 20) + _lpn(1, 20), A, 0.5, datagram=True)
+    assert st.positions_written == 1 and table.taken == 1
+    assert [(m.get_srcSystem(), m.time_boot_ms) for m in items] == [(2, 20), (1, 20)]  # type: ignore[attr-defined]
+    assert vp.position == LocalPositionNed(1, 1, 20, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0)
+    assert vp.position_at == 0.5 and table.arrival_s[0] == 0.5
+    assert table.take_fresh() == {1: 20} and table.fresh_count == 0
+    mav = dialect.MAVLink(None, 1, 1)
+    hb = bytes(mav.heartbeat_encode(2, 3, 0, 4, 4).pack(mav))
+    items = st.receive(hb + _lpn(1, 40, mav), A, 0.6, datagram=True)
+    assert st.positions_written == 0  # after its HEARTBEAT: a message, in order
+    assert [m.get_type() for m in items] == ["HEARTBEAT", "LOCAL_POSITION_NED"]  # type: ignore[attr-defined]
+    assert st.receive(_lpn(1, 60), C, 0.7, datagram=True) == []  # forged: refused
+    assert st.positions_written == 0 and st.stats.spoofed == 1
+    assert vp.position is not None and vp.position.time_boot_ms == 20
 
 
 def test_strangers_keep_no_state_and_draw_no_reply() -> None:

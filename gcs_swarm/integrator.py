@@ -1,5 +1,7 @@
-"""The deterministic in-process simulator: the reference the MAVLink closed loop
-is compared against.
+"""The in-process integrator (``integrate``): the law on ideal point masses (or
+the envelope's vehicle model), deterministic, no MAVLink; the reference the
+MAVLink closed loop is compared against. A mission file reaches it through
+``gcs_swarm.offline`` (``gcs-swarm simulate``, ``gcs_swarm.simulate``).
 
 Fixed-step classical RK4 of Eq. 1 for every active vehicle AND of the virtual
 leader (Eq. 13) jointly: the leader's position inside each RK4 stage is the
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gcs_swarm.analysis import SwarmSummary, summarize
+from gcs_swarm.analysis import FormationFigures, formation_figures
 from gcs_swarm.control.envelope import jerk_limit
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import eq1_acceleration
@@ -54,8 +56,8 @@ __all__ = [
     "AccelFilter",
     "SimResult",
     "VehicleRun",
-    "simulate",
-    "simulate_vehicle",
+    "integrate",
+    "integrate_vehicle",
     "vehicle_step",
 ]
 
@@ -90,9 +92,9 @@ class SimResult:
     episode: NDArray[np.int64]
     switches: tuple[tuple[float, str], ...]
 
-    def summary(self, *, form_tol: float = 0.01) -> SwarmSummary:
-        """Figures of the run (``gcs_swarm.analysis.summarize``)."""
-        return summarize(
+    def figures(self, *, form_tol: float = 0.01) -> FormationFigures:
+        """Figures of the run (``gcs_swarm.analysis.formation_figures``)."""
+        return formation_figures(
             self.times_s,
             self.pos_m,
             self.leader_pos_m,
@@ -146,7 +148,7 @@ class SimResult:
         return out
 
 
-def simulate(
+def integrate(
     config: LawConfig,
     starts: Sequence[Sequence[float]] | ArrayLike,
     charges: Sequence[float] | ArrayLike | None = None,
@@ -161,12 +163,12 @@ def simulate(
     start_vel_mps: ArrayLike | None = None,
     vehicle: Envelope | None = None,
 ) -> SimResult:
-    """Simulate the swarm under the law for ``duration`` [s] with step ``dt`` [s].
+    """Integrate the swarm under the law for ``duration`` [s] with step ``dt`` [s].
 
     ``starts (N, 3)`` [m] initial positions (at rest unless ``start_vel_mps``),
     ``charges (N,)`` (default ``config.gains.q_default``), ``active`` initial
     flags (default all), ``ids`` stable vehicle ids (default 1..N), ``events``
-    join/leave as described in the module docstring. ``vehicle``: simulate
+    join/leave as described in the module docstring. ``vehicle``: integrate
     that envelope's jerk-limited, lagged vehicle with the command held over
     each step ``dt`` (module docstring) instead of the point mass.
     """
@@ -313,7 +315,7 @@ def _leader_rk4(
     rhs: _Rhs, t: float, dt: float, lp0: F64, lv0: F64, la1: F64, law: LeaderLaw,
     leader: LeaderState,
 ) -> LeaderState:  # fmt: skip
-    """One RK4 step of Eq. 13 alone (the vehicle-model path), as in ``simulate``."""
+    """One RK4 step of Eq. 13 alone (the vehicle-model path), as in ``integrate``."""
     hh = 0.5 * dt
     lp2, lv2 = lp0 + hh * lv0, lv0 + hh * la1
     la2 = rhs.leader(t + hh, lp2, lv2)
@@ -368,7 +370,7 @@ class VehicleRun:
     vel_mps: F64
 
 
-def simulate_vehicle(
+def integrate_vehicle(
     start_m: Sequence[float],
     boxes: Sequence[Box],
     *,

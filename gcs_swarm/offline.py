@@ -1,6 +1,7 @@
-"""A mission file flown through the in-process simulator (``gcs-swarm simulate``).
+"""The offline mission simulation (``gcs-swarm simulate``, ``gcs_swarm.simulate``):
+a mission file flown without MAVLink, through the in-process integrator.
 
-Maps a validated ``Mission`` onto ``gcs_swarm.simulation.simulate``: the
+Maps a validated ``Mission`` onto ``gcs_swarm.integrator.integrate``: the
 initial vehicles are active from t = 0, reserves wait at their start until
 their join event, events keep their mission times (seconds from the start of
 the formation phase), and every commanded acceleration passes through the
@@ -13,7 +14,7 @@ When the mission states ``limits.envelope`` the reference models the vehicle
 (docs/vehicle-envelope.md): the station's command path of
 ``gcs_swarm.control.loop.ControlLoop`` (filter planning within the
 envelope, then ``CommandShaper``) once per control period, flown by the
-envelope's jerk-limited, lagged vehicle (``simulation.vehicle_step``), so the
+envelope's jerk-limited, lagged vehicle (``integrator.vehicle_step``), so the
 step is the control period whatever ``dt_s`` says. ``envelope_demand`` and
 ``demand_report`` measure what the gains ask of an ideal point mass and
 say when it is more than an envelope (``gcs-swarm check``, the start-up
@@ -35,11 +36,11 @@ from gcs_swarm.control.safety import (
     SafetyFilter,
     SafetyHook,
     SafetyStats,
-    SafetySummary,
+    SafetyTotals,
     filter_acts,
 )
+from gcs_swarm.integrator import F64, SimResult, integrate
 from gcs_swarm.mission import Mission
-from gcs_swarm.simulation import F64, SimResult, simulate
 
 __all__ = [
     "DEMAND_DT_S",
@@ -65,12 +66,12 @@ class MissionSimResult:
     envelope modelled (None: the ideal point mass)."""
 
     result: SimResult
-    safety: SafetySummary | None
+    safety: SafetyTotals | None
     envelope: Envelope | None = None
 
     def text(self) -> str:
         """The summary printed by ``gcs-swarm simulate``."""
-        lines = [self.result.summary().text()]
+        lines = [self.result.figures().text()]
         if self.envelope is not None:
             e = self.envelope
             lines.append(
@@ -85,7 +86,7 @@ class MissionSimResult:
 @dataclass
 class EnvelopeHook:
     """The station's command path as a simulator hook, called ONCE per control
-    step (the vehicle-model path of ``simulate``): the safety filter, planning
+    step (the vehicle-model path of ``integrate``): the safety filter, planning
     from each vehicle's last command, then the shaper (E1-E2)."""
 
     shaper: CommandShaper
@@ -141,7 +142,7 @@ def simulate_mission(
     elif filter_acts(law.limits, law.safety):
         hook = SafetyHook(SafetyFilter(law.limits, law.safety, law.obstacles, dt=period))
     vehicles = mission.vehicles
-    result = simulate(
+    result = integrate(
         law,
         [v.start for v in vehicles],
         [v.q for v in vehicles],
@@ -155,9 +156,9 @@ def simulate_mission(
     )
     stats = None
     if isinstance(hook, EnvelopeHook):
-        stats = hook.stats.summary() if hook.safety_filter is not None else None
+        stats = hook.stats.totals() if hook.safety_filter is not None else None
     elif hook is not None:
-        stats = hook.stats.summary()
+        stats = hook.stats.totals()
     return MissionSimResult(result, stats, model)
 
 
@@ -175,7 +176,7 @@ def envelope_demand(mission: Mission, *, dt_s: float = DEMAND_DT_S) -> Demand:
     for t_switch, _ in r.switches:
         steps |= np.isclose(r.times_s[1:], t_switch, rtol=0.0, atol=1e-9 + 1e-6 * dt_s)
     return command_demand(
-        r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.summary().time_to_form_s, steps=steps
+        r.times_s, r.accel_mps2, r.vel_mps, t_form_s=r.figures().time_to_form_s, steps=steps
     )
 
 

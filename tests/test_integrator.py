@@ -1,5 +1,6 @@
-"""The in-process simulator: join/leave, recording, files, the filter hook,
-determinism, and the summary figures (gcs_swarm.analysis)."""
+"""The in-process integrator (``gcs_swarm.integrator.integrate``): join/leave,
+recording, files, the filter hook, determinism, and the summary figures
+(gcs_swarm.analysis)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from gcs_swarm.analysis import (
     time_to_form,
 )
 from gcs_swarm.control import Box, LawConfig
-from gcs_swarm.simulation import SimResult, simulate
+from gcs_swarm.integrator import SimResult, integrate
 
 STARTS = [(2, 1, 2), (-1, -1, -1), (3, 4, 2), (4, 2, 2), (3, 3, 3), (-2, -2, -2)]
 DT = 0.05
@@ -34,7 +35,7 @@ def _leave_rejoin() -> SimResult:
     # numerical asymmetry grows: still not done 140 s after a leave at 60 s,
     # measured. Leaving at 10 s, before the shape is exact, avoids that.)
     events = [(10.0, "leave", 6), (200.0, "join", 6)]
-    return simulate(LawConfig(), STARTS, duration=400.0, dt=DT, events=events)
+    return integrate(LawConfig(), STARTS, duration=400.0, dt=DT, events=events)
 
 
 def test_leave_reforms_a_bipyramid_and_rejoin_an_octahedron() -> None:
@@ -63,7 +64,7 @@ def test_leave_reforms_a_bipyramid_and_rejoin_an_octahedron() -> None:
 
 
 def test_inactive_from_the_start_and_join() -> None:
-    res = simulate(
+    res = integrate(
         LawConfig(),
         STARTS[:2],
         duration=1.0,
@@ -77,16 +78,16 @@ def test_inactive_from_the_start_and_join() -> None:
 
 def test_bad_arguments() -> None:
     with pytest.raises(ValueError, match="ids"):
-        simulate(LawConfig(), STARTS[:2], duration=1.0, ids=[1, 1])
+        integrate(LawConfig(), STARTS[:2], duration=1.0, ids=[1, 1])
     with pytest.raises(ValueError, match="bad event"):
-        simulate(LawConfig(), STARTS[:2], duration=1.0, events=[(0.1, "land", 1)])
+        integrate(LawConfig(), STARTS[:2], duration=1.0, events=[(0.1, "land", 1)])
     with pytest.raises(ValueError, match="dt > 0"):
-        simulate(LawConfig(), STARTS[:2], duration=1.0, dt=0.0)
+        integrate(LawConfig(), STARTS[:2], duration=1.0, dt=0.0)
 
 
 def test_deterministic() -> None:
-    a = simulate(LawConfig(), STARTS, duration=5.0, dt=0.01)
-    b = simulate(LawConfig(), STARTS, duration=5.0, dt=0.01)
+    a = integrate(LawConfig(), STARTS, duration=5.0, dt=0.01)
+    b = integrate(LawConfig(), STARTS, duration=5.0, dt=0.01)
     np.testing.assert_array_equal(a.pos_m, b.pos_m)
     np.testing.assert_array_equal(a.accel_mps2, b.accel_mps2)
 
@@ -98,14 +99,14 @@ def test_accel_filter_hook_is_applied_in_every_stage() -> None:
         calls.append(t)
         return np.zeros_like(a)
 
-    res = simulate(LawConfig(), STARTS, duration=1.0, dt=0.1, accel_filter=brake)
+    res = integrate(LawConfig(), STARTS, duration=1.0, dt=0.1, accel_filter=brake)
     np.testing.assert_array_equal(res.pos_m[-1], np.array(STARTS, dtype=float))
     assert len(calls) == 4 * 10 + 1  # 4 RK4 stages per step, plus the last sample
     np.testing.assert_array_equal(res.accel_mps2, 0.0)
 
 
 def test_save_npz_and_csv(tmp_path: Path) -> None:
-    res = simulate(
+    res = integrate(
         LawConfig(), STARTS[:3], duration=1.0, dt=0.1, events=[(0.5, "leave", 9)], ids=[7, 8, 9]
     )
     npz = res.save(tmp_path / "run.npz")
@@ -125,8 +126,8 @@ def test_save_npz_and_csv(tmp_path: Path) -> None:
 
 
 def test_summary_figures() -> None:
-    res = simulate(LawConfig(), STARTS[:4], duration=200.0, dt=DT)
-    s = res.summary()
+    res = integrate(LawConfig(), STARTS[:4], duration=200.0, dt=DT)
+    s = res.figures()
     assert s.n_vehicles == 4 and s.episodes == 0 and s.min_clearance_m is None
     np.testing.assert_allclose(s.final_radii_m, 2.33359, atol=1e-4)
     assert [c for _, c in s.distance_groups] == [6]

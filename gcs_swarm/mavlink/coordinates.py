@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 __all__ = [
     "EARTH_RADIUS_M",
-    "GeoPoint",
+    "GeoOrigin",
     "mission_to_ned",
     "ned_to_mission",
     "origin_offset_m",
@@ -39,20 +39,22 @@ FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class GeoPoint:
-    """A geodetic point: latitude and longitude [deg], altitude [m] (AMSL)."""
+class GeoOrigin:
+    """A vehicle's EKF origin or the mission origin as the MAVLink layer holds
+    it: latitude and longitude [deg], altitude [m] (AMSL). (The mission file's
+    own point is ``gcs_swarm.mission.GeoPoint``.)"""
 
     lat_deg: float
     lon_deg: float
     alt_m: float
 
     @classmethod
-    def from_mavlink(cls, lat_e7: int, lon_e7: int, alt_mm: int) -> GeoPoint:
+    def from_mavlink(cls, lat_e7: int, lon_e7: int, alt_mm: int) -> GeoOrigin:
         """From GPS_GLOBAL_ORIGIN's integer fields (degE7, degE7, mm)."""
         return cls(lat_e7 * 1e-7, lon_e7 * 1e-7, alt_mm * 1e-3)
 
 
-def origin_offset_m(origin: GeoPoint, reference: GeoPoint) -> FloatArray:
+def origin_offset_m(origin: GeoOrigin, reference: GeoOrigin) -> FloatArray:
     """Offset of ``origin`` from ``reference`` in the mission frame, [m] (east, north, up).
 
     Flat earth about the reference latitude; error is well under a centimetre

@@ -1,0 +1,319 @@
+"""The flying vehicles' telemetry, column by column: the hot path's one owner.
+
+A FLYING vehicle's LOCAL_POSITION_NED (50 Hz per vehicle) does not go
+through its ``VehicleProtocol``: the codec's raw decoder unpacks the frame
+(``Codec.decode(raw_positions=True)``), the link state checks who sent it
+(``swarm/link_state.py``) and ``TelemetryTable.write`` stores it in that
+vehicle's row; the control step reads the rows as arrays
+(``mission_states``, ``boot_ms``, ``arrival_s``) and answers through
+``answer`` (docs/architecture.md, "From a datagram to a setpoint").
+
+The protocol hears only what changes its phase or its counters:
+
+- a report the table does not take (implausible numbers, a duplicate, a
+  reordered or older one) goes on to ``VehicleProtocol.handle_message``,
+  which counts it (``rejected_values``, ``stale_telemetry``) exactly as
+  before;
+- the telemetry-rate window (every ``RATE_WINDOW_MS`` of vehicle time):
+  ``VehicleProtocol.rate_window``, which may ask for the interval again;
+- the watchdog and everything else that reads the vehicle's latest report
+  (``position``, ``position_at``, ``last_accel_ned``) read this table's row
+  while the vehicle is attached; leaving FLYING, the protocol takes its row
+  back (``VehicleProtocol.begin_flying`` attaches, its phase change
+  detaches).
+
+The checks are ``VehicleProtocol._on_position``'s FLYING branch and
+``inbound.plausible``, which stay the readable reference:
+``tests/mavlink/test_telemetry_table.py`` feeds both the same reports and
+compares the state. No I/O, no clock: ``now`` is an argument.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.mavlink.inbound import POSITION_LIMIT_M, SPEED_LIMIT_MPS, LocalPositionNed
+
+if TYPE_CHECKING:
+    from gcs_swarm.control.velocity_bias import VelocityBiasObserver
+    from gcs_swarm.mavlink.vehicle import VehicleProtocol
+
+__all__ = [
+    "ACCEL_CEILING_MPS2",
+    "RATE_WINDOW_MS",
+    "REBOOT_MS",
+    "TelemetryTable",
+    "clip_accel_ned",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+ACCEL_CEILING_MPS2 = 1000.0
+"""Largest acceleration setpoint sent [m/s^2] (about 100 g): beyond any
+multicopter, far inside float32, and above every figure of the paper."""
+RATE_WINDOW_MS = 2000
+"""Telemetry-rate window [ms of the vehicle's own time_boot_ms] (issue 15)."""
+REBOOT_MS = 10_000
+"""Telemetry older than the last by more than this is a reboot, not a reorder."""
+
+_ROW = struct.Struct("<I6f")
+"""LOCAL_POSITION_NED's payload in wire order: time_boot_ms [ms], x, y, z [m],
+vx, vy, vz [m/s] NED (28 bytes)."""
+_ROW_DTYPE = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
+_LPN_ID = 32
+"""LOCAL_POSITION_NED's message id."""
+_NO_REPORT = -(1 << 62)
+"""``time_boot_ms`` of a row with no report yet: every report is newer."""
+
+Inbound = Callable[[int, int, int, int], None]
+"""``inbound(sysid, compid, seq, msgid)``: the flight recorder's counts."""
+
+
+class TelemetryTable:
+    """One row per vehicle of ``sysids`` (a slot each, fixed for the run).
+
+    Columns (row k is vehicle ``sysids[k]``):
+    ``rows["time_boot_ms"]`` (N,) and ``rows["ned"]`` (N, 6) the last report
+    taken (float32 as on the wire: x, y, z [m], vx, vy, vz [m/s] NED);
+    ``arrival_s`` (N,) when it arrived [s]; ``fresh`` (N,) taken since the
+    last step; ``offset_m`` (N, 3) the vehicle's EKF origin in the mission
+    frame; ``bias_ned`` (N, 3) the velocity-bias correction [m/s] NED;
+    ``accel_ned`` (N, 3) the last acceleration setpoint [m/s^2] NED.
+    ``owners[k]`` is the attached (FLYING) protocol, else None: only
+    attached rows take reports.
+    """
+
+    def __init__(self, sysids: Sequence[int]) -> None:
+        self.sysids = tuple(sysids)
+        self.slot = {s: k for k, s in enumerate(self.sysids)}
+        n = len(self.sysids)
+        self._buf = bytearray(n * _ROW.size)
+        self.rows: npt.NDArray[Any] = np.frombuffer(self._buf, dtype=_ROW_DTYPE)
+        self.arrival_s = np.full(n, -math.inf)
+        self.fresh = np.zeros(n, dtype=bool)
+        self.offset_m = np.zeros((n, 3))
+        self.bias_ned = np.zeros((n, 3))
+        self.accel_ned = np.zeros((n, 3))
+        self.owners: list[VehicleProtocol | None] = [None] * n
+        self.seen_s = [-math.inf] * n
+        """When each row's last report was handled [s] (the stale watchdog's clock)."""
+        self.fresh_count = 0
+        """Rows taken since the last ``take_fresh``."""
+        self.taken = 0
+        """Reports taken since the owner last read it (the owner resets it)."""
+        self.attention: list[int] = []
+        """System ids whose protocol queued something (the rate window); the
+        owner services them and clears the list."""
+        self.on_inbound: Inbound | None = None
+        """Called with the header of every report ``write`` takes (``seq >= 0``)."""
+        self._ms = [_NO_REPORT] * n
+        self._compid = [1] * n
+        self._observers: list[VelocityBiasObserver | None] = [None] * n
+        self._corr: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * n
+        self._rate_t0: list[int | None] = [None] * n
+        self._rate_n = [0] * n
+        self._incomplete: set[int] = set()
+
+    # ------------------------------------------------------- attach/detach
+    def attach(self, vp: VehicleProtocol) -> int:
+        """Vehicle ``vp`` starts FLYING: its row takes its reports from now
+        on, starting from its latest (``VehicleProtocol.begin_flying``).
+        Returns its slot."""
+        k = self.slot[vp.sysid]
+        pos = vp.position
+        if pos is None:
+            self._ms[k] = _NO_REPORT
+            _ROW.pack_into(self._buf, k * _ROW.size, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        else:
+            self._ms[k] = pos.time_boot_ms
+            self._compid[k] = pos.compid
+            _ROW.pack_into(self._buf, k * _ROW.size, *pos[2:])
+        self.seen_s[k] = vp.position_at
+        self._observers[k] = obs = vp.velocity_bias
+        self._corr[k] = c = obs.correction
+        self.bias_ned[k] = c
+        self.accel_ned[k] = vp.last_accel_ned
+        self._rate_t0[k], self._rate_n[k] = None, 0
+        self.owners[k] = vp
+        self.set_offset(k, vp.offset_m)
+        if pos is None:
+            self._incomplete.add(k)
+        return k
+
+    def detach(self, k: int) -> None:
+        """Row ``k`` stops taking reports (its vehicle left FLYING): it is
+        no longer fresh; the protocol has read back what it needs."""
+        self.owners[k] = None
+        self._observers[k] = None
+        self._incomplete.discard(k)
+        if self.fresh[k]:
+            self.fresh[k] = False
+            self.fresh_count -= 1
+
+    def set_offset(self, k: int, offset_m: FloatArray | None) -> None:
+        """Row ``k``'s EKF origin in the mission frame [m] (None: not known)."""
+        if offset_m is None:
+            self.offset_m[k] = math.nan
+            self._incomplete.add(k)
+        else:
+            self.offset_m[k] = offset_m
+            if self._ms[k] != _NO_REPORT:
+                self._incomplete.discard(k)
+
+    # --------------------------------------------------------------- rows
+    def position(self, k: int) -> LocalPositionNed | None:
+        """Row ``k``'s last report, as ``VehicleProtocol.position`` holds one."""
+        if self._ms[k] == _NO_REPORT:
+            return None
+        values = _ROW.unpack_from(self._buf, k * _ROW.size)
+        return LocalPositionNed(self.sysids[k], self._compid[k], *values)
+
+    def boot_ms(self, k: int) -> int:
+        """Row ``k``'s last report's ``time_boot_ms`` (0 before any)."""
+        ms = self._ms[k]
+        return 0 if ms == _NO_REPORT else ms
+
+    def write(
+        self,
+        k: int,
+        compid: int,
+        seq: int,
+        values: tuple[Any, ...],
+        now: float,
+        rx_s: float,
+    ) -> bool:
+        """Take one LOCAL_POSITION_NED of row ``k``'s vehicle (``values``: the
+        payload in wire order, (time_boot_ms, x, y, z, vx, vy, vz)) handled at
+        ``now`` [s], arrived at ``rx_s`` [s]. True if it is now the row's
+        report; False if the row has no attached vehicle, or the numbers are
+        implausible, or it is not newer than the last (the caller hands it to
+        the protocol, which counts it). ``seq >= 0``: the frame's sequence
+        number, for ``on_inbound`` (called for a report taken; one not taken
+        goes on as a message, counted where messages are)."""
+        vp = self.owners[k]
+        if vp is None:
+            return False
+        ms, x, y, z, vx, vy, vz = values
+        # inbound.plausible, written out (chained comparisons are False for NaN, inf).
+        p, v = POSITION_LIMIT_M, SPEED_LIMIT_MPS
+        if not (-p <= x <= p and -p <= y <= p and -p <= z <= p
+                and -v <= vx <= v and -v <= vy <= v and -v <= vz <= v):  # fmt: skip
+            return False
+        if 0 <= self._ms[k] - ms < REBOOT_MS:
+            return False  # a duplicated or reordered frame: the protocol counts it
+        _ROW.pack_into(self._buf, k * _ROW.size, *values)
+        self._ms[k] = ms
+        self._compid[k] = compid
+        self.seen_s[k] = now
+        self.arrival_s[k] = rx_s
+        obs = self._observers[k]
+        assert obs is not None
+        obs.update(ms * 1e-3, x, y, z, vx, vy, vz)
+        c = obs.correction
+        if c is not self._corr[k]:  # a new estimate (every window / 20) or correct off
+            self._corr[k] = c
+            self.bias_ned[k] = c
+        # VehicleProtocol._count_report, column-wise: the window's report count.
+        t0 = self._rate_t0[k]
+        if t0 is None or ms < t0:
+            self._rate_t0[k], self._rate_n[k] = ms, 0
+        else:
+            count = self._rate_n[k] + 1
+            if ms - t0 < RATE_WINDOW_MS:
+                self._rate_n[k] = count
+            else:
+                self._rate_t0[k], self._rate_n[k] = ms, 0
+                if vp.rate_window(count / ((ms - t0) * 1e-3)):
+                    self.attention.append(vp.sysid)
+        if self._incomplete and k in self._incomplete and not math.isnan(self.offset_m[k, 0]):
+            self._incomplete.discard(k)  # the first report of a row attached without one
+        if not self.fresh[k]:
+            self.fresh[k] = True
+            self.fresh_count += 1
+        self.taken += 1
+        if seq >= 0 and self.on_inbound is not None:
+            self.on_inbound(self.sysids[k], compid, seq, _LPN_ID)
+        return True
+
+    def take_fresh(self) -> dict[int, int]:
+        """The fresh rows as {sysid: time_boot_ms}, and none fresh after."""
+        if not self.fresh_count:
+            return {}
+        sysids, ms = self.sysids, self._ms
+        fresh = {sysids[k]: ms[k] for k in np.flatnonzero(self.fresh).tolist()}
+        self.fresh[:] = False
+        self.fresh_count = 0
+        return fresh
+
+    # ------------------------------------------------------- control step
+    def slots(self, sysids: Sequence[int]) -> npt.NDArray[np.intp]:
+        """The rows of ``sysids``, in that order."""
+        slot = self.slot
+        return np.array([slot[s] for s in sysids], dtype=np.intp)
+
+    def mission_states(self, ks: npt.NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
+        """Positions [m] and velocities [m/s] ``(N, 3)`` in the mission frame
+        of rows ``ks``: p = (e, n, -d) + offset, v = (v_e, v_n, -v_d) less
+        the velocity bias (formation-law.md s1, docs/velocity-bias.md), the
+        numbers ``VehicleProtocol.state_mission`` gives. ``RuntimeError`` if
+        one has no report or origin."""
+        n = len(ks)
+        if n == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        if self._incomplete:
+            for k in ks.tolist():
+                if k in self._incomplete:
+                    raise RuntimeError(f"vehicle {self.sysids[k]} has no position or origin yet")
+        ned = self.rows["ned"][ks].astype(np.float64)
+        offset = self.offset_m[ks]
+        bias = self.bias_ned[ks]
+        pos = np.empty((n, 3))
+        pos[:, 0] = ned[:, 1] + offset[:, 0]
+        pos[:, 1] = ned[:, 0] + offset[:, 1]
+        pos[:, 2] = -ned[:, 2] + offset[:, 2]
+        vel = np.empty((n, 3))
+        vel[:, 0] = ned[:, 4] - bias[:, 1]
+        vel[:, 1] = ned[:, 3] - bias[:, 0]
+        vel[:, 2] = bias[:, 2] - ned[:, 5]
+        return pos, vel
+
+    def answer(self, ks: npt.NDArray[np.intp], accel_mps2: FloatArray) -> FloatArray:
+        """The NED accelerations [m/s^2] ``(K, 3)`` sent to rows ``ks`` for
+        mission-frame ``accel_mps2`` (``clip_accel_ned``, as
+        ``VehicleProtocol.accel_setpoint``): kept in ``accel_ned``, a clipped
+        row counted in its protocol's ``clipped_setpoints``."""
+        ned, clipped = clip_accel_ned(accel_mps2)
+        if clipped.any():
+            for j in np.flatnonzero(clipped).tolist():
+                vp = self.owners[int(ks[j])]
+                if vp is not None:
+                    vp.clipped_setpoints += 1
+        self.accel_ned[ks] = ned
+        return ned
+
+
+def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Mission-frame accelerations ``(N, 3)`` [m/s^2] as the NED accelerations
+    setpoints carry (a_ned = (a_y, a_x, -a_z)), each sendable: a row whose
+    norm is above ``ACCEL_CEILING_MPS2`` is scaled down to it (direction kept),
+    a non-finite row, or one whose norm overflows, becomes zero. Also returns
+    which rows were changed. The input is not modified."""
+    a = np.array(accel_mps2, dtype=np.float64)  # a copy: clipped in place
+    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
+    clip = ~(norm <= ACCEL_CEILING_MPS2)  # True for NaN too
+    if clip.any():
+        finite = np.isfinite(norm)
+        scale = clip & finite
+        a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
+        a[~finite] = 0.0
+    ned = np.empty_like(a)
+    ned[:, 0] = a[:, 1]
+    ned[:, 1] = a[:, 0]
+    ned[:, 2] = -a[:, 2]
+    return ned, clip

@@ -1,0 +1,371 @@
+"""The emulator without its sockets: vehicles, sim time, delivery, telemetry. NO I/O.
+
+Owns ``EmulatorCore``: the hosted vehicles (``vehicles``: autopilot, fleet
+row, encoder, noise stream), the physics step and what follows it
+(``schedule``: polls and the LOCAL_POSITION_NED stream), inbound messages
+(peer rules, lockstep answers, the uplink impairment, delivery to the
+autopilots) and outbound frames (sequence numbers, datagram joining, the
+downlink impairment, ``impairments``). It is driven by ``step()`` and
+``receive(port, msgs, addr, wall_s)``; it hands datagrams to each
+``Port.sendto`` and never waits. The asyncio shell (``server.Emulator``)
+owns the sockets, the clock task and the lockstep wait (``lockstep``).
+``wall_s``: the wall clock, which only the GCS failsafe reads in lockstep
+(``Autopilot.wall_s``); the shell passes it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
+from sim_vehicle import lockstep, schedule
+from sim_vehicle.config import EmulatorConfig, VehicleSpec
+from sim_vehicle.fleet import Fleet
+from sim_vehicle.impairments import DelayLine, impair
+from sim_vehicle.small import few
+from sim_vehicle.stats import EmulatorStats
+from sim_vehicle.telemetry import Kin
+from sim_vehicle.vehicles import Addr, HostedVehicle, Port, VehicleState, autopilot_for
+
+__all__ = ["MAX_PEERS", "EmulatorCore", "join_frames"]
+
+MAX_PEERS = 8
+"""Peers one port serves at most (the oldest goes first)."""
+_SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+
+
+def join_frames(frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
+    """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
+    (``datagram_bounds``); each datagram with the nonzero keys of its frames
+    (the vehicles whose LOCAL_POSITION_NED it carries)."""
+    if not frames:
+        return []
+    datas, keys = zip(*frames, strict=True)
+    bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
+    if len(bounds) == 1:  # the usual case
+        return [(b"".join(datas), [k for k in keys if k])]
+    data = b"".join(datas)
+    out: list[tuple[bytes, list[int]]] = []
+    first = start = 0
+    for stop, end in bounds:
+        out.append((data[start:end], [k for k in keys[first:stop] if k]))
+        first, start = stop, end
+    return out
+
+
+class EmulatorCore:
+    """Every hosted vehicle and the sim clock (module docstring)."""
+
+    def __init__(self, config: EmulatorConfig, stats: EmulatorStats | None = None) -> None:
+        self.config = config
+        self.dt = 1.0 / config.rate_hz
+        self.lockstep = config.clock == "lockstep"
+        self.sim_time_s = 0.0
+        self.step_count = 0
+        self.stats = stats if stats is not None else EmulatorStats()
+        self.fleet = Fleet()
+        self.vehicles: dict[int, HostedVehicle] = {}
+        self.rows: list[HostedVehicle] = []
+        self.ports: list[Port] = []
+        self._delayed_in: DelayLine[tuple[Port, list[Any]]] = DelayLine()
+        self._delayed_out: DelayLine[tuple[Port, Addr, bytes, list[int]]] = DelayLine()
+        self._out_heard: set[int] = set()
+        self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
+
+    # ------------------------------------------------------------ vehicles
+    def add(self, spec: VehicleSpec, ep: Port, initial: bool, enc: Any) -> HostedVehicle:
+        """Host ``spec`` on port ``ep`` from now on; ``enc``: its pymavlink encoder
+        (``signing.mavlink``: signing starts from the wall clock, the shell's)."""
+        cfg, key = self.config, spec.key
+        now = self.sim_time_s
+        ap = autopilot_for(cfg, spec, now)
+        start = spec.start_ned_m
+        row = self.fleet.add(spec.sysid, spec.compid, start, landed=not spec.airborne)
+        self._kins = None
+        self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
+        self.fleet.boot[row] = now
+        noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
+        v = HostedVehicle(spec, ap, enc, ep, row, noise_rng, initial)
+        self.vehicles[key] = v
+        self.rows.append(v)
+        ep.sysids[spec.sysid] = key
+        self.sync(v, now)
+        return v
+
+    def remove(self, key: int) -> HostedVehicle:
+        """Stop hosting vehicle ``key``; returns it (its port is the caller's to close)."""
+        v = self.vehicle(key)
+        del self.vehicles[key]
+        self.fleet.remove(v.row)
+        self._kins = None
+        del self.rows[v.row]
+        for i, other in enumerate(self.rows):
+            other.row = i
+        del v.ep.sysids[v.spec.sysid]
+        return v
+
+    def vehicle(self, key: int) -> HostedVehicle:
+        try:
+            return self.vehicles[key]
+        except KeyError:
+            raise KeyError(f"no vehicle with sysid {key}") from None
+
+    def set_silent(self, v: HostedVehicle, silent: bool) -> None:
+        """``v``'s radio off or on (its own port): back on, a HEARTBEAT at once (rule 1)."""
+        v.ep.silent = silent
+        self.fleet.awaiting[v.row] = False  # an answer it cannot hear never blocks lockstep
+        if not silent:
+            self.transmit(v.ep, [(self.pack(v, v.ap.heartbeat()), 0)])
+
+    def set_param(self, v: HostedVehicle, name: str, value: float) -> None:
+        """Set a parameter directly (as PARAM_SET would, without a reply)."""
+        if not v.ap.params.set(name, value):
+            raise KeyError(f"unknown parameter {name!r}")
+        v.ap.refresh(self.sim_time_s, self.kin(v))
+        self.sync(v, self.sim_time_s)
+
+    def kin(self, v: HostedVehicle) -> Kin:
+        """``v``'s kinematics now (few vehicles: every row's at once, kept until the next step)."""
+        f = self.fleet
+        if few(f.n):
+            kins = self._kins
+            if kins is None:
+                kins = self._kins = schedule.kins(f)
+            return kins[v.row]
+        return schedule.kin(f, v.row)
+
+    def snapshot(self, v: HostedVehicle, endpoint: Addr, tcp: Addr | None) -> VehicleState:
+        """``v`` now, served on ``endpoint`` (and TCP ``tcp``)."""
+        k, ap = self.kin(v), v.ap
+        return VehicleState(
+            sysid=v.spec.key,
+            mode=ap.mode,
+            mode_name=ap.mode_name,
+            armed=ap.armed,
+            landed=k.landed,
+            ekf_ready=ap.ekf_ready,
+            holding=ap.holding,
+            pos_ned_m=k.pos,
+            vel_ned_m_s=k.vel,
+            accel_ned_m_s2=k.acc,
+            sim_time_s=self.sim_time_s,
+            origin=v.spec.origin,
+            home_ned_m=ap.home,
+            endpoint=endpoint,
+            params=dict(ap.params.values),
+            control=ap.control,
+            tcp_endpoint=tcp,
+            landed_state=ap.landed_state,
+        )
+
+    def contact(self, v: HostedVehicle) -> None:
+        """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""
+        v.contacted = True
+        v.ap.contact(self.sim_time_s)
+        self.sync(v, self.sim_time_s)
+
+    def greet(self, ep: Port, addr: Addr) -> None:
+        """A new peer ``addr`` of ``ep``: every vehicle there is in contact and sends it a
+        HEARTBEAT at once (rule 1)."""
+        for sysid in sorted(ep.sysids):
+            v = self.vehicles[ep.sysids[sysid]]
+            self.contact(v)
+            self.transmit(ep, [(self.pack(v, v.ap.heartbeat()), 0)], only=addr)
+
+    # ------------------------------------------------------------ inbound
+    def receive(self, ep: Port, msgs: list[Any], addr: Addr, wall_s: float | None) -> None:
+        """Decoded messages from ``addr`` arrive at port ``ep`` (sim time: now)."""
+        if ep.silent:
+            return
+        stats = self.stats.link
+        stats.rx_datagrams += 1
+        # Only a peer that sent one good (with signing: well-signed) frame is
+        # served: garbage or forgeries from elsewhere never evict the station.
+        # With signing, the unsigned frames the parser lets through (RADIO_STATUS,
+        # ArduPilot's exception) are heard but register nobody (issue 15).
+        good = bool(msgs) and (ep.signing_key is None or any(m.get_signed() for m in msgs))
+        new_peer = good and addr not in ep.peers
+        if new_peer:
+            ep.peers[addr] = None
+            if len(ep.peers) > MAX_PEERS:
+                ep.peers.pop(next(iter(ep.peers)))
+        for m in msgs:  # lockstep rule 3: an answer counts even if the link then loses it
+            if m.get_msgId() == _SETPOINT_ID:
+                ts = m.target_system
+                for sysid in ep.sysids if ts == 0 else (ts,):
+                    v = self.vehicles.get(ep.sysids.get(sysid, -1))
+                    if v is not None and v.ep is ep:
+                        lockstep.answered(self.fleet, (v.row,))
+        if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
+            self.greet(ep, addr)
+        elif good and ep.out == addr and id(ep) not in self._out_heard:
+            # The fixed ``out`` peer is known from the start: its first good
+            # frame is its contact (rule 1), or a lockstep clock would never start.
+            self._out_heard.add(id(ep))
+            for key in ep.sysids.values():
+                self.contact(self.vehicles[key])
+        fate = impair(ep.uplink, self._delayed_in, self.sim_time_s, (ep, msgs))
+        if fate.copies == 0:
+            stats.rx_lost += 1
+        elif fate.copies > 1:
+            stats.duplicated += 1
+        for _ in range(fate.now):
+            self._deliver(ep, msgs, wall_s)
+
+    def _deliver(self, ep: Port, msgs: list[Any], wall_s: float | None) -> None:
+        now = self.sim_time_s
+        for m in msgs:
+            ts = getattr(m, "target_system", 0)
+            if ts == 0:
+                targets = [ep.sysids[s] for s in sorted(ep.sysids)]
+            elif ts in ep.sysids:
+                targets = [ep.sysids[ts]]
+            else:
+                continue
+            for key in targets:
+                v = self.vehicles[key]
+                if wall_s is not None:
+                    v.ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
+                replies = v.ap.handle(m, now, self.kin(v))
+                if replies:
+                    self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
+                self.sync(v, now)
+
+    # ------------------------------------------------------------ outbound
+    def pack(self, v: HostedVehicle, msg: Any) -> bytes:
+        """One frame of ``v`` (its sequence number from the fleet row)."""
+        row = v.row
+        v.enc.seq = int(self.fleet.seq[row])
+        frame: bytes = msg.pack(v.enc)
+        self.fleet.seq[row] = (v.enc.seq + 1) & 0xFF
+        return frame
+
+    def transmit(self, ep: Port, frames: list[tuple[bytes, int]], only: Addr | None = None) -> None:
+        """Send (frame, key) pairs now through the downlink impairment to every peer (or
+        ``only``); a nonzero key names the vehicle whose LOCAL_POSITION_NED it is."""
+        if ep.silent:
+            return
+        peers = [only] if only is not None else list(ep.peers)
+        if len(frames) == 1:  # one frame is its own datagram (the 50 Hz case)
+            frame, key = frames[0]
+            batches = [(frame, [key] if key else [])]
+        else:
+            batches = join_frames(frames)
+        stats, now, line = self.stats.link, self.sim_time_s, self._delayed_out
+        clean = not ep.downlink.imp.active  # the hot case: no impairment, no random draw
+        for data, lpn in batches:
+            for peer in peers:
+                if clean:
+                    ep.sendto(data, peer)
+                    self._sent_reports(lpn)
+                    continue
+                fate = impair(ep.downlink, line, now, (ep, peer, data, lpn))
+                if fate.copies == 0:
+                    stats.tx_lost += 1
+                elif fate.copies > 1:
+                    stats.duplicated += 1
+                for _ in range(fate.now):
+                    ep.sendto(data, peer)
+                    self._sent_reports(lpn)
+
+    def _sent_reports(self, keys: list[int]) -> None:
+        """Rule 3: a LOCAL_POSITION_NED left towards these vehicles; they await an answer."""
+        for key in keys:
+            v = self.vehicles.get(key)
+            if v is not None:
+                self.fleet.awaiting[v.row] = True
+
+    def sync(self, v: HostedVehicle, now: float) -> None:
+        """Copy an autopilot's published state into its fleet row (after handle/poll)."""
+        ap, f, row = v.ap, self.fleet, v.row
+        # Each row value is written only when it changed: a numpy item write costs
+        # more than the comparison, and this runs for every setpoint.
+        if ap.deadline != v.row_deadline:
+            f.deadline[row] = v.row_deadline = ap.deadline
+        holding = ap.holding
+        if holding != v.row_holding:
+            f.holding[row] = v.row_holding = holding
+        if ap.version == v.seen_version:
+            return
+        v.seen_version = ap.version
+        f.set_target(row, ap.target, v.row_target)
+        v.row_target = ap.target
+        iv = ap.lpn_interval_s
+        prm = ap.params
+        dyn = (
+            prm["SIM_NOISE_POS"],
+            prm["SIM_NOISE_VEL"],
+            iv if iv is not None else np.inf,
+            (prm["SIM_VBIAS_N"], prm["SIM_VBIAS_E"], prm["SIM_VBIAS_D"]),
+        )
+        if dyn != v.row_dyn:
+            f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row] = dyn
+            v.row_dyn = dyn
+        if iv is None:
+            f.lpn_next[row] = np.inf
+        elif ap.lpn_kick:  # rule 1: a newly enabled stream sends its first message at once
+            ap.lpn_kick = False
+            f.lpn_next[row] = now + iv
+            if v.ep.peers:
+                self.transmit(v.ep, self._report_frames(np.array([row], dtype=np.intp), now))
+
+    def _report_frames(self, rows: NDArray[np.intp], now: float) -> list[tuple[bytes, int]]:
+        by_row = self.rows
+        signed: Callable[[int, Any], bytes] | None = None
+        if self.config.signing_key is not None:
+
+            def signed(row: int, msg: Any) -> bytes:
+                return self.pack(by_row[row], msg)
+
+        rngs = [v.noise_rng for v in by_row]
+        frames = schedule.report_frames(self.fleet, rows, now, rngs, signed)
+        return [(fr, by_row[r].spec.key) for fr, r in zip(frames, rows.tolist(), strict=True)]
+
+    # --------------------------------------------------------------- clock
+    def step(self, wall: Callable[[], float] | None = None) -> None:
+        """One physics step, then what is due at the new sim time (``emit``).
+        ``wall``: reads the wall clock (lockstep), None in real time."""
+        self.fleet.step(self.dt)
+        self._kins = None
+        self.step_count += 1
+        self.stats.steps = self.step_count
+        self.sim_time_s = now = self.step_count * self.dt
+        self.emit(now, wall)
+
+    def emit(self, now: float, wall: Callable[[], float] | None = None) -> None:
+        """The delayed datagrams due by ``now``, the autopilots' polls, the telemetry."""
+        while (item := self._delayed_in.pop_due(now)) is not None:
+            ep, msgs = item
+            if ep.sysids and not ep.silent:
+                self._deliver(ep, msgs, wall() if wall is not None else None)
+        while (out := self._delayed_out.pop_due(now)) is not None:
+            ep, peer, data, lpn = out
+            if ep.sysids and not ep.silent:
+                ep.sendto(data, peer)
+                self._sent_reports(lpn)
+        f = self.fleet
+        polled = schedule.due_polls(f, now)
+        wall_s = wall() if wall is not None and polled else None
+        for row in polled:
+            v = self.rows[row]
+            if wall_s is not None:
+                v.ap.wall_s = wall_s  # Autopilot.wall_s: lockstep's GCS failsafe clock
+            out_msgs = v.ap.poll(now, self.kin(v))
+            self.sync(v, now)
+            if out_msgs and v.ep.peers:
+                v.ep.outbox.extend((self.pack(v, m), 0) for m in out_msgs)
+        due = schedule.due_reports(f, now)
+        if due.size:
+            for frame, key in self._report_frames(due, now):
+                ep = self.vehicles[key].ep
+                if ep.peers:
+                    ep.outbox.append((frame, key))
+        for ep in self.ports:
+            if ep.outbox:
+                frames, ep.outbox = ep.outbox, []
+                self.transmit(ep, frames)

@@ -1,0 +1,122 @@
+"""Telemetry scheduling on the fleet rows: who is polled, who reports, the frames. NO I/O.
+
+After each physics step the emulator polls the autopilots whose ``deadline``
+is due (and those the step landed or lifted: the land detector looks), then
+sends LOCAL_POSITION_NED, the one vectorised stream, for every row whose
+``lpn_next`` is due, all at once (``codec``). Owns those three pieces
+(``due_polls``, ``due_reports``, ``report_frames``) and ``kins``, the rows'
+kinematics as the autopilots read them. Each has a plain-Python side for few
+vehicles (``small``), the same numbers. Driven by ``now`` (sim seconds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from sim_vehicle.fleet import Fleet
+from sim_vehicle.impairments import EPS_S
+from sim_vehicle.small import few
+from sim_vehicle.telemetry import Kin
+
+__all__ = ["due_polls", "due_reports", "kin", "kins", "report_frames"]
+
+
+def kins(fleet: Fleet) -> list[Kin]:
+    """Every row's ``Kin`` (local NED, SI units), in row order."""
+    f = fleet
+    return [
+        Kin((p[0], p[1], p[2]), (q[0], q[1], q[2]), (a[0], a[1], a[2]), ld)
+        for p, q, a, ld in zip(
+            f.pos.tolist(), f.vel.tolist(), f.acc.tolist(), f.landed.tolist(), strict=True
+        )
+    ]
+
+
+def kin(fleet: Fleet, row: int) -> Kin:
+    """One row's ``Kin``."""
+    f, r = fleet, row
+    px, py, pz = f.pos[r].tolist()
+    vx, vy, vz = f.vel[r].tolist()
+    ax, ay, az = f.acc[r].tolist()
+    return Kin((px, py, pz), (vx, vy, vz), (ax, ay, az), bool(f.landed[r]))
+
+
+def due_polls(fleet: Fleet, now: float) -> list[int]:
+    """Rows whose autopilot must be polled at ``now``: deadline due, or the last step
+    changed its ``landed`` flag (consumes ``fleet.changed``). Ascending."""
+    f = fleet
+    if few(f.n):
+        lim = now + EPS_S
+        polled = [r for r, d in enumerate(f.deadline.tolist()) if d <= lim]
+    else:
+        polled = np.flatnonzero(f.deadline <= now + EPS_S).tolist()
+    if f.changed:  # touched down or lifted off: the land detector looks (autopilot)
+        polled = sorted(set(polled).union(f.changed))
+        f.changed = []
+    return polled
+
+
+def due_reports(fleet: Fleet, now: float) -> NDArray[np.intp]:
+    """Rows whose LOCAL_POSITION_NED is due at ``now``; their ``lpn_next`` moves one
+    interval on (or to ``now`` + interval when that is due already: no burst)."""
+    f = fleet
+    if few(f.n):  # the same schedule arithmetic on lists
+        lim, lnext = now + EPS_S, f.lpn_next.tolist()
+        rows = [r for r, t in enumerate(lnext) if t <= lim]
+        if rows:
+            iv = f.lpn_interval.tolist()
+            for r in rows:
+                nxt = lnext[r] + iv[r]
+                lnext[r] = now + iv[r] if nxt <= lim else nxt
+            f.lpn_next[:] = lnext
+        return np.array(rows, dtype=np.intp)
+    due = np.flatnonzero(f.lpn_next <= now + EPS_S)
+    if due.size:
+        nxt = f.lpn_next[due] + f.lpn_interval[due]
+        f.lpn_next[due] = np.where(nxt <= now + EPS_S, now + f.lpn_interval[due], nxt)
+    return due
+
+
+def report_frames(
+    fleet: Fleet,
+    rows: NDArray[np.intp],
+    now: float,
+    noise_rngs: Sequence[np.random.Generator],
+    pack: Callable[[int, Any], bytes] | None = None,
+) -> list[bytes]:
+    """The LOCAL_POSITION_NED frame of each of ``rows`` at ``now`` (bumps their seq).
+
+    Reported: position plus ``noise_pos`` x N(0, 1), velocity plus the row's bias
+    plus ``noise_vel`` x N(0, 1) (each row's ``noise_rngs[row]``, six draws when
+    noisy); ``time_boot_ms`` rounded half to even. ``pack(row, message)``: sign and
+    pack one message (signed links); None: the unsigned encoders of ``codec``."""
+    f = fleet
+    if few(len(rows)) and pack is None:
+        rl: list[int] = rows.tolist()
+        npos, nvel, vb = f.noise_pos.tolist(), f.noise_vel.tolist(), f.vbias.tolist()
+        if not any(npos[r] > 0 or nvel[r] > 0 or any(vb[r]) for r in rl):
+            boot = f.boot.tolist()  # round() is np.rint's half-to-even
+            frames = f.lpn_frames_rows(rl, [round((now - boot[r]) * 1000.0) for r in rl])
+            if frames is not None:
+                return frames
+    t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)
+    pos, vel = f.pos[rows], f.vel[rows] + f.vbias[rows]  # a copy: the reported velocity
+    noisy = (f.noise_pos[rows] > 0) | (f.noise_vel[rows] > 0)
+    if noisy.any():
+        pos = pos.copy()
+        for i in np.flatnonzero(noisy):
+            z = noise_rngs[rows[i]].standard_normal(6)
+            pos[i] += f.noise_pos[rows[i]] * z[:3]
+            vel[i] += f.noise_vel[rows[i]] * z[3:]
+    if pack is not None:  # signed: pymavlink packs (and signs) each
+        lpn = mav.MAVLink_local_position_ned_message
+        return [
+            pack(r, lpn(int(t_ms[i]), *map(float, pos[i]), *map(float, vel[i])))
+            for i, r in enumerate(rows.tolist())
+        ]
+    return f.lpn_frames(rows, t_ms, pos, vel)

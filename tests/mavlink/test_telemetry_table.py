@@ -1,0 +1,143 @@
+"""The telemetry table (``gcs_swarm.mavlink.telemetry_table``) against the
+readable reference, a ``VehicleProtocol`` fed every report by
+``handle_message``: the same states, setpoints, counters and protocol state
+after the same reports, and the same hand-over when the vehicle stops flying."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+
+from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
+from gcs_swarm.mavlink.inbound import LocalPositionNed
+from gcs_swarm.mavlink.states import Phase, ProtocolConfig
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.mavlink.vehicle import VehicleProtocol
+
+
+def _f32(x: float) -> float:
+    """``x`` as a float32 holds it: what a LOCAL_POSITION_NED carries."""
+    return float(np.float32(x))
+
+
+def _report(sysid: int, rng: random.Random, t_ms: int | None = None) -> LocalPositionNed:
+    t = rng.randrange(2**31) if t_ms is None else t_ms
+    return LocalPositionNed(sysid, 1, t, *(_f32(rng.uniform(-100, 100)) for _ in range(6)))
+
+
+def _ready(sysid: int, rng: random.Random) -> VehicleProtocol:
+    vp = VehicleProtocol(sysid, ProtocolConfig(), goto_m=(0.0, 0.0, 0.0))
+    vp.phase = Phase.READY
+    vp.offset_m = np.array([rng.uniform(-50, 50) for _ in range(3)])
+    vp.position = _report(sysid, rng)
+    return vp
+
+
+def test_mission_states_are_each_protocols_state_mission() -> None:
+    rng = random.Random(1)
+    ids = list(range(1, 40))
+    table = TelemetryTable(ids)
+    fast = [_ready(s, random.Random(s)) for s in ids]
+    slow = [_ready(s, random.Random(s)) for s in ids]
+    for f, s in zip(fast, slow, strict=True):
+        f.begin_flying(1.0, table)
+        s.begin_flying(1.0)
+        pos = _report(f.sysid, rng, f.boot_ms() + 20)
+        assert table.write(table.slot[f.sysid], 1, -1, pos[2:], 1.02, 1.01)
+        s.handle_message(pos, 1.02)
+    ks = table.slots(ids)
+    pos, vel = table.mission_states(ks)
+    for k, (f, s) in enumerate(zip(fast, slow, strict=True)):
+        p, v = s.state_mission()
+        assert pos[k].tolist() == p.tolist() and vel[k].tolist() == v.tolist()  # exact
+        assert f.state_mission()[0].tolist() == p.tolist()
+    assert table.mission_states(table.slots([]))[0].shape == (0, 3)
+
+
+def test_answer_equals_accel_setpoint_with_its_clipping() -> None:
+    rng = random.Random(2)
+    rows = [[rng.uniform(-20, 20) for _ in range(3)] for _ in range(200)]
+    rows += [[3000.0, -4000.0, 0.0], [math.nan, 1.0, 2.0], [math.inf, 0.0, 0.0],
+             [1e200, -1e200, 3.0], [0.0, 0.0, 0.0], [-0.0, 0.0, -0.0]]  # fmt: skip
+    accel = np.array(rows)
+    ids = list(range(1, len(rows) + 1))
+    table = TelemetryTable(ids)
+    fast = [_ready(s, random.Random(s)) for s in ids]
+    slow = [_ready(s, random.Random(s)) for s in ids]
+    for f, s in zip(fast, slow, strict=True):
+        f.begin_flying(0.0, table)
+        s.begin_flying(0.0)
+    got = table.answer(table.slots(ids), accel).tolist()
+    assert len(got) == len(rows)
+    for k, (f, s) in enumerate(zip(fast, slow, strict=True)):
+        with np.errstate(over="ignore"):  # 1e200^2: the reference path's overflow warning
+            spec = s.accel_setpoint(accel[k])
+        want = [spec.fields[name] for name in ("afx", "afy", "afz")]
+        # repr: tells -0.0 from 0.0 (different bytes on the wire).
+        assert repr(got[k]) == repr(want), rows[k]
+        assert f.boot_ms() == spec.fields["time_boot_ms"]
+        assert f.clipped_setpoints == s.clipped_setpoints
+        assert f.last_accel_ned.tolist() == s.last_accel_ned.tolist()
+    assert sum(f.clipped_setpoints for f in fast) == 4  # 3000/-4000, NaN, inf, 1e200
+    assert accel[200].tolist() == [3000.0, -4000.0, 0.0]  # the caller's array is not clipped
+
+
+def test_table_and_protocol_leave_the_state_handle_message_leaves() -> None:
+    """Reports in flight, duplicated, reordered, implausible (NaN, 1e9 m,
+    300 m/s), a reboot, another system's: written into the table (the
+    protocol hearing only what the table does not take) or all through
+    ``handle_message``, the same state; then the same hand-over at the end."""
+    rng = random.Random(3)
+    table = TelemetryTable([7, 8])
+    fast, slow = _ready(7, random.Random(9)), _ready(7, random.Random(9))
+    fast.begin_flying(10.0, table)
+    slow.begin_flying(10.0)
+    t_ms = fast.boot_ms()
+    now = 10.0
+    taken = 0
+    for i in range(3000):
+        now += 0.02
+        kind = rng.randrange(12)
+        if kind == 0:
+            t = t_ms  # duplicate
+        elif kind == 1:
+            t = t_ms - rng.randrange(1, 500)  # reordered
+        elif kind == 2:
+            t = max(0, t_ms - 20_000)  # a reboot: time going far back
+        else:
+            t = t_ms = t_ms + 20
+        vals = [_f32(rng.uniform(-100, 100)) for _ in range(6)]
+        if kind == 3:
+            vals[rng.randrange(6)] = rng.choice([math.nan, math.inf, 1e9, 300.0])
+        sysid = 8 if kind == 4 else 7
+        pos = LocalPositionNed(sysid, 1, t, *vals)
+        took = table.write(table.slot[sysid], 1, -1, pos[2:], now, now)
+        if not took:
+            fast.handle_message(pos, now)
+        taken += took
+        slow.handle_message(pos, now)
+        assert took == (slow.position is pos), i
+        for name in ("position", "position_at", "rejected_values", "stale_telemetry",
+                     "phase", "telemetry_rate_hz", "rate_requests", "rate_low",
+                     "vel_correction_ned"):  # fmt: skip
+            assert getattr(fast, name) == getattr(slow, name), (i, name)
+        assert fast.next_deadline() == slow.next_deadline(), i  # the watchdog's clocks
+        # Only the telemetry-rate watch queues anything in flight (the same on both).
+        out = fast.take_outbound()
+        assert out == slow.take_outbound()
+        assert all(m["command"] == MAV_CMD_SET_MESSAGE_INTERVAL for m in out)
+        assert fast.take_events() == slow.take_events()
+    assert fast.rejected_values > 100 and fast.stale_telemetry > 300
+    assert table.taken == taken and table.fresh_count == 1
+    assert fast.velocity_bias.samples == slow.velocity_bias.samples
+    np.testing.assert_array_equal(table.bias_ned[0], slow.vel_correction_ned)
+    # Ending: the protocol takes its row back (the zero setpoint carries its time).
+    fast.finish(now)
+    slow.finish(now)
+    assert fast.phase is slow.phase is not Phase.FLYING
+    assert table.owners[0] is None and table.fresh_count == 0
+    assert fast.take_outbound() == slow.take_outbound()
+    assert fast.position == slow.position and fast.next_deadline() == slow.next_deadline()
+    assert not table.write(0, 1, -1, (t_ms + 20, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), now, now)
