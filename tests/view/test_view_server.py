@@ -24,6 +24,9 @@ from sim_vehicle import Emulator, VehicleState
 from tests.station.station_harness import lockstep_config, mission_from
 
 DEMO = "example1_octahedron.yaml"
+LONG_S = 3600.0
+"""Mission time [s] of the runs a button ends: never reached (lockstep on an
+idle machine flies the demo's own 150 s in a few seconds)."""
 
 During = Callable[[ViewServer], Awaitable[None]]
 
@@ -87,7 +90,7 @@ async def _press(ws: ClientConnection, action: str) -> dict[str, Any]:
 
 
 def test_frames_show_the_six_vehicles_moving_and_hold_ends_the_run() -> None:
-    mission = mission_from(DEMO)  # 150 s: ended by the button, not by the duration
+    mission = mission_from(DEMO, duration=LONG_S)  # ended by the button
     seen: list[dict[str, Any]] = []
     answers: list[dict[str, Any]] = []
 
@@ -119,14 +122,14 @@ def test_frames_show_the_six_vehicles_moving_and_hold_ends_the_run() -> None:
     assert min(moved) > 1e-3  # every vehicle's position changed [m]
     assert [s["seq"] for s in seen] == sorted({s["seq"] for s in seen})
     assert [a["ok"] for a in answers] == [False, True, False]
-    assert summary.outcome == "completed" and summary.mission_time_s < 150.0
+    assert summary.outcome == "completed" and summary.mission_time_s < LONG_S
     assert {v.mode for v in summary.vehicles} == {"BRAKE"}
     assert {st.mode_name for st in states.values()} == {"BRAKE"}
     assert any("operator's request: hold" in line for line in summary.log)
 
 
 def test_a_land_click_lands_every_vehicle_as_the_end_action_does() -> None:
-    mission = mission_from(DEMO)  # end: hold in the file; the button asks for LAND
+    mission = mission_from(DEMO, duration=LONG_S)  # end: hold in the file; the button: LAND
 
     async def during(server: ViewServer) -> None:
         async with connect(_ws_url(server)) as ws:
@@ -209,7 +212,7 @@ async def _stalled_client(port: int, token: str) -> socket.socket:
 
 
 def test_a_stalled_page_loses_frames_while_the_setpoints_keep_flowing() -> None:
-    mission = mission_from(DEMO)
+    mission = mission_from(DEMO, duration=LONG_S)
     progress: list[float] = []
     view_drops: list[int] = []
     setpoint_drops: list[int] = []
