@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.coordinates import GeoOrigin
+from gcs_swarm.mission.model import Startup
 
 __all__ = [
     "AIRBORNE_PHASES",
@@ -117,16 +118,16 @@ class ProtocolConfig:
     guid_timeout_s: float = 0.5
     wp_yaw_behavior: int = 0
     command_timeout_s: float = 1.0
-    command_attempts: int = 10
+    command_attempts: int = Startup.command_attempts
     arm_retry_interval_s: float = 2.0
     arm_attempts: int = 15
     guided_attempts: int = 8
     ground_height_m: float = 1.0
     origin_request_interval_s: float = 2.0
-    takeoff_min_alt_m: float = 5.0
+    takeoff_min_alt_m: float = Startup.takeoff_alt
     takeoff_timeout_s: float = 40.0
-    goto_tolerance_m: float = 0.3
-    goto_speed_tolerance_mps: float = 0.3
+    goto_tolerance_m: float = Startup.start_tolerance
+    goto_speed_tolerance_mps: float = Startup.start_speed_tolerance
     heartbeat_timeout_s: float = 3.0
     stale_timeout_s: float = 1.0
     end_mode: int = b.COPTER_MODES["BRAKE"]

@@ -103,8 +103,9 @@ class Startup:
     read_envelope: read each vehicle's position-controller limits
     (WPNAV_*, PSC_JERK_*, ANGLE_MAX) at start-up; None: for ``ardupilot``
     vehicles, not for ``sim`` ones; command_attempts: each command is sent at
-    most this many times, 1 s apart, before the vehicle fails (the station's
-    ``ProtocolConfig.command_attempts``; a test keeps the two equal).
+    most this many times, 1 s apart, before the vehicle fails. These defaults
+    are the station's too (``ProtocolConfig``, ``StationConfig`` take theirs
+    from here: one place for each).
     """
 
     takeoff_alt: float = 5.0

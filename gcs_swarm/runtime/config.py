@@ -10,6 +10,7 @@ from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mavlink.states import ProtocolConfig
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
+from gcs_swarm.mission.model import Startup
 
 __all__ = ["StationConfig", "VehiclePlan"]
 
@@ -48,7 +49,7 @@ class StationConfig:
     duration_s: float = 60.0
     end_mode: int = ProtocolConfig.end_mode
     stale_timeout_s: float = ProtocolConfig.stale_timeout_s
-    ready_timeout_s: float = 90.0
+    ready_timeout_s: float = Startup.ready_timeout
     end_timeout_s: float = 15.0
     guid_timeout_s: float = ProtocolConfig.guid_timeout_s
     takeoff_alt_m: float = ProtocolConfig.takeoff_min_alt_m
