@@ -174,6 +174,19 @@ class TelemetryTable:
         values = _ROW.unpack_from(self._buf, k * _ROW.size)
         return LocalPositionNed(self.sysids[k], self._compid[k], *values)
 
+    def ned_positions(self, ks: npt.NDArray[np.intp]) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """Rows ``ks``' last reported positions ``(K, 3)`` [m] NED (NaN where a
+        row has no report) and which rows are attached (their protocol reads
+        its position from here): ``position`` for many rows at once."""
+        ms = self._ms
+        owners = self.owners
+        kl = ks.tolist()
+        have = np.array([ms[k] != _NO_REPORT for k in kl], dtype=bool)
+        attached = np.array([owners[k] is not None for k in kl], dtype=bool)
+        ned = self.rows["ned"][ks, :3].astype(np.float64)
+        ned[~have] = math.nan
+        return ned, attached
+
     def boot_ms(self, k: int) -> int:
         """Row ``k``'s last report's ``time_boot_ms`` (0 before any)."""
         ms = self._ms[k]

@@ -28,6 +28,7 @@ from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.states import FINAL_PHASES, Phase
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.config import StationConfig, VehiclePlan
@@ -94,6 +95,10 @@ class Station:
     @property
     def control(self) -> ControlLoop:
         return self.core.control
+
+    @property
+    def table(self) -> TelemetryTable:
+        return self.core.table
 
     @property
     def plans(self) -> dict[int, VehiclePlan]:

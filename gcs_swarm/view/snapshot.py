@@ -33,6 +33,7 @@ from gcs_swarm.mavlink.states import Phase
 if TYPE_CHECKING:
     from gcs_swarm.control.loop import ControlLoop
     from gcs_swarm.control.params import LawConfig
+    from gcs_swarm.mavlink.telemetry_table import TelemetryTable
     from gcs_swarm.mavlink.vehicle import VehicleProtocol
     from gcs_swarm.report.record import LinkCounts
     from gcs_swarm.runtime.config import VehiclePlan
@@ -78,6 +79,8 @@ class StationState(Protocol):
     def started(self) -> bool: ...
     @property
     def ending(self) -> bool: ...
+    @property
+    def table(self) -> TelemetryTable: ...
 
 
 def scene_of(law: LawConfig, *, name: str = "") -> dict[str, Any]:
@@ -183,6 +186,8 @@ class SnapshotBuilder:
         self._modes: dict[int, tuple[object, str, bool]] = {}
         """Per vehicle: the HEARTBEAT last read, and its mode name and arming."""
         self.seq = 0
+        self._slot_ids: list[int] = []
+        self._slot_rows: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
 
     def frame(
         self,
@@ -198,9 +203,12 @@ class SnapshotBuilder:
         vps = [station.vehicles[s] for s in sorted(station.vehicles)]
         ids = [vp.sysid for vp in vps]
         n = len(vps)
-        # state_mission's position, p = (e, n, -d) + o_i (formation-law.md s1), in one go.
-        ned = np.array([_NO_XYZ if vp.position is None or vp.offset_m is None
-                        else vp.position[3:6] for vp in vps], dtype=np.float64)  # fmt: skip
+        # state_mission's position, p = (e, n, -d) + o_i (formation-law.md s1), in one go:
+        # a flying vehicle's from the telemetry table's columns, the others' one by one.
+        ned, attached = station.table.ned_positions(self._slots(station, ids))
+        for i in np.flatnonzero(~attached).tolist():
+            p = vps[i].position
+            ned[i] = _NO_XYZ if p is None else p[3:6]
         off = np.array([_NO_XYZ if vp.offset_m is None else vp.offset_m for vp in vps],
                        dtype=np.float64).reshape(n, 3)  # fmt: skip
         pos = np.empty((n, 3))
@@ -259,6 +267,12 @@ class SnapshotBuilder:
             "scene": self.scene,
             "events": events,
         }
+
+    def _slots(self, station: StationState, ids: list[int]) -> npt.NDArray[np.intp]:
+        """The table rows of ``ids`` (kept while the vehicles are the same)."""
+        if self._slot_ids != ids:
+            self._slot_ids, self._slot_rows = list(ids), station.table.slots(ids)
+        return self._slot_rows
 
     def _mode_columns(self, vps: list[VehicleProtocol]) -> tuple[list[str], list[bool]]:
         """Each vehicle's mode name and arming, read again only when a new

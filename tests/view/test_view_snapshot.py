@@ -27,6 +27,12 @@ def test_frames_show_the_flight_as_the_core_sees_it() -> None:
     assert first["stage"] == "starting" and first["behaviour"] is None
     assert first["vehicles"]["sysid"] == [1, 2, 3, 4, 5, 6]
     sky.ready()
+    # Readied, not yet flying: the positions come from each protocol, not the
+    # telemetry table (no row is attached yet).
+    ready = _frame(b, sky)["vehicles"]
+    assert not any(sky.core.table.ned_positions(sky.core.table.slots(ready["sysid"]))[1])
+    want = np.array([sky.core.vehicles[s].state_mission()[0] for s in ready["sysid"]])
+    np.testing.assert_allclose(np.array(ready["pos"]), want, atol=5e-4)
     sky.start()
     sky.advance(3.0)  # past the first telemetry-rate window (2 s)
     f = _frame(b, sky)
@@ -34,7 +40,9 @@ def test_frames_show_the_flight_as_the_core_sees_it() -> None:
     v = f["vehicles"]
     assert v["in_formation"] == [True] * 6 and v["phase"] == ["flying"] * 6
     assert v["mode"] == ["GUIDED"] * 6 and v["armed"] == [True] * 6
-    # Positions: the core's own (state_mission), to the frame's 1 mm rounding.
+    # Positions: the core's own (state_mission), to the frame's 1 mm rounding;
+    # every row is now read from the telemetry table's columns.
+    assert all(sky.core.table.ned_positions(sky.core.table.slots(v["sysid"]))[1])
     want = np.array([sky.core.vehicles[s].state_mission()[0] for s in v["sysid"]])
     np.testing.assert_allclose(np.array(v["pos"]), want, atol=5e-4)
     last = sky.core.control.last
