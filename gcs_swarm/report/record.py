@@ -178,9 +178,6 @@ class FlightRecorder:
         self._leader: list[F64] = []
         self._beh: list[str] = []
         self._ep: list[int] = []
-        self.on_step: Callable[[], None] | None = None
-        """Called at each ``step`` (the operator view builds its next frame
-        right after the control step, when the loop is idle: docs/operator-view.md)."""
         self._notes = None
         if sink is not None:
             from gcs_swarm.report.notes import NoteWriter
@@ -222,8 +219,6 @@ class FlightRecorder:
         self._ep.append(int(episode))
         if self._notes is not None:
             self._notes.step(t, leader, behaviour, int(episode), ids, cor)
-        if self.on_step is not None:
-            self.on_step()
 
     def set_accel(self, sysid: int, accel_mps2: npt.ArrayLike) -> None:
         """The setpoint sent to ``sysid`` at the last step (a replay learns it

@@ -75,6 +75,10 @@ class Station:
         if config.delay_compensation and not config.lockstep:
             self.delay = DelayCompensator(config.predict_accel_max_mps2)
         self.core = SwarmCore(config, recorder=recorder, delay=self.delay)
+        self.on_step: Callable[[], None] | None = None
+        """Called after each control step, once its setpoints are written (the
+        operator view builds its next frame then, while the loop waits for the
+        next round of telemetry: docs/operator-view.md)."""
         self._status = StatusLine()
         self._links: dict[str, Link] = {}
         self._timer: tuple[float, asyncio.Handle] | None = None
@@ -336,6 +340,8 @@ class Station:
             await self._step.wait()
             self._step.clear()
             self.core.control_step(self.now(), self._write)
+            if self.on_step is not None:
+                self.on_step()
             for job in self.core.lookahead:
                 self._tasks.append(self._tg.create_task(self._lookahead(job)))
             self.core.lookahead.clear()

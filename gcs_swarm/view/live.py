@@ -46,8 +46,8 @@ def live_view(
     send_buffer: int | None = 2**16,
 ) -> View:
     """The view of ``mission``'s run on ``host:port`` (0: any free port),
-    frames at ``rate_hz`` (built after the station's steps when the run has a
-    flight recorder, i.e. a run folder: ``ViewServer.step_done``); ``on_url``
+    frames at ``rate_hz`` (built just after the station's steps:
+    ``Station.on_step`` -> ``ViewServer.step_done``); ``on_url``
     gets the page's address with its token as soon as it listens, ``on_server``
     the server (tests read its counts);
     ``write_limit``, ``send_buffer`` [bytes]: ``ViewServer``'s."""
@@ -85,8 +85,7 @@ def live_view(
                               on_command=command, hello=hello,
                               write_limit=write_limit,
                               send_buffer=send_buffer) as server:  # fmt: skip
-            if recorder is not None:
-                recorder.on_step = server.step_done
+            station.on_step = server.step_done
             if on_url is not None:
                 on_url(server.url)
             if on_server is not None:

@@ -161,7 +161,7 @@ class ViewServer:
         return f"http://{host}:{self.port}/?token={self.token}"
 
     def step_done(self) -> None:
-        """The station has just stepped (its flight recorder's ``on_step``):
+        """The station has just stepped (``Station.on_step``):
         a frame that is due is built once this step's setpoints are out,
         while the loop waits for the next round of telemetry, rather than
         whenever its timer fires (then it could delay a report's answer by
