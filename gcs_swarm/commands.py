@@ -18,7 +18,6 @@ import asyncio
 import os
 import signal
 import sys
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gcs_swarm.errors import MissionError
@@ -163,19 +162,9 @@ def view_command(
     """``gcs-swarm view RUN_FOLDER_OR_TLOG [--mission FILE] [--listen [HOST:]PORT]``:
     the run's flight record rebuilt from its ``.tlog`` and mission (as
     ``report`` does), replayed in the operator view until Ctrl-C."""
-    from gcs_swarm.errors import ReportError
-    from gcs_swarm.report.artefacts import MISSION_NAME, TLOG_NAME, report_from_tlog
+    from gcs_swarm.report.artefacts import flown_run, report_from_tlog
 
-    where = Path(path)
-    tlog = where / TLOG_NAME if where.is_dir() else where
-    mission_file = Path(mission_path) if mission_path else tlog.parent / MISSION_NAME
-    if not tlog.is_file():
-        raise ReportError(f"{tlog}: no such telemetry log")
-    if not mission_file.is_file():
-        raise ReportError(
-            f"{mission_file}: no mission file; give the one that was flown with --mission FILE"
-        )
-    mission = load_mission(mission_file)
+    tlog, mission = flown_run(path, mission_path)
     _, record = report_from_tlog(tlog, mission)
     return serve_replay(record, mission, address)
 

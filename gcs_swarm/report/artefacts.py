@@ -48,6 +48,7 @@ __all__ = [
     "VEHICLE_PARAMS_NAME",
     "RunFolder",
     "create_run_folder",
+    "flown_run",
     "from_sim_result",
     "rebuild_report",
     "report_from_tlog",
@@ -221,6 +222,27 @@ def _paths(path: Path, mission_path: str | None) -> tuple[Path, Path, Path, Path
     return path, mission, path.with_name(path.stem + "-summary.json"), path.with_suffix(".png")
 
 
+def flown_run(
+    path: str | os.PathLike[str], mission_path: str | None = None
+) -> tuple[Path, Mission]:
+    """The ``.tlog`` and the mission of the run logged at ``path`` (a run
+    folder or a ``.tlog``; the mission beside it unless ``mission_path``), as
+    ``rebuild_report`` and ``gcs-swarm view`` read them. ``ReportError`` when
+    a file is missing (``MissionError`` for a bad mission file)."""
+    tlog, mission_file, _, _ = _paths(Path(path), mission_path)
+    return tlog, _flown_mission(tlog, mission_file)
+
+
+def _flown_mission(tlog: Path, mission_file: Path) -> Mission:
+    if not tlog.is_file():
+        raise ReportError(f"{tlog}: no such telemetry log")
+    if not mission_file.is_file():
+        raise ReportError(
+            f"{mission_file}: no mission file; give the one that was flown with --mission FILE"
+        )
+    return load_mission(mission_file)
+
+
 def _free_pair(summary: Path, picture: Path) -> tuple[Path, Path]:
     """``summary``, ``picture`` if neither exists, else both with the first
     suffix ``-1``, ``-2``, ... that names two free files."""
@@ -246,14 +268,7 @@ def rebuild_report(
     tlog, mission_file, summary_path, picture_path = _paths(Path(path), mission_path)
     if not force:
         summary_path, picture_path = _free_pair(summary_path, picture_path)
-    if not tlog.is_file():
-        raise ReportError(f"{tlog}: no such telemetry log")
-    if not mission_file.is_file():
-        raise ReportError(
-            f"{mission_file}: no mission file; give the one that was flown with --mission FILE"
-        )
-    mission = load_mission(mission_file)
-    summary, rec = report_from_tlog(tlog, mission)
+    summary, rec = report_from_tlog(tlog, _flown_mission(tlog, mission_file))
     write_report(rec, summary_path, picture_path, extra={"log": summary["log"]})
     return summary, summary_path, picture_path
 
