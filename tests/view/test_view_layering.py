@@ -10,26 +10,10 @@ from pathlib import Path
 import gcs_swarm.view
 from gcs_swarm.runtime.ending import END_ACTIONS
 from gcs_swarm.runtime.run import END_MODES
+from tests.mavlink.test_layering import _run_time_imports
 
 _VIEW = Path(gcs_swarm.view.__file__).parent
 _IO = {"asyncio", "socket", "selectors", "threading", "time", "subprocess", "websockets", "http"}
-
-
-def _run_time_imports(tree: ast.Module) -> set[str]:
-    out: set[str] = set()
-
-    def visit(node: ast.AST) -> None:
-        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
-            return
-        if isinstance(node, ast.Import):
-            out.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            out.add(node.module)
-        for child in ast.iter_child_nodes(node):
-            visit(child)
-
-    visit(tree)
-    return out
 
 
 def test_the_snapshot_builder_imports_no_io_and_not_the_runtime() -> None:
