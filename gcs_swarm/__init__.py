@@ -16,11 +16,16 @@ The public API is what this package exports (``__all__``):
 - ``simulate(mission)``: the law alone, no MAVLink (``MissionSimResult``);
 - the exception tree, rooted at ``SwarmError`` (``gcs_swarm.errors``).
 
-Layers (imports flow one way, ``runtime -> report -> mavlink -> control``):
+Layers (imports flow one way, ``view -> runtime -> swarm -> report -> mavlink ->
+mission -> control``; docs/architecture.md):
 
 - ``gcs_swarm.control``: the formation law and the control step, pure numpy;
-- ``gcs_swarm.mavlink``: codec and per-vehicle protocol state, no I/O;
+- ``gcs_swarm.mavlink``: codec, per-vehicle protocol state and the flying
+  vehicles' telemetry table, no I/O;
+- ``gcs_swarm.swarm``: the station's core (membership, events, the step) and
+  each link's policy, no I/O;
 - ``gcs_swarm.runtime``: asyncio transports, the station, logging;
+- ``gcs_swarm.view``: the operator view in a browser (frames, page, server);
 - ``gcs_swarm.report``: flight records, logs, summaries and pictures;
 - ``gcs_swarm.mission``: YAML mission files into frozen dataclasses;
 - ``gcs_swarm.cli``: the ``gcs-swarm`` command line.
