@@ -117,6 +117,8 @@ def as_states(
         )
     if len(set(key)) != n:
         raise ValueError(f"vehicle ids repeat: {key}")
+    if np.isfinite(p).all() and np.isfinite(v).all() and np.isfinite(q).all():
+        return key, p, v, q
     bad = ~(np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1) & np.isfinite(q))
     if bad.any():
         raise ValueError(
@@ -205,13 +207,14 @@ class SwarmController:
         if (mode.behaviour == "avoidance" or event == "end") and key:
             # Eq. 30: the leader is the centroid; Eq. 13 restarts from it afterwards.
             self._leader = self._law.restart(self._leader, p.mean(axis=0), v.mean(axis=0))
-        accel = law_accelerations(self._cfg, mode, p, v, q, self.leader_pos_m, self.obstacles)
+        lead = self.leader_pos_m
+        accel = law_accelerations(self._cfg, mode, p, v, q, lead, self.obstacles)
         return ControlOutput(
             t=t,
             ids=key,
             accel_mps2=accel,
             behaviour=mode.behaviour,
-            leader_pos_m=self.leader_pos_m,
+            leader_pos_m=lead,
             leader_vel_mps=self.leader_vel_mps,
             episode=mode.episode,
             event=event,

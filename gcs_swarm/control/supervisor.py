@@ -124,6 +124,9 @@ class Supervisor:
         self._pending: list[LookaheadJob] = []
         self._active = config.avoidance.method != "none" and self._obs.count > 0
         self._passed = np.zeros(self._obs.count, dtype=bool)
+        self._idle: Mode | None = None
+        """The mode of the last step while avoidance is off (``_active`` False):
+        it depends only on the ids then, so a step with the same ids reuses it."""
 
     @property
     def obstacles(self) -> Ellipsoids:
@@ -170,7 +173,10 @@ class Supervisor:
         self._sync_vehicles(key)
         event: str | None = None
         if not self._active:
-            return self._mode(key, None, np.zeros((n, k), dtype=bool)), None
+            idle = self._idle
+            if idle is None or idle.ids != key:
+                idle = self._idle = self._mode(key, None, np.zeros((n, k), dtype=bool))
+            return idle, None
         r = rho(pos_m, self._obs) if n else np.zeros((0, k))
         inside = r <= av.r0
         rho_k = r.min(axis=0) if n else np.full(k, math.inf)  # (K,) closest vehicle

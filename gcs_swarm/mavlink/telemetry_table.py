@@ -68,6 +68,11 @@ vx, vy, vz [m/s] NED (28 bytes)."""
 _ROW_DTYPE = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
 _LPN_ID = 32
 """LOCAL_POSITION_NED's message id."""
+_STATE_COLS = np.array([1, 0, 2, 4, 3, 5], dtype=np.intp)
+"""The NED row's columns (x, y, z, vx, vy, vz) in mission-frame order:
+north, east, down -> east, north, up."""
+_STATE_SIGN = np.array([1.0, 1.0, -1.0, 1.0, 1.0, -1.0])
+"""Down -> up (a sign flip: exact)."""
 _NO_REPORT = -(1 << 62)
 """``time_boot_ms`` of a row with no report yet: every report is newer."""
 
@@ -100,6 +105,10 @@ class TelemetryTable:
         self.offset_m = np.zeros((n, 3))
         self.bias_ned = np.zeros((n, 3))
         self.accel_ned = np.zeros((n, 3))
+        self._adjust = np.zeros((n, 6))
+        """What ``mission_states`` adds to each row's reordered, sign-flipped
+        report: the offset [m] and minus the bias [m/s] in the mission frame
+        (kept with ``offset_m`` and ``bias_ned``)."""
         self.owners: list[VehicleProtocol | None] = [None] * n
         self.seen_s = [-math.inf] * n
         """When each row's last report was handled [s] (the stale watchdog's clock)."""
@@ -137,7 +146,7 @@ class TelemetryTable:
         self.seen_s[k] = vp.position_at
         self._observers[k] = obs = vp.velocity_bias
         self._corr[k] = c = obs.correction
-        self.bias_ned[k] = c
+        self._set_bias(k, c)
         self.accel_ned[k] = vp.last_accel_ned
         self._rate_t0[k], self._rate_n[k] = None, 0
         self.owners[k] = vp
@@ -160,11 +169,21 @@ class TelemetryTable:
         """Row ``k``'s EKF origin in the mission frame [m] (None: not known)."""
         if offset_m is None:
             self.offset_m[k] = math.nan
+            self._adjust[k, :3] = math.nan
             self._incomplete.add(k)
         else:
             self.offset_m[k] = offset_m
+            self._adjust[k, :3] = self.offset_m[k]
             if self._ms[k] != _NO_REPORT:
                 self._incomplete.discard(k)
+
+    def _set_bias(self, k: int, c: tuple[float, float, float]) -> None:
+        """Row ``k``'s velocity-bias correction [m/s] NED (``bias_ned``)."""
+        self.bias_ned[k] = c
+        # mission_states' vel = (v_e - b_e, v_n - b_n, -v_d + b_d): minus the bias
+        # reordered, with down's sign flipped twice.
+        adj = self._adjust
+        adj[k, 3], adj[k, 4], adj[k, 5] = -c[1], -c[0], c[2]
 
     # --------------------------------------------------------------- rows
     def position(self, k: int) -> LocalPositionNed | None:
@@ -231,7 +250,7 @@ class TelemetryTable:
         c = obs.correction
         if c is not self._corr[k]:  # a new estimate (every window / 20) or correct off
             self._corr[k] = c
-            self.bias_ned[k] = c
+            self._set_bias(k, c)
         # VehicleProtocol._count_report, column-wise: the window's report count.
         t0 = self._rate_t0[k]
         if t0 is None or ms < t0:
@@ -283,18 +302,13 @@ class TelemetryTable:
             for k in ks.tolist():
                 if k in self._incomplete:
                     raise RuntimeError(f"vehicle {self.sysids[k]} has no position or origin yet")
-        ned = self.rows["ned"][ks].astype(np.float64)
-        offset = self.offset_m[ks]
-        bias = self.bias_ned[ks]
-        pos = np.empty((n, 3))
-        pos[:, 0] = ned[:, 1] + offset[:, 0]
-        pos[:, 1] = ned[:, 0] + offset[:, 1]
-        pos[:, 2] = -ned[:, 2] + offset[:, 2]
-        vel = np.empty((n, 3))
-        vel[:, 0] = ned[:, 4] - bias[:, 1]
-        vel[:, 1] = ned[:, 3] - bias[:, 0]
-        vel[:, 2] = bias[:, 2] - ned[:, 5]
-        return pos, vel
+        # One array op each for all six columns. Bit for bit the column-wise
+        # reading: -d + o is (d * -1) + o; b_d - v_d is (v_d * -1) + b_d (a sum
+        # commutes, signed zeros included); v_e - b_e is v_e + (-b_e).
+        state = self.rows["ned"][ks[:, None], _STATE_COLS].astype(np.float64)
+        state *= _STATE_SIGN
+        state += self._adjust[ks]
+        return state[:, :3], state[:, 3:]
 
     def answer(self, ks: npt.NDArray[np.intp], accel_mps2: FloatArray) -> FloatArray:
         """The NED accelerations [m/s^2] ``(K, 3)`` sent to rows ``ks`` for
@@ -317,16 +331,15 @@ def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.b
     norm is above ``ACCEL_CEILING_MPS2`` is scaled down to it (direction kept),
     a non-finite row, or one whose norm overflows, becomes zero. Also returns
     which rows were changed. The input is not modified."""
-    a = np.array(accel_mps2, dtype=np.float64)  # a copy: clipped in place
+    a = np.asarray(accel_mps2, dtype=np.float64)
     norm = np.sqrt(np.einsum("ij,ij->i", a, a))
     clip = ~(norm <= ACCEL_CEILING_MPS2)  # True for NaN too
     if clip.any():
+        a = a.copy()  # clipped in place
         finite = np.isfinite(norm)
         scale = clip & finite
         a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
         a[~finite] = 0.0
-    ned = np.empty_like(a)
-    ned[:, 0] = a[:, 1]
-    ned[:, 1] = a[:, 0]
-    ned[:, 2] = -a[:, 2]
+    # (a_y, a_x, -a_z): a new array; the sign flip is exact (-a is a * -1).
+    ned: FloatArray = a[:, _STATE_COLS[:3]] * _STATE_SIGN[:3]
     return ned, clip

@@ -81,10 +81,11 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         except (SwarmError, ArithmeticError, ValueError) as err:
             core.abort(f"t={t:.2f} s: the law failed in flight: {err}")
             return
-        lead = (out.leader_pos_m, out.leader_vel_mps)
-        if not all((np.abs(x) <= LEADER_BOUND).all() for x in lead):  # NaN fails too
+        lead = (out.leader_pos_m.tolist(), out.leader_vel_mps.tolist())
+        b = LEADER_BOUND
+        if not all(-b <= x <= b for x in lead[0] + lead[1]):  # NaN fails too
             core.abort(f"t={t:.2f} s: the virtual leader's state is not finite (position "
-                       f"{lead[0].tolist()} m, velocity {lead[1].tolist()} m/s)")  # fmt: skip
+                       f"{lead[0]} m, velocity {lead[1]} m/s)")  # fmt: skip
             return
         if out.event is not None:
             what = "starts" if out.event == "start" else "ends: formation resumes"
@@ -95,8 +96,11 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
             core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
                                out.episode, accel_mps2=accel, sent=fresh.keys(),
                                correction_mps2=cor)  # fmt: skip
-        rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-        _answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
+        if len(fresh) == len(ids) and all(s in fresh for s in ids):  # every one: no copies
+            _answer(core, ids, ks, accel, now, t, vel, write)
+        else:
+            rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
+            _answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
         core.control.account(ids, pos, out, accel, report)
         job = core.control.pending_lookahead()
         if job is not None:
