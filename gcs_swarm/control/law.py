@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import eq1_acceleration, formation_force, repulsion_force
+from gcs_swarm.control.formation_rows import SMALL_N, formation_accelerations
 from gcs_swarm.control.leader import LeaderLaw, LeaderState
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.obstacles import Ellipsoids
@@ -55,6 +56,8 @@ def law_accelerations(
     """
     g, rd = config.gains, config.readings
     if mode.behaviour == "formation":
+        if pos_m.shape[0] < SMALL_N:  # the same equations in floats (formation_rows.py)
+            return formation_accelerations(pos_m, vel_mps, charges, leader_pos_m, g, rd)
         f = formation_force(pos_m, charges, leader_pos_m, g, rd)
     else:
         assert mode.targets_m is not None
