@@ -73,6 +73,8 @@ _STATE_COLS = np.array([1, 0, 2, 4, 3, 5], dtype=np.intp)
 north, east, down -> east, north, up."""
 _STATE_SIGN = np.array([1.0, 1.0, -1.0, 1.0, 1.0, -1.0])
 """Down -> up (a sign flip: exact)."""
+_NED_COLS, _NED_SIGN = _STATE_COLS[:3].copy(), _STATE_SIGN[:3].copy()
+"""The same for an acceleration: mission frame -> NED (``clip_accel_ned``)."""
 _NO_REPORT = -(1 << 62)
 """``time_boot_ms`` of a row with no report yet: every report is newer."""
 
@@ -86,9 +88,9 @@ class TelemetryTable:
     Columns (row k is vehicle ``sysids[k]``):
     ``rows["time_boot_ms"]`` (N,) and ``rows["ned"]`` (N, 6) the last report
     taken (float32 as on the wire: x, y, z [m], vx, vy, vz [m/s] NED);
-    ``arrival_s`` (N,) when it arrived [s]; ``fresh`` (N,) taken since the
-    last step; ``offset_m`` (N, 3) the vehicle's EKF origin in the mission
-    frame; ``bias_ned`` (N, 3) the velocity-bias correction [m/s] NED;
+    ``arrival_s`` (N,) when it arrived [s]; ``fresh`` (N flags, a list: set
+    per report) taken since the last step; ``offset_m`` (N, 3) the vehicle's
+    EKF origin in the mission frame; ``bias_ned`` (N, 3) the velocity-bias correction [m/s] NED;
     ``accel_ned`` (N, 3) the last acceleration setpoint [m/s^2] NED.
     ``owners[k]`` is the attached (FLYING) protocol, else None: only
     attached rows take reports.
@@ -101,7 +103,9 @@ class TelemetryTable:
         self._buf = bytearray(n * _ROW.size)
         self.rows: npt.NDArray[Any] = np.frombuffer(self._buf, dtype=_ROW_DTYPE)
         self.arrival_s = np.full(n, -math.inf)
-        self.fresh = np.zeros(n, dtype=bool)
+        self.fresh = [False] * n
+        self._fresh_rows: list[int] = []
+        """The rows taken since the last ``take_fresh``, in the order taken."""
         self.offset_m = np.zeros((n, 3))
         self.bias_ned = np.zeros((n, 3))
         self.accel_ned = np.zeros((n, 3))
@@ -163,6 +167,7 @@ class TelemetryTable:
         self._incomplete.discard(k)
         if self.fresh[k]:
             self.fresh[k] = False
+            self._fresh_rows.remove(k)
             self.fresh_count -= 1
 
     def set_offset(self, k: int, offset_m: FloatArray | None) -> None:
@@ -267,6 +272,7 @@ class TelemetryTable:
             self._incomplete.discard(k)  # the first report of a row attached without one
         if not self.fresh[k]:
             self.fresh[k] = True
+            self._fresh_rows.append(k)
             self.fresh_count += 1
         self.taken += 1
         if seq >= 0 and self.on_inbound is not None:
@@ -277,9 +283,13 @@ class TelemetryTable:
         """The fresh rows as {sysid: time_boot_ms}, and none fresh after."""
         if not self.fresh_count:
             return {}
-        sysids, ms = self.sysids, self._ms
-        fresh = {sysids[k]: ms[k] for k in np.flatnonzero(self.fresh).tolist()}
-        self.fresh[:] = False
+        sysids, ms, flags = self.sysids, self._ms, self.fresh
+        rows = self._fresh_rows
+        rows.sort()  # in row order, as the column was read
+        fresh = {sysids[k]: ms[k] for k in rows}
+        for k in rows:
+            flags[k] = False
+        rows.clear()
         self.fresh_count = 0
         return fresh
 
@@ -305,7 +315,7 @@ class TelemetryTable:
         # One array op each for all six columns. Bit for bit the column-wise
         # reading: -d + o is (d * -1) + o; b_d - v_d is (v_d * -1) + b_d (a sum
         # commutes, signed zeros included); v_e - b_e is v_e + (-b_e).
-        state = self.rows["ned"][ks[:, None], _STATE_COLS].astype(np.float64)
+        state = self.rows["ned"].take(ks, axis=0).take(_STATE_COLS, axis=1).astype(np.float64)
         state *= _STATE_SIGN
         state += self._adjust[ks]
         return state[:, :3], state[:, 3:]
@@ -341,5 +351,5 @@ def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.b
         a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
         a[~finite] = 0.0
     # (a_y, a_x, -a_z): a new array; the sign flip is exact (-a is a * -1).
-    ned: FloatArray = a[:, _STATE_COLS[:3]] * _STATE_SIGN[:3]
+    ned: FloatArray = np.multiply(a.take(_NED_COLS, axis=1), _NED_SIGN)
     return ned, clip
