@@ -138,6 +138,11 @@ class EmulatorConfig:
     (LOCAL_POSITION_NED), as ArduCopter SITL's EKF reports hovering still
     (docs/velocity-bias.md); None: the preset's (``ARDUPILOT_VEL_BIAS_NED_M_S``
     for ``ardupilot``, none for ``ideal``).
+    ``vel_bias_flip_s``: the vehicle's boot time [s] at which that bias starts
+    to reverse, exponentially with ``SIM_VBIAS_TAU`` (14 s), as ArduCopter
+    4.5.6 SITL's does on every instance (docs/velocity-bias.md; 0: never);
+    None: the preset's (``ARDUPILOT_VBIAS_FLIP_S`` for ``ardupilot``, never for
+    ``ideal``).
     ``streams``: message id -> Hz streamed from the start (default: none but
     HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
     vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
@@ -166,6 +171,7 @@ class EmulatorConfig:
     noise_pos_m: float = 0.0
     noise_vel_m_s: float = 0.0
     vel_bias_ned_m_s: tuple[float, float, float] | None = None
+    vel_bias_flip_s: float | None = None
     seed: int = 0
     uplink: Impairment = field(default_factory=Impairment)
     downlink: Impairment = field(default_factory=Impairment)
@@ -178,6 +184,12 @@ class EmulatorConfig:
     #: windows, six vehicles, docs/velocity-bias.md); it changed sign once in
     #: a 300 s flight, so it is a typical size, not a constant of SITL.
     ARDUPILOT_VEL_BIAS_NED_M_S = (-0.015, 0.013, 0.0)
+    #: When that bias starts to reverse [s after boot]: on ArduCopter 4.5.6
+    #: SITL at 304 s of ``time_boot_ms`` on every instance, in flight and
+    #: disarmed on the ground, whenever the instance was started (2026-12-03,
+    #: docs/velocity-bias.md); it then decays towards its opposite with a
+    #: time constant of about 14 s (``SIM_VBIAS_TAU``).
+    ARDUPILOT_VBIAS_FLIP_S = 304.0
 
     def __post_init__(self) -> None:
         if self.signing_key is not None:
@@ -199,6 +211,11 @@ class EmulatorConfig:
                 and all(math.isfinite(c) and abs(c) <= 10.0 for c in self.vel_bias_ned_m_s),
                 f"vel_bias_ned_m_s: expected 3 finite m/s within 10, got {self.vel_bias_ned_m_s}",
             )
+        if self.vel_bias_flip_s is not None:
+            _check(
+                math.isfinite(self.vel_bias_flip_s) and self.vel_bias_flip_s >= 0.0,
+                f"vel_bias_flip_s: expected a finite s >= 0, got {self.vel_bias_flip_s}",
+            )
         if self.accel_tau_s is not None:
             _check(self.accel_tau_s >= 0.0, "accel_tau_s: expected >= 0")
         _check(0 <= self.base_port <= 65535, f"base_port: expected 0..65535, got {self.base_port}")
@@ -217,6 +234,14 @@ class EmulatorConfig:
         if self.vel_bias_ned_m_s is not None:
             return self.vel_bias_ned_m_s
         return self.ARDUPILOT_VEL_BIAS_NED_M_S if self.dynamics == "ardupilot" else (0.0, 0.0, 0.0)
+
+    @property
+    def vel_bias_flip(self) -> float:
+        """Boot time [s] at which the reported velocity's bias starts to reverse
+        (0: never): ``vel_bias_flip_s``, else the ``ardupilot`` preset's SITL figure."""
+        if self.vel_bias_flip_s is not None:
+            return self.vel_bias_flip_s
+        return self.ARDUPILOT_VBIAS_FLIP_S if self.dynamics == "ardupilot" else 0.0
 
     @property
     def tau_s(self) -> float:

@@ -302,9 +302,12 @@ class EmulatorCore:
             prm["SIM_NOISE_VEL"],
             iv if iv is not None else np.inf,
             (prm["SIM_VBIAS_N"], prm["SIM_VBIAS_E"], prm["SIM_VBIAS_D"]),
+            prm["SIM_VBIAS_FLIP"],
+            prm["SIM_VBIAS_TAU"],
         )
         if dyn != v.row_dyn:
-            f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row] = dyn
+            (f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row],
+             f.vbias_flip[row], f.vbias_tau[row]) = dyn  # fmt: skip
             v.row_dyn = dyn
         if iv is None:
             f.lpn_next[row] = np.inf

@@ -29,7 +29,7 @@ _V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp", "vbias")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
-    "jerk_xy", "jerk_z", "lean", "drag",
+    "jerk_xy", "jerk_z", "lean", "drag", "vbias_flip", "vbias_tau",
 )  # fmt: skip
 _INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
 _I1 = ("seq", "sysid", "compid")
@@ -63,7 +63,9 @@ class Fleet:
     lpn_next: NDArray[np.float64]
     noise_pos: NDArray[np.float64]
     noise_vel: NDArray[np.float64]
-    vbias: NDArray[np.float64]  # constant bias of the reported velocity (NED m/s)
+    vbias: NDArray[np.float64]  # bias of the reported velocity before its reversal (NED m/s)
+    vbias_flip: NDArray[np.float64]  # boot time [s] the bias starts to reverse (0: never)
+    vbias_tau: NDArray[np.float64]  # time constant [s] of that reversal
     seq: NDArray[np.int64]
     sysid: NDArray[np.int64]
     compid: NDArray[np.int64]

@@ -69,6 +69,12 @@ PARAM_TABLE: dict[str, tuple[float, int, str]] = {
     "SIM_VBIAS_N": (0.0, _R32, "m/s, constant bias of the reported velocity, north"),
     "SIM_VBIAS_E": (0.0, _R32, "m/s, constant bias of the reported velocity, east"),
     "SIM_VBIAS_D": (0.0, _R32, "m/s, constant bias of the reported velocity, down"),
+    "SIM_VBIAS_FLIP": (
+        0.0,
+        _R32,
+        "s after boot when the velocity bias starts to reverse (0: never; ArduCopter SITL: 304)",
+    ),
+    "SIM_VBIAS_TAU": (14.0, _R32, "s, time constant of that reversal (ArduCopter SITL: 14)"),
     "SIM_LPN_MAX_HZ": (
         0.0,
         _R32,

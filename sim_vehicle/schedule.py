@@ -23,7 +23,23 @@ from sim_vehicle.impairments import EPS_S
 from sim_vehicle.small import few
 from sim_vehicle.telemetry import Kin
 
-__all__ = ["due_polls", "due_reports", "kin", "kins", "report_frames"]
+__all__ = ["bias_factor", "due_polls", "due_reports", "kin", "kins", "report_frames"]
+
+
+def bias_factor(
+    boot_s: NDArray[np.float64], flip_s: NDArray[np.float64], tau_s: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """How much of each row's velocity bias is reported at its boot time ``boot_s`` [s]
+    (docs/emulator.md, "The reported velocity", Eq. T1): 1 until ``flip_s`` (or
+    always, where ``flip_s`` is 0), then ``2 exp(-(t - flip) / tau) - 1``, from
+    +1 towards -1: ArduCopter 4.5.6 SITL's EKF velocity bias reverses so, at
+    304 s of boot time on every instance, with ``tau`` about 14 s."""
+    after = (flip_s > 0.0) & (boot_s > flip_s)
+    out = np.ones_like(boot_s)
+    if after.any():
+        dt = boot_s[after] - flip_s[after]
+        out[after] = 2.0 * np.exp(-dt / np.maximum(tau_s[after], 1e-9)) - 1.0
+    return out
 
 
 def kins(fleet: Fleet) -> list[Kin]:
@@ -92,8 +108,9 @@ def report_frames(
     """The LOCAL_POSITION_NED frame of each of ``rows`` at ``now`` (bumps their seq).
 
     Reported: position plus ``noise_pos`` x N(0, 1), velocity plus the row's bias
-    plus ``noise_vel`` x N(0, 1) (each row's ``noise_rngs[row]``, six draws when
-    noisy); ``time_boot_ms`` rounded half to even. ``pack(row, message)``: sign and
+    (times ``bias_factor`` at the row's boot time, Eq. T1) plus ``noise_vel`` x
+    N(0, 1) (each row's ``noise_rngs[row]``, six draws when noisy);
+    ``time_boot_ms`` rounded half to even. ``pack(row, message)``: sign and
     pack one message (signed links); None: the unsigned encoders of ``codec``."""
     f = fleet
     if few(len(rows)) and pack is None:
@@ -105,7 +122,11 @@ def report_frames(
             if frames is not None:
                 return frames
     t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)
-    pos, vel = f.pos[rows], f.vel[rows] + f.vbias[rows]  # a copy: the reported velocity
+    vb = f.vbias[rows]
+    flip = f.vbias_flip[rows]
+    if flip.any():
+        vb = vb * bias_factor(now - f.boot[rows], flip, f.vbias_tau[rows])[:, None]
+    pos, vel = f.pos[rows], f.vel[rows] + vb  # a copy: the reported velocity
     noisy = (f.noise_pos[rows] > 0) | (f.noise_vel[rows] > 0)
     if noisy.any():
         pos = pos.copy()

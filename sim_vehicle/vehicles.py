@@ -86,8 +86,10 @@ class HostedVehicle:
     row_deadline: float | None = None
     row_holding: bool | None = None
     row_target: ControlTarget | None = None
-    # noise_pos, noise_vel, lpn_interval, velocity bias (N, E, D)
-    row_dyn: tuple[float, float, float, tuple[float, float, float]] | None = field(default=None)
+    # noise_pos, noise_vel, lpn_interval, velocity bias (N, E, D), its reversal, time constant
+    row_dyn: tuple[float, float, float, tuple[float, float, float], float, float] | None = field(
+        default=None
+    )
 
 
 def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopilot:
@@ -102,12 +104,15 @@ def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopil
         "SIM_VBIAS_N": cfg.vel_bias[0],
         "SIM_VBIAS_E": cfg.vel_bias[1],
         "SIM_VBIAS_D": cfg.vel_bias[2],
+        "SIM_VBIAS_FLIP": cfg.vel_bias_flip,
     }
     px4 = spec.autopilot == "px4"
     if px4:
         overrides.update(PX4_OVERRIDES)  # its measured lag, no shaping, no end of boot
         if cfg.vel_bias_ned_m_s is None:  # the preset's bias is ArduCopter SITL's
             overrides.update({"SIM_VBIAS_N": 0.0, "SIM_VBIAS_E": 0.0, "SIM_VBIAS_D": 0.0})
+        if cfg.vel_bias_flip_s is None:
+            overrides["SIM_VBIAS_FLIP"] = 0.0
         if cfg.accel_tau_s is not None or cfg.dynamics == "ideal":
             overrides["SIM_ACC_TAU"] = cfg.tau_s
         if cfg.accel_shaping is not None:

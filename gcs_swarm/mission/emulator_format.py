@@ -99,6 +99,13 @@ EMULATOR = Obj(
             "for ardupilot-like, none for ideal",
         ),
         Key(
+            "velocity_bias_flip",
+            Num(lo=0.0, hi=1e6, nullable=True),
+            None,
+            "boot time [s] at which that bias starts to reverse (tau 14 s); 0: never; "
+            "absent: ArduCopter SITL's 304 s for ardupilot-like, never for ideal",
+        ),
+        Key(
             "ground",
             Num(lo=-POSITION_LIMIT_M, hi=POSITION_LIMIT_M),
             _EMU.ground,

@@ -260,7 +260,10 @@ class Emulator:
     standard deviations of seeded noise on LOCAL_POSITION_NED;
     velocity_bias_ned [m/s] a constant added to every reported velocity
     (``None``: the preset's, ArduCopter SITL's figure for ardupilot-like,
-    none for ideal; docs/velocity-bias.md); spawn:
+    none for ideal; docs/velocity-bias.md); velocity_bias_flip [s] the
+    vehicles' boot time at which that bias starts to reverse (0: never;
+    ``None``: the preset's, 304 s as on ArduCopter SITL for ardupilot-like);
+    spawn:
     ``ground`` (landed at home, full start-up) or ``air`` (armed, GUIDED,
     hovering at the start position); host and base_port: where the
     endpoints bind (port ``base_port + 10 k`` for the k-th sim vehicle, like
@@ -277,6 +280,7 @@ class Emulator:
     noise_pos: float = 0.0
     noise_vel: float = 0.0
     velocity_bias_ned: tuple[float, float, float] | None = None
+    velocity_bias_flip: float | None = None
     ground: float = -20.0
     origin_spread: float = 5.0
     spawn: Spawn = "ground"

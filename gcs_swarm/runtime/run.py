@@ -253,6 +253,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
         noise_pos_m=em.noise_pos,
         noise_vel_m_s=em.noise_vel,
         vel_bias_ned_m_s=em.velocity_bias_ned,
+        vel_bias_flip_s=em.velocity_bias_flip,
         base_port=0 if em.shared else em.base_port,
         shared_port=em.base_port if em.shared else None,
         params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},
