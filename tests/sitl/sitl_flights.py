@@ -5,7 +5,9 @@ types (``gcs-swarm run``, a subprocess) or in process (``run_mission``) with
 the mission's links pointed at the SITL instances; ``emulator_twin`` turns the
 same mission into one flown by the bundled emulator with SITL's geometry
 (homes 5 m apart due east, the first home the mission origin) and ArduCopter
-dynamics, so the two flights can be set side by side (``compare``).
+dynamics, and ``emulator_replay_twin`` into one that starts hovering where a
+flown SITL run's formation started, so the two flights can be set side by
+side (``compare``, ``convergence_times``).
 
 Figures go to ``SITL_REPORT`` (``GCS_SWARM_SITL_REPORT``, default the test's
 temporary folder) as one JSON file per test, and are printed (``-s``).
@@ -24,11 +26,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.report.replay import record_from_tlog
+from gcs_swarm.report.tlog import read_tlog
+from sim_vehicle import EmulatorConfig
 
 ROOT = Path(__file__).resolve().parents[2]
+_MAV = mav.MAVLink(None)
+_LPN_ID, _SPT_ID = 32, 84
+_ACCEL_ONLY = 3135
+"""SET_POSITION_TARGET_LOCAL_NED's type mask of an acceleration setpoint (mavlink-protocol.md)."""
 MISSIONS = ROOT / "config" / "missions"
 
 
@@ -179,6 +188,58 @@ def time_to_rms_band(
     return _first(times_s, np.sqrt(np.nanmean(((series - held) / held) ** 2, axis=1)) <= band)
 
 
+def error_curve(
+    times_s: np.ndarray, series: np.ndarray, law: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(times [s], the formation's RMS relative error against the law's
+    equilibrium ``law``) for ``formation_series`` columns (radii, then pairwise
+    distances). The radii and the distances are each sorted at every sample,
+    since which pairs end up opposite is the flight's choice. Unlike the time
+    to form it is judged against fixed values, not the run's own last sample,
+    so the noise of the final state does not move it."""
+    m = series.shape[1]
+    n = round((-1.0 + math.sqrt(1.0 + 8.0 * m)) / 2.0)  # n + n (n - 1) / 2 = m
+    ok = np.all(np.isfinite(series), axis=1)
+    t, s = times_s[ok], series[ok]
+    got = np.hstack([np.sort(s[:, :n], axis=1), np.sort(s[:, n:], axis=1)])
+    want = np.concatenate([np.sort(law[:n]), np.sort(law[n:])])
+    return t, np.sqrt(np.mean(((got - want) / want) ** 2, axis=1))
+
+
+def convergence_times(
+    times_s: np.ndarray, series: np.ndarray, law: np.ndarray, bands: tuple[float, ...]
+) -> dict[str, float | None]:
+    """For each band: the first time [s] ``error_curve`` is within it (None: never)."""
+    t, e = error_curve(times_s, series, law)
+    return {str(b): _first(t, e <= b) for b in bands}
+
+
+def curve_difference(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], *, floor: float = 0.005
+) -> dict[str, float]:
+    """How far error curve ``b`` is from ``a`` (``error_curve``'s (t, e) pairs):
+    both on a 1 s grid from 10 s, each a 5 s running mean, ``|e_b - e_a| / e_a``
+    wherever ``e_a`` is at least ``floor`` (below it a flown formation's own
+    wander, 0.1-0.2 % on SITL, is most of the error). Its median and its
+    largest value, and when [s]."""
+    (ta, ea), (tb, eb) = a, b
+    grid = np.arange(10.0, min(float(ta[-1]), float(tb[-1])), 1.0)
+    k = np.ones(5) / 5.0
+    ya = np.convolve(np.interp(grid, ta, ea), k, "valid")
+    yb = np.convolve(np.interp(grid, tb, eb), k, "valid")
+    g = grid[2:-2]
+    sel = ya >= floor
+    rel = np.abs(yb[sel] - ya[sel]) / ya[sel]
+    if not rel.size:
+        return {"median": math.nan, "max": math.nan, "max_at_s": math.nan}
+    k_max = int(np.argmax(rel))
+    return {
+        "median": float(np.median(rel)),
+        "max": float(rel[k_max]),
+        "max_at_s": float(g[sel][k_max]),
+    }
+
+
 def _held(times_s: np.ndarray, series: np.ndarray, window_s: float) -> np.ndarray:
     """Each column's mean over the last ``window_s`` [s]."""
     return np.asarray(np.nanmean(series[times_s >= times_s[-1] - window_s], axis=0))
@@ -207,3 +268,51 @@ def held_radii(summary: dict[str, Any], r_eq: float) -> dict[str, Any]:
 
 def load(name: str) -> Mission:
     return load_mission(MISSIONS / name)
+
+
+def formation_start(
+    folder: Path, mission: Mission
+) -> tuple[dict[int, tuple[float, float, float]], dict[int, float]]:
+    """Where each vehicle of a flown run was when the formation started
+    (mission frame [m], the first control step's positions) and its own
+    boot time then [s] (``time_boot_ms`` of the last LOCAL_POSITION_NED it
+    had sent before the first acceleration setpoint)."""
+    rec = record_from_tlog(folder / "flight.tlog", mission)
+    ids = [int(s) for s in np.asarray(rec.ids).tolist()]
+    first = {}
+    for j, sysid in enumerate(ids):
+        k = np.flatnonzero(np.isfinite(rec.pos_m[:, j, 0]))
+        first[sysid] = tuple(float(c) for c in rec.pos_m[k[0], j])
+    boot: dict[int, float] = {}
+    last_ms: dict[int, int] = {}
+    for r in read_tlog(folder / "flight.tlog"):
+        h = r.header
+        if h.direction == "in" and h.msgid == _LPN_ID:
+            msg = _MAV.decode(bytearray(r.frame))
+            last_ms[h.sysid] = int(msg.time_boot_ms)
+        elif h.direction == "out" and h.msgid == _SPT_ID:
+            msg = _MAV.decode(bytearray(r.frame))
+            if msg.type_mask == _ACCEL_ONLY and msg.target_system in last_ms:
+                boot.setdefault(msg.target_system, last_ms[msg.target_system] * 1e-3)
+                if len(boot) == len(ids):
+                    break
+    return first, boot
+
+
+def emulator_replay_twin(mission: Mission, sitl_folder: Path, *, spacing_m: float = 5.0) -> Mission:
+    """The emulator twin of one SITL run from the moment its formation started:
+    each emulated vehicle spawned hovering where the SITL vehicle was then
+    (``formation_start``), so the two fly the same formation from the same
+    state (a start-up on the ground would leave each vehicle up to the
+    mission's start tolerance, 0.3 m, from where SITL's was, and this
+    mission's time to form moves by +-6 % for 1 cm there: docs/sitl.md); the
+    velocity bias reverses at the same boot time as SITL's (304 s)."""
+    starts, boot = formation_start(sitl_folder, mission)
+    since = float(np.median(list(boot.values())))  # the instances' boot time at the start
+    flip = EmulatorConfig.ARDUPILOT_VBIAS_FLIP_S - since
+    twin = emulator_twin(mission, spacing_m=spacing_m)
+    vehicles = tuple(dataclasses.replace(v, start=starts[v.sysid]) for v in twin.vehicles)
+    emu = dataclasses.replace(
+        twin.emulator, spawn="air", velocity_bias_flip=flip if flip > 0.0 else 0.0
+    )
+    return dataclasses.replace(twin, vehicles=vehicles, emulator=emu)

@@ -7,10 +7,12 @@ PID. Each one flies in real time (speed-up 1: SITL's EKF needs 20-40 s to be
 ready, then the mission itself), so the whole file takes about 30 minutes.
 
 What each asserts is what the issue's "Figures to reach" ask, on SITL, and the
-same mission flown by the emulator is set beside it (``sitl_flights.compare``):
-time to form within 10 %, final radii within 1 %, minimum separation within
-0.2 m. The figures are written as JSON (``GCS_SWARM_SITL_REPORT``) and copied
-into docs/sitl.md by hand.
+same mission flown by the emulator from the state SITL's formation started in
+is set beside it (``sitl_flights.emulator_replay_twin``, ``compare``): time to
+form within 10 %, the formation's RMS error against the law's equilibrium
+within 10 % of SITL's (median over the flight), final radii within 1 %,
+minimum separation within 0.2 m. The figures are written as JSON
+(``GCS_SWARM_SITL_REPORT``) and copied into docs/sitl.md by hand.
 """
 
 from __future__ import annotations
@@ -37,7 +39,11 @@ from tests.sitl.sitl_flights import (
     MISSIONS,
     ROOT,
     compare,
-    emulator_twin,
+    convergence_times,
+    curve_difference,
+    emulator_replay_twin,
+    error_curve,
+    formation_series,
     gcs_swarm_run,
     load,
     rms_position_difference,
@@ -62,22 +68,72 @@ def _fly_in_process(mission: Mission, log_dir: Path, **kw: Any) -> tuple[dict[st
 
 
 def _twin_figures(mission: Mission, sitl_folder: Path, tmp: Path) -> dict[str, Any]:
-    """Fly the emulator twin of ``mission`` and compare it with the SITL run."""
-    twin = emulator_twin(mission)
+    """Fly the emulator twin of the SITL run (``emulator_replay_twin``: from the
+    state SITL's formation started in) and compare the two."""
+    twin = emulator_replay_twin(mission, sitl_folder)
     holder: list[Any] = []
     asyncio.run(run_mission(twin, log_dir=tmp, picture=False, on_folder=holder.append))
     emu_folder = holder[0].path
     out = compare(summary_of(sitl_folder), summary_of(emu_folder))
+    # Reported, not asserted: a formation on a sphere is free to turn about its
+    # leader, so two flights that form the same shape may hold it turned.
     out["rms_position_difference_m"] = rms_position_difference(
         trajectories(sitl_folder, mission), trajectories(emu_folder, twin)
+    )
+    law = _law_errors(mission)
+    sitl_series = formation_series(sitl_folder, mission)
+    emu_series = formation_series(emu_folder, twin)
+    out["error_band_entry_s"] = {
+        "sitl": convergence_times(*sitl_series, law, BANDS),
+        "emulator": convergence_times(*emu_series, law, BANDS),
+    }
+    out["error_curve_difference"] = curve_difference(
+        error_curve(*sitl_series, law), error_curve(*emu_series, law)
     )
     return out
 
 
+BANDS = (0.05, 0.02, 0.01)
+"""RMS relative errors of the formation against the law's equilibrium whose
+entry times are reported (where the error falls slowly they move a lot for a
+small difference, so they are not asserted)."""
+
+
+def _law_errors(mission: Mission) -> np.ndarray:
+    """Every radius and pairwise distance of the law's equilibrium for the
+    mission's vehicles, in ``formation_series`` order (the ideal point mass,
+    no limits: the time scale keeps the equilibrium)."""
+    law = mission.law
+    ideal = dataclasses.replace(
+        mission,
+        law=dataclasses.replace(
+            law,
+            gains=dataclasses.replace(law.gains, time_scale=1.0),
+            limits=Limits(),
+            safety=dataclasses.replace(law.safety, enabled=False),
+        ),
+        settings=dataclasses.replace(mission.settings, duration=150.0),
+    )
+    f = simulate_mission(ideal).result.figures()
+    return np.concatenate([f.final_radii_m, f.final_distances_m])
+
+
 def _assert_twin_agrees(fig: dict[str, Any]) -> None:
+    """The twin predicts SITL: the time to form (the summary's, every radius
+    and distance within 1 % of its last value) within 10 %; the formation's
+    RMS error against the law's equilibrium within 10 % of SITL's, as the
+    median over the flight where SITL's is above 0.5 % (measured 2026-12-03:
+    2.8-2.9 %, where the ground-start twin was 6.3 % and a second SITL run of
+    the same mission 22 %: docs/sitl.md); final radii within 1 %, minimum
+    separation within 0.2 m. A formation that was within 0.5 % of the
+    equilibrium throughout has no curve to compare (median NaN)."""
     s, e = fig["sitl"], fig["emulator"]
     if s["time_to_form_s"] is not None and e["time_to_form_s"] is not None:
         assert abs(e["time_to_form_s"] - s["time_to_form_s"]) <= 0.10 * s["time_to_form_s"], fig
+    median = fig["error_curve_difference"]["median"]
+    # NaN: SITL's formation was within 0.5 % of the equilibrium throughout (a
+    # mission that starts formed): no error curve to follow, nothing to compare.
+    assert math.isnan(median) or median <= 0.10, fig
     for k in ("radius_min_m", "radius_max_m"):
         assert abs(e[k] - s[k]) <= 0.01 * s[k], fig
     assert abs(e["min_separation_m"] - s["min_separation_m"]) <= 0.2, fig
@@ -115,18 +171,7 @@ def test_octahedron_in_the_envelope(tmp_path: Path) -> None:
     mission = load("sitl_octahedron.yaml")
     # The law's equilibrium: the same gains on the ideal point mass, no limits,
     # time_scale 1 (the time scale keeps the equilibrium: docs/vehicle-envelope.md).
-    law = mission.law
-    ideal = dataclasses.replace(
-        mission,
-        law=dataclasses.replace(
-            law,
-            gains=dataclasses.replace(law.gains, time_scale=1.0),
-            limits=Limits(),
-            safety=dataclasses.replace(law.safety, enabled=False),
-        ),
-        settings=dataclasses.replace(mission.settings, duration=150.0),
-    )
-    r_eq = float(np.mean(simulate_mission(ideal).result.figures().final_radii_m))
+    r_eq = float(np.mean(_law_errors(mission)[: len(mission.vehicles)]))
     with sitl_swarm(6, tmp_path / "sitl", first=30) as swarm:
         # instances 30-35 (ports 6060-6110), so it can run beside the others
         mission = with_links(mission, swarm.links_from_one())
