@@ -87,8 +87,9 @@ def test_the_replay_twin_of_an_emulator_run_flies_the_same_formation(tmp_path: P
         error_curve(*formation_series(run_folder, run), law),
         error_curve(*formation_series(twin_folder, twin), law),
     )
-    # The SITL test's bound on the median (test_sitl_arducopter); the twin of
-    # an emulator run is held to it as a twin of SITL is.
+    # 10 %: the same dynamics from the same settled start; what is left is the
+    # velocity-bias estimate's warm-up and the reversal's alignment (measured
+    # on this mission: a median 21 % when one vehicle started at 0.28 m/s).
     assert diff["median"] <= 0.10, diff
 
 
