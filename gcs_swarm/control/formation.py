@@ -13,6 +13,11 @@ The all-pairs repulsion (Eqs. 8-9) never builds an ``N x N x 3`` array: with
 i.e. matrix products on blocks of ``W`` (each symmetric block computed once),
 with ``|p_n - p_i|^2`` taken from an augmented Gram product of the centred
 positions. N = 1000 takes about 3 ms on one core (benchmarks/README.md).
+
+With ``Gains.repulsion_cutoff`` set (an option, docs/formation-law.md section
+3a) the repulsion sums only the pairs closer than the cut-off, found with a
+cell list (``gcs_swarm.control.cutoff``, Eq. 9c): O(N log N). Unset (the
+default) nothing here changes: the exact sum below, bit for bit.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from gcs_swarm.control.cutoff import repulsion_force_cutoff
 from gcs_swarm.control.params import Gains, Readings
 
 __all__ = [
@@ -70,7 +76,13 @@ def sphere_attraction(pos_m: F64, centre_m: F64, gains: Gains, readings: Reading
 
 
 def repulsion_force(
-    pos_m: F64, charges: F64, k_r: float, *, q_n_twice: bool = False, r_min_m: float = R_MIN_M
+    pos_m: F64,
+    charges: F64,
+    k_r: float,
+    *,
+    q_n_twice: bool = False,
+    r_min_m: float = R_MIN_M,
+    cutoff_m: float | None = None,
 ) -> F64:
     """Eqs. 8-9: ``F_n = sum_{i != n} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3`` [N].
 
@@ -78,7 +90,16 @@ def repulsion_force(
     (``q_n q_n`` in place of ``q_n q_i``). Distances are clamped from below at
     ``r_min_m`` (see :data:`R_MIN_M`). ``pos_m (N, 3)``, ``charges (N,)`` ->
     ``(N, 3)``. Cost: O(N^2) scalar work in blocks of rows, O(N * block) memory.
+
+    ``cutoff_m`` (``Gains.repulsion_cutoff``, [m]): when set, Eq. 9c (section
+    3a of docs/formation-law.md): only the pairs closer than it, through a
+    cell list (``cutoff.repulsion_force_cutoff``), O(N log N). None (the
+    default) is the exact sum.
     """
+    if cutoff_m is not None:
+        return repulsion_force_cutoff(
+            pos_m, charges, k_r, cutoff_m, q_n_twice=q_n_twice, r_min_m=r_min_m
+        )
     n = pos_m.shape[0]
     out = np.zeros((n, 3))
     if n < 2:
@@ -140,10 +161,17 @@ def formation_force(
 
     READING: ``F + f_s`` (Eq. 7's minus sign already pulls inward).
     ``readings.eq11_printed`` gives Eq. 11 literally, ``F - f_s`` (diverges).
+    ``F`` is Eq. 9, or Eq. 9c with ``gains.repulsion_cutoff`` set.
     """
     fs = sphere_attraction(pos_m, centre_m, gains, readings)
     if readings.eq11_printed:
         fs = -fs
     if not with_repulsion:
         return fs
-    return fs + repulsion_force(pos_m, charges, gains.k_r, q_n_twice=readings.eq10_printed)
+    return fs + repulsion_force(
+        pos_m,
+        charges,
+        gains.k_r,
+        q_n_twice=readings.eq10_printed,
+        cutoff_m=gains.repulsion_cutoff,
+    )
