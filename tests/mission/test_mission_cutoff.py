@@ -54,7 +54,8 @@ def test_a_bad_cutoff_is_one_line_naming_file_line_and_key(value: str, got: str)
 
 
 def test_a_misspelt_key_is_named_with_the_right_one() -> None:
-    with pytest.raises(MissionError, match=r"m\.yaml:1: gains\.repulsion_cutof: .*repulsion_cutoff"):
+    want = r"m\.yaml:1: gains\.repulsion_cutof: .*repulsion_cutoff"
+    with pytest.raises(MissionError, match=want):
         parse_mission("gains: {repulsion_cutof: 5}\n" + ONE, "m.yaml")
 
 
