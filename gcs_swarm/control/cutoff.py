@@ -17,8 +17,10 @@ side ``r_c`` (a cell list): a pair closer than ``r_c`` lies in the same cell
 or in two cells that touch, so each vehicle is compared only with the
 vehicles of its own cell and of 13 of its 26 neighbours (a half shell, so
 each pair of cells is visited once). Sorting the vehicles by cell is
-O(N log N), finding each cell's range is O(N log N) (``searchsorted``) and
-the pair work O(N k), k the vehicles in a vehicle's 27 cells. When every
+O(N log N), finding each cell's range O(1) from a table of the cells when
+the swarm is compact (at most 32 cells per vehicle), else O(log N)
+(``searchsorted``), and the pair work O(N k), k the vehicles in a vehicle's
+27 cells. When every
 vehicle is within one cut-off of the others (a clump, or ``r_c`` larger
 than the swarm) this is all N (N - 1) / 2 pairs again, with more overhead
 than the exact sum. Below ``ALL_PAIRS_BELOW`` vehicles every pair is tested
@@ -48,6 +50,10 @@ _HALF_SHELL = np.array(
 #: larger cells (still correct: a cell at least ``r_c`` wide is all the
 #: neighbour search needs; only the candidate count grows).
 _MAX_CELLS = 1 << 20
+
+#: Up to this many cells per vehicle the ranges come from a table of every
+#: cell (one gather per look-up) instead of binary searches.
+_DENSE_CELLS_PER_VEHICLE = 32
 
 ALL_PAIRS_BELOW = 64
 """Below this many vehicles ``neighbour_pairs`` tests all N (N - 1) / 2 pairs
@@ -82,14 +88,22 @@ def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
     key = cell @ stride
     order = np.argsort(key, kind="stable")
     skey = key[order]
-    ps = pos_m[order]
+    xyz = np.ascontiguousarray(pos_m[order].T)  # (3, N): one contiguous row per axis
     rank = np.arange(n, dtype=np.int64)
     # Neighbouring cells (13 offsets x N vehicles): the sorted range of each.
     nkey = (skey[None, :] + (_HALF_SHELL @ stride)[:, None]).reshape(-1)
-    first = np.searchsorted(skey, nkey, side="left")
-    count = np.searchsorted(skey, nkey, side="right") - first
+    ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
+    if ncell <= _DENSE_CELLS_PER_VEHICLE * n:  # a compact swarm: a table of every cell
+        start = np.zeros(ncell + 1, dtype=np.int64)
+        np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
+        first = start[nkey]
+        count = start[nkey + 1] - first
+        end = start[skey + 1]
+    else:  # a sparse one: binary search in the sorted keys
+        first = np.searchsorted(skey, nkey, side="left")
+        count = np.searchsorted(skey, nkey, side="right") - first
+        end = np.searchsorted(skey, skey, side="right")
     # The same cell: the vehicles sorted after this one (each pair once).
-    end = np.searchsorted(skey, skey, side="right")
     first = np.concatenate((first, rank + 1))
     count = np.concatenate((count, end - rank - 1))
     owner = np.tile(rank, _HALF_SHELL.shape[0] + 1)
@@ -98,10 +112,12 @@ def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
     # j runs over first[k], first[k] + 1, ... first[k] + count[k] - 1 for each k.
     starts = np.cumsum(count) - count
     j_s = np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)
-    d = ps[i_s] - ps[j_s]
-    r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-    near = r2 < rc2
-    return order[i_s[near]], order[j_s[near]], d[near], r2[near]
+    x, y, z = xyz
+    dx, dy, dz = x[i_s] - x[j_s], y[i_s] - y[j_s], z[i_s] - z[j_s]
+    r2 = dx * dx + dy * dy + dz * dz
+    near = np.flatnonzero(r2 < rc2)
+    d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+    return order[i_s[near]], order[j_s[near]], d, r2[near]
 
 
 def repulsion_force_cutoff(
