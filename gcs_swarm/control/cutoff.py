@@ -77,8 +77,8 @@ def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
         a, b = np.triu_indices(n, k=1)
         d = pos_m[a] - pos_m[b]
         r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-        near = r2 < rc2
-        return a[near].astype(np.int64), b[near].astype(np.int64), d[near], r2[near]
+        close = r2 < rc2
+        return a[close].astype(np.int64), b[close].astype(np.int64), d[close], r2[close]
     lo = pos_m.min(axis=0)
     span = float((pos_m.max(axis=0) - lo).max())
     side = max(float(cutoff_m), span / _MAX_CELLS)
