@@ -219,3 +219,36 @@ def test_the_law_applies_the_cut_off_on_both_of_its_paths(n: int) -> None:
     assert (np.abs(got - want).max(axis=1) <= 4 * (n + 8) * EPS * scale).all()
     exact = law_accelerations(LawConfig(), _formation_mode(n), pos, vel, q, np.zeros(3), obs)
     assert not np.array_equal(got, exact)  # the cut-off did drop some pairs
+
+
+def _even_sphere(n: int, radius_m: float) -> np.ndarray:
+    """N points spread evenly on a sphere (a Fibonacci lattice), ``(N, 3)`` [m]."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5**0.5) * k
+    s = np.sqrt(1.0 - z * z)
+    return radius_m * np.stack((s * np.cos(phi), s * np.sin(phi), z), axis=1)
+
+
+@pytest.mark.parametrize("n", [500, 1000])
+def test_on_a_charged_sphere_the_cut_off_keeps_about_rc_over_2r_of_the_outward_push(
+    n: int,
+) -> None:
+    """Section 3a's shell model: on a uniformly charged sphere of radius R the
+    vehicles within chord r_c give r_c / 2R of the outward push. On N point
+    charges the near field has a hole of about one neighbour distance, so the
+    share kept lies between (r_c - d_nn) / 2R and r_c / 2R; and the exact
+    push is the continuum's k_r q^2 N / (2 R^2) within 5 %."""
+    radius = 6.0
+    pos = _even_sphere(n, radius)
+    q = np.full(n, 10.0)
+    u = pos / radius
+    d2 = ((pos[:, None] - pos[None]) ** 2).sum(axis=-1)
+    np.fill_diagonal(d2, np.inf)
+    d_nn = float(np.sqrt(d2.min(axis=1)).mean())
+    exact = float((repulsion_force(pos, q, 0.2) * u).sum(axis=1).mean())
+    assert exact == pytest.approx(0.2 * 100 * n / (2 * radius**2), rel=0.05)
+    for factor in (2.0, 3.0, 5.0, 8.0):
+        rc = factor * d_nn
+        kept = float((repulsion_force(pos, q, 0.2, cutoff_m=rc) * u).sum(axis=1).mean())
+        assert (rc - d_nn) / (2 * radius) < kept / exact < rc / (2 * radius)
