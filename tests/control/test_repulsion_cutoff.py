@@ -200,10 +200,11 @@ def _formation_mode(n: int) -> Mode:
     )
 
 
-@pytest.mark.parametrize("n", [3, 6, 9, 10, 40])
+@pytest.mark.parametrize("n", [3, 6, 9, 10, 40, 100])
 def test_the_law_applies_the_cut_off_on_both_of_its_paths(n: int) -> None:
-    """``law_accelerations`` takes the float rows below SMALL_N and the cell
-    list from it on: both give Eq. 1 of Eq. 9c with the same pairs."""
+    """``law_accelerations`` takes the float rows below SMALL_N and the
+    vectorised path from it on (every pair tested below ALL_PAIRS_BELOW, the
+    cell list from it): all give Eq. 1 of Eq. 9c with the same pairs."""
     rng = np.random.default_rng(n)
     pos = rng.normal(size=(n, 3)) * 2.0
     vel = rng.normal(size=(n, 3))
@@ -252,3 +253,37 @@ def test_on_a_charged_sphere_the_cut_off_keeps_about_rc_over_2r_of_the_outward_p
         rc = factor * d_nn
         kept = float((repulsion_force(pos, q, 0.2, cutoff_m=rc) * u).sum(axis=1).mean())
         assert (rc - d_nn) / (2 * radius) < kept / exact < rc / (2 * radius)
+
+
+def test_avoidance_with_repulsion_takes_the_cut_off_too() -> None:
+    """With ``repulsion_in_avoidance`` (Mode.repulsion) Eq. 9c is added to
+    Eq. 27's force: the law with and without the cut-off differ by exactly
+    the repulsion the cut-off drops (over M)."""
+    n = 80
+    rng = np.random.default_rng(5)
+    pos = rng.normal(size=(n, 3)) * 3.0
+    vel = rng.normal(size=(n, 3))
+    q = np.full(n, 10.0)
+    mode = Mode(
+        behaviour="avoidance",
+        episode=1,
+        ids=tuple(range(n)),
+        targets_m=pos + 5.0,
+        vertical=np.zeros((n, 0), dtype=bool),
+        sense_h=np.ones((n, 0)),
+        sense_v=np.ones((n, 0)),
+        repulsion=True,
+    )
+    obs = Ellipsoids.from_boxes(())
+    g = Gains(repulsion_cutoff=2.0)
+    cut = law_accelerations(LawConfig(gains=g), mode, pos, vel, q, np.zeros(3), obs)
+    exact = law_accelerations(LawConfig(), mode, pos, vel, q, np.zeros(3), obs)
+    rep_cut, _ = reference(pos, q, g.k_r, 2.0)
+    rep_all, size = reference(pos, q, g.k_r, math.inf)
+    # the exact sum's Gram rounding (module docstring), |f_des| = F_D = 10 N, (D + k) |v|
+    d2 = ((pos[:, None] - pos[None]) ** 2).sum(axis=-1)
+    np.fill_diagonal(d2, np.inf)
+    spread = (np.linalg.norm(pos - pos.mean(axis=0), axis=1).max() ** 2) / d2.min()
+    tol = (n + 8 * spread) * 4 * EPS * (size + 10.0 + 10.0 * np.abs(vel).sum(axis=1))
+    assert (np.abs((cut - exact) - (rep_cut - rep_all) / g.M).max(axis=1) <= tol).all()
+    assert not np.array_equal(cut, exact)
