@@ -20,11 +20,16 @@ each pair of cells is visited once). Sorting the vehicles by cell is
 O(N log N), finding each cell's range O(1) from a table of the cells when
 the swarm is compact (at most 32 cells per vehicle), else O(log N)
 (``searchsorted``), and the pair work O(N k), k the vehicles in a vehicle's
-27 cells. When every
-vehicle is within one cut-off of the others (a clump, or ``r_c`` larger
-than the swarm) this is all N (N - 1) / 2 pairs again, with more overhead
-than the exact sum. Below ``ALL_PAIRS_BELOW`` vehicles every pair is tested
-instead (cheaper there). Pure numpy, no state between calls.
+27 cells. Below ``ALL_PAIRS_BELOW`` vehicles every pair is tested instead
+(cheaper there). ``pair_repulsion`` sums Eq. 9c over the pairs found.
+
+When the cells prune little (a clump, or ``r_c`` near the swarm's size) the
+pairs cost some 30 times more each than the exact sum's blocked matrix
+products (N = 2000 in a clump: 290 ms against 10 ms), so
+``formation.repulsion_force`` asks for at most ``DENSE_SHARE`` of all the
+pairs as candidates (``max_candidates``) and otherwise takes the exact
+sum's blocks with the pairs at r_c or beyond zeroed. Pure numpy, no state
+between calls.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ALL_PAIRS_BELOW", "neighbour_pairs", "repulsion_force_cutoff"]
+__all__ = ["ALL_PAIRS_BELOW", "DENSE_SHARE", "Pairs", "neighbour_pairs", "pair_repulsion"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -55,6 +60,10 @@ _MAX_CELLS = 1 << 20
 #: cell (one gather per look-up) instead of binary searches.
 _DENSE_CELLS_PER_VEHICLE = 32
 
+DENSE_SHARE = 0.125
+"""Above this share of the N (N - 1) / 2 pairs as candidates the cell list
+is given up for the exact sum's blocks, masked (module docstring)."""
+
 ALL_PAIRS_BELOW = 64
 """Below this many vehicles ``neighbour_pairs`` tests all N (N - 1) / 2 pairs
 (the same test, the same pairs): the cell list's fixed cost (sorting, 28
@@ -62,14 +71,22 @@ searches) is then more than the pairs (about 150 us against 30 us at N = 12
 on the development machine)."""
 
 
-def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
+Pairs = tuple[I64, I64, F64, F64]
+
+
+def neighbour_pairs(
+    pos_m: F64, cutoff_m: float, *, max_candidates: int | None = None
+) -> Pairs | None:
     """Every unordered pair of vehicles closer than ``cutoff_m`` [m], once.
 
     ``pos_m (N, 3)`` mission frame, finite. Returns ``(i, j, d, r2)``: indices
     ``(P,)`` into ``pos_m`` (``i != j``), ``d (P, 3) = p_i - p_j`` [m] and
     ``r2 (P,) = |d|^2`` [m^2] (summed x, y, z in that order), every pair with
     ``r2 < cutoff_m^2``; the order of the pairs is unspecified. Cell list of
-    side ``cutoff_m`` (module docstring): O(N log N + N k).
+    side ``cutoff_m`` (module docstring): O(N log N + N k). None, without
+    building them, when the cell list has more than ``max_candidates``
+    candidate pairs to test (only when that is given; from
+    ``ALL_PAIRS_BELOW`` vehicles on).
     """
     n = pos_m.shape[0]
     rc2 = float(cutoff_m) * float(cutoff_m)
@@ -108,6 +125,8 @@ def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
     count = np.concatenate((count, end - rank - 1))
     owner = np.tile(rank, _HALF_SHELL.shape[0] + 1)
     total = int(count.sum())
+    if max_candidates is not None and total > max_candidates:
+        return None
     i_s = np.repeat(owner, count)
     # j runs over first[k], first[k] + 1, ... first[k] + count[k] - 1 for each k.
     starts = np.cumsum(count) - count
@@ -120,36 +139,33 @@ def neighbour_pairs(pos_m: F64, cutoff_m: float) -> tuple[I64, I64, F64, F64]:
     return order[i_s[near]], order[j_s[near]], d, r2[near]
 
 
-def repulsion_force_cutoff(
-    pos_m: F64,
+def pair_repulsion(
+    pairs: Pairs,
     charges: F64,
     k_r: float,
-    cutoff_m: float,
     *,
     q_n_twice: bool,
     r_min_m: float,
 ) -> F64:
-    """Eq. 9c (Eqs. 8-9 with a cut-off, docs/formation-law.md section 3a):
-    ``F_n = sum_{i != n, |p_n - p_i| < r_c} k_r q_n q_i (p_n - p_i) /
-    |p_n - p_i|^3`` [N], ``(N, 3)``.
+    """Eq. 9c (Eqs. 8-9 with a cut-off, docs/formation-law.md section 3a) over
+    the given pairs (``neighbour_pairs``): ``F_n = sum_{i != n, |p_n - p_i| <
+    r_c} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3`` [N], ``(N, 3)``, N =
+    ``len(charges)``.
 
     READING: one q_n (Eqs. 8-9); ``q_n_twice=True`` is Eq. 10 as printed.
     ``|p_n - p_i|`` is clamped from below at ``r_min_m`` as in the exact sum
-    (``formation.R_MIN_M``). ``pos_m (N, 3)`` mission frame [m], ``charges
-    (N,)`` [C], ``cutoff_m`` = r_c [m] > 0. Each pair's term is computed once
-    and added to both vehicles with opposite signs, so the pair forces are
-    equal and opposite. Cost O(N log N + N k) (``neighbour_pairs``).
+    (``formation.R_MIN_M``). ``charges (N,)`` [C]. Each pair's term is
+    computed once and added to both vehicles with opposite signs, so the pair
+    forces are equal and opposite. O(P).
     """
-    n = pos_m.shape[0]
+    q = np.asarray(charges, dtype=np.float64)
+    n = q.shape[0]
     out = np.zeros((n, 3))
-    if n < 2:
-        return out
-    i, j, d, r2 = neighbour_pairs(pos_m, cutoff_m)
+    i, j, d, r2 = pairs
     if i.size == 0:
         return out
-    q = np.asarray(charges, dtype=np.float64)
     qw = np.ones(n) if q_n_twice else q
-    np.maximum(r2, r_min_m * r_min_m, out=r2)  # clamp |r| from below at r_min_m
+    r2 = np.maximum(r2, r_min_m * r_min_m)  # clamp |r| from below at r_min_m
     w = 1.0 / (r2 * np.sqrt(r2))  # 1 / |p_i - p_j|^3
     wi, wj = w * qw[j], w * qw[i]  # on i: q_j (p_i - p_j) w; on j: -q_i (p_i - p_j) w
     idx = np.concatenate((i, j))

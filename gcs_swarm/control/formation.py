@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from gcs_swarm.control.cutoff import repulsion_force_cutoff
+from gcs_swarm.control.cutoff import ALL_PAIRS_BELOW, DENSE_SHARE, neighbour_pairs, pair_repulsion
 from gcs_swarm.control.params import Gains, Readings
 
 __all__ = [
@@ -92,18 +92,25 @@ def repulsion_force(
     ``(N, 3)``. Cost: O(N^2) scalar work in blocks of rows, O(N * block) memory.
 
     ``cutoff_m`` (``Gains.repulsion_cutoff``, [m]): when set, Eq. 9c (section
-    3a of docs/formation-law.md): only the pairs closer than it, through a
-    cell list (``cutoff.repulsion_force_cutoff``), O(N log N). None (the
-    default) is the exact sum.
+    3a of docs/formation-law.md): only the pairs closer than it, found with
+    a cell list (``cutoff.neighbour_pairs``, ``cutoff.pair_repulsion``),
+    O(N log N); where the cells would leave more than ``cutoff.DENSE_SHARE``
+    of the pairs to test (a clump), these blocks with every pair at r_c or
+    beyond zeroed (the test then on the Gram form's ``|p_n - p_i|^2``, which
+    differs from the direct one by rounding, about eps times the squared
+    size of the swarm). None (the default) is the exact sum.
     """
-    if cutoff_m is not None:
-        return repulsion_force_cutoff(
-            pos_m, charges, k_r, cutoff_m, q_n_twice=q_n_twice, r_min_m=r_min_m
-        )
     n = pos_m.shape[0]
     out = np.zeros((n, 3))
     if n < 2:
         return out
+    r2_cut = None
+    if cutoff_m is not None:
+        most = None if n < ALL_PAIRS_BELOW else int(DENSE_SHARE * (n * (n - 1) // 2))
+        pairs = neighbour_pairs(pos_m, cutoff_m, max_candidates=most)
+        if pairs is not None:
+            return pair_repulsion(pairs, charges, k_r, q_n_twice=q_n_twice, r_min_m=r_min_m)
+        r2_cut = cutoff_m * cutoff_m  # a clump: the blocks below, masked
     p = pos_m - pos_m.mean(axis=0)  # centred: smaller Gram cancellation error
     sq = np.einsum("ni,ni->n", p, p)
     # |p_n - p_i|^2 = [p_n, |p_n|^2, 1] . [-2 p_i, 1, |p_i|^2]: one product per block.
@@ -130,10 +137,13 @@ def repulsion_force(
         for bj in range(bi, nb):
             j0, j1 = bj * _BLOCK_ROWS, min(n, (bj + 1) * _BLOCK_ROWS)
             w = left[i0:i1] @ right[j0:j1].T  # |r|^2, (bi, bj)
+            far = None if r2_cut is None else w >= r2_cut  # Eq. 9c: pairs at r >= r_c
             np.maximum(w, r2_min, out=w)  # clamp |r| from below at r_min_m
             s = np.sqrt(w)
             w *= s  # |r|^3
             np.divide(1.0, w, out=w)
+            if far is not None:
+                w[far] = 0.0
             if bi == bj:
                 np.fill_diagonal(w, 0.0)  # no self-interaction
                 acc[i0:i1] += w @ rhs[j0:j1]

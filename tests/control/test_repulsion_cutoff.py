@@ -10,14 +10,19 @@ tighter bound than its terms allow):
 - cell list against the reference with the same cut-off: the same pairs and
   the same pair terms summed in another order, so ``4 (N + 2) eps S_n``
   (eps = 2.2e-16; a few rounding errors per term, N terms).
-- cut-off beyond every distance against the exact sum: the exact sum takes
+- the exact sum (and its blocks masked at r_c, which ``repulsion_force``
+  takes for a clump) against the reference: the exact sum takes
   ``|p_n - p_i|^2`` from a Gram product of the centred positions, whose
   cancellation error is about ``eps R^2`` (R the largest distance from the
   centroid) against the direct difference's ``eps r^2``; the pair term is
   then off by ``~3 eps (R / r)^2`` relatively, hence the bound
-  ``(N + 8 (R / r_min)^2) 4 eps S_n``. For fewer than ``SMALL_N`` vehicles the
-  law's float path (``formation_rows``) skips pairs on the same test and
-  does the same arithmetic otherwise: there the result is bit-identical.
+  ``(N + 8 (R / r_min)^2) 4 eps S_n``.
+- a cut-off beyond every distance: from ``ALL_PAIRS_BELOW`` vehicles on every
+  pair is a candidate, so the exact blocks run with nothing masked: the
+  result is the exact law bit for bit. Below it the pairs are tested
+  directly (the bound above). Below ``SMALL_N`` the law's float path
+  (``formation_rows``) skips pairs on the same test and does the same
+  arithmetic otherwise: bit-identical too.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs_swarm.control.cutoff import neighbour_pairs
+from gcs_swarm.control.cutoff import ALL_PAIRS_BELOW, DENSE_SHARE, neighbour_pairs, pair_repulsion
 from gcs_swarm.control.formation import R_MIN_M, formation_force, repulsion_force
 from gcs_swarm.control.formation_rows import SMALL_N, formation_accelerations
 from gcs_swarm.control.law import law_accelerations
@@ -74,23 +79,76 @@ def swarm(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
     return pos, q, cutoff
 
 
+def gram_bound(
+    pos: np.ndarray,
+    size: np.ndarray,
+    q: np.ndarray | None = None,
+    cutoff: float = math.inf,
+    *,
+    twice: bool = False,
+) -> np.ndarray:
+    """The exact sum's rounding bound per vehicle (module docstring); with
+    ``q``, also that of its two sums ``p_n sum_i w q_i - sum_i w q_i p_i``
+    (centred p), which do not cancel exactly where a pair's term is zero
+    but its weight is not (coincident vehicles, w = 1 / R_MIN_M^3)."""
+    n = len(pos)
+    c = pos - pos.mean(axis=0)
+    r_far = float(np.linalg.norm(c, axis=1).max())
+    d2 = ((pos[:, None] - pos[None]) ** 2).sum(axis=-1)
+    np.fill_diagonal(d2, np.inf)
+    r_min = max(float(np.sqrt(d2.min())), R_MIN_M)
+    out = (n + 8 * (r_far / r_min) ** 2) * 4 * EPS * size
+    if q is not None:
+        w = np.where(d2 < cutoff * cutoff, np.maximum(d2, R_MIN_M**2) ** -1.5, 0.0)
+        qq = np.outer(q, np.ones(n)) * q[:, None] if twice else np.outer(q, q)
+        norm = np.linalg.norm(c, axis=1)
+        out = out + 4 * (n + 2) * EPS * 0.2 * (qq * w * (norm[:, None] + norm[None])).sum(axis=1)
+    return np.asarray(out)
+
+
 @pytest.mark.parametrize("seed", range(60))
 def test_cell_list_matches_the_all_pairs_reference_with_the_same_cut_off(seed: int) -> None:
     rng = np.random.default_rng(seed)
     pos, q, cutoff = swarm(rng)
     twice = seed % 5 == 0  # Eq. 10 as printed on some
-    got = repulsion_force(pos, q, 0.2, q_n_twice=twice, cutoff_m=cutoff)
+    pairs = neighbour_pairs(pos, cutoff)
+    assert pairs is not None
+    got = pair_repulsion(pairs, q, 0.2, q_n_twice=twice, r_min_m=R_MIN_M)
     want, size = reference(pos, q, 0.2, cutoff, twice=twice)
     n = len(pos)
     err = np.abs(got - want).max(axis=1)
     assert (err <= 4 * (n + 2) * EPS * size).all(), (err / np.maximum(size, 1e-300)).max()
+    # and the law's entry point, by the cell list or (a clump) the masked blocks
+    law = repulsion_force(pos, q, 0.2, q_n_twice=twice, cutoff_m=cutoff)
+    bound = gram_bound(pos, size, q, cutoff, twice=twice)
+    assert (np.abs(law - want).max(axis=1) <= bound).all()
+
+
+@pytest.mark.parametrize("n", [64, 300, 1000])
+def test_a_clump_takes_the_exact_sums_blocks_masked(n: int) -> None:
+    """Every vehicle within r_c of the others: the cell list would test all
+    the pairs one by one, so the candidates exceed DENSE_SHARE and the
+    blocked sum runs with the far pairs zeroed; the same forces."""
+    rng = np.random.default_rng(n)
+    pos = rng.normal(size=(n, 3)) * 0.3 + 50.0
+    q = rng.uniform(1.0, 10.0, size=n)
+    cutoff = 1.0  # most pairs inside, some (the tails) outside
+    most = int(DENSE_SHARE * (n * (n - 1) // 2))
+    assert neighbour_pairs(pos, cutoff, max_candidates=most) is None
+    got = repulsion_force(pos, q, 0.2, cutoff_m=cutoff)
+    want, size = reference(pos, q, 0.2, cutoff)
+    assert (np.abs(got - want).max(axis=1) <= gram_bound(pos, size, q, cutoff)).all()
+    exact = repulsion_force(pos, q, 0.2)
+    assert not np.array_equal(got, exact)  # some pairs were dropped
 
 
 @pytest.mark.parametrize("seed", range(20))
 def test_the_pairs_are_exactly_those_closer_than_the_cut_off(seed: int) -> None:
     rng = np.random.default_rng(100 + seed)
     pos, _, cutoff = swarm(rng)
-    i, j, d, r2 = neighbour_pairs(pos, cutoff)
+    pairs = neighbour_pairs(pos, cutoff)
+    assert pairs is not None
+    i, j, d, r2 = pairs
     got = {(min(a, b), max(a, b)) for a, b in zip(i.tolist(), j.tolist(), strict=True)}
     assert len(got) == len(i)  # each pair once
     a, b = np.triu_indices(len(pos), k=1)
@@ -107,7 +165,9 @@ def test_a_pair_at_exactly_the_cut_off_is_dropped_on_both_paths() -> None:
     got = repulsion_force(pos, q, 0.2, cutoff_m=1.0)
     want, _ = reference(pos, q, 0.2, 1.0)
     np.testing.assert_allclose(got, want, rtol=1e-15)
-    i, j, _, _ = neighbour_pairs(pos, 1.0)
+    pairs = neighbour_pairs(pos, 1.0)
+    assert pairs is not None
+    i, j, _, _ = pairs
     pairs = {(min(a, b), max(a, b)) for a, b in zip(i.tolist(), j.tolist(), strict=True)}
     assert pairs == {(0, 2), (1, 2)}  # not (0, 1), at r = r_c exactly
     # vehicle 0 feels vehicle 2 alone: straight away from it
@@ -157,20 +217,20 @@ def test_pair_forces_are_equal_and_opposite() -> None:
 @pytest.mark.parametrize("seed", range(20))
 def test_a_cut_off_beyond_every_distance_is_the_exact_law(seed: int) -> None:
     rng = np.random.default_rng(200 + seed)
-    n = int(rng.integers(SMALL_N, 250))
+    n = int(rng.integers(SMALL_N, 250)) if seed % 2 else int(rng.integers(SMALL_N, ALL_PAIRS_BELOW))
     pos = rng.normal(size=(n, 3)) * float(rng.uniform(0.5, 20.0)) + rng.uniform(-50, 50, 3)
     q = rng.uniform(1.0, 10.0, size=n)
     span = float(np.linalg.norm(pos.max(axis=0) - pos.min(axis=0)))
     for cutoff in (1.01 * span, 1e5):
         got = repulsion_force(pos, q, 0.2, cutoff_m=cutoff)
         exact = repulsion_force(pos, q, 0.2)
-        _, size = reference(pos, q, 0.2, math.inf)
-        r_far = float(np.linalg.norm(pos - pos.mean(axis=0), axis=1).max())
-        i, _, _, r2 = neighbour_pairs(pos, cutoff)
-        assert len(i) == n * (n - 1) // 2
-        r_min = max(float(np.sqrt(r2.min())), R_MIN_M)
-        bound = (n + 8 * (r_far / r_min) ** 2) * 4 * EPS * size
-        assert (np.abs(got - exact).max(axis=1) <= bound).all()
+        pairs = neighbour_pairs(pos, cutoff)
+        assert pairs is not None and len(pairs[0]) == n * (n - 1) // 2
+        if n >= ALL_PAIRS_BELOW:  # every pair a candidate: the exact blocks, nothing masked
+            np.testing.assert_array_equal(got, exact)
+        else:  # every pair tested directly: the same terms, rounded differently
+            _, size = reference(pos, q, 0.2, math.inf)
+            assert (np.abs(got - exact).max(axis=1) <= gram_bound(pos, size)).all()
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -217,7 +277,8 @@ def test_the_law_applies_the_cut_off_on_both_of_its_paths(n: int) -> None:
     fs = formation_force(pos, q, np.zeros(3), g, Readings(), with_repulsion=False)
     want = (fs + rep - g.damping_scaled * vel) / g.mass_scaled
     scale = size + np.abs(fs).sum(axis=1) + g.damping_scaled * np.abs(vel).sum(axis=1)
-    assert (np.abs(got - want).max(axis=1) <= 4 * (n + 8) * EPS * scale).all()
+    bound = 4 * (n + 8) * EPS * scale + gram_bound(pos, size, q, 2.5)  # N = 100: a clump
+    assert (np.abs(got - want).max(axis=1) <= bound).all()
     exact = law_accelerations(LawConfig(), _formation_mode(n), pos, vel, q, np.zeros(3), obs)
     assert not np.array_equal(got, exact)  # the cut-off did drop some pairs
 
