@@ -5,8 +5,11 @@ Run from the repository root:
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
         python benchmarks/bench_law.py
 
-(the script also sets these itself before numpy is imported). Prints a
-markdown table; the figures in benchmarks/README.md come from it.
+(the script also sets these itself before numpy is imported). Prints
+markdown tables; the figures in benchmarks/README.md come from it.
+``--cutoff`` prints only the cost of the law against N with and without the
+repulsion's cut-off (Eq. 9c, docs/formation-law.md section 3a);
+``--counts 100,500,1000,2000`` chooses the N of that table.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import argparse  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
@@ -32,12 +36,14 @@ from gcs_swarm.control import (  # noqa: E402
     Avoidance,
     Box,
     ConstantForce,
+    Gains,
     LawConfig,
     Leader,
     SwarmController,
     law_accelerations,
     repulsion_force,
 )
+from gcs_swarm.control.cutoff import neighbour_pairs  # noqa: E402
 from gcs_swarm.control.supervisor import Mode  # noqa: E402
 from gcs_swarm.integrator import integrate  # noqa: E402
 
@@ -97,6 +103,84 @@ def bench_law_eval() -> list[str]:
     return rows
 
 
+def _formation_mode(n: int) -> Mode:
+    return Mode(
+        behaviour="formation",
+        episode=0,
+        ids=tuple(range(n)),
+        targets_m=None,
+        vertical=np.zeros((n, 0), dtype=bool),
+        sense_h=np.ones((n, 0)),
+        sense_v=np.ones((n, 0)),
+        repulsion=True,
+    )
+
+
+def sphere_swarm(n: int, gains: Gains) -> tuple[np.ndarray, float]:
+    """N vehicles spread evenly on the sphere they settle on (a Fibonacci
+    lattice), positions ``(N, 3)`` [m] and their mean nearest-neighbour
+    distance d_nn [m]. The radius solves ``k_s R (R^2 - alpha^2) = k_r q^2 N /
+    (2 R^2)`` (a uniformly charged shell: the outward field at its surface),
+    near the exact law's equilibria (N = 100: 4.19 m; simulated, the outer
+    shell settles at 4.29 m with a few vehicles inside, formation-law.md
+    section 3a)."""
+    k = gains.k_r * gains.q_default**2 * n / (2.0 * gains.k_s)
+    r = max(gains.alpha, 1.0) * 1.5
+    for _ in range(100):  # Newton on R^5 - alpha^2 R^3 - k = 0
+        f = r**5 - gains.alpha**2 * r**3 - k
+        r -= f / (5 * r**4 - 3 * gains.alpha**2 * r**2)
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5**0.5) * i
+    s = np.sqrt(1.0 - z * z)
+    p = r * np.stack((s * np.cos(phi), s * np.sin(phi), z), axis=1)
+    d2 = np.einsum("nik,nik->ni", p[:, None] - p[None], p[:, None] - p[None])
+    np.fill_diagonal(d2, np.inf)
+    return p, float(np.sqrt(d2.min(axis=1)).mean())
+
+
+def bench_cutoff(counts: list[int]) -> list[str]:
+    """One law evaluation (formation, ``law_accelerations``) against N: the
+    exact all-pairs repulsion and the cut-off at 2 and 3 x d_nn, vehicles on
+    their equilibrium sphere; and a clump (every vehicle within one cut-off:
+    the cell list's worst case) at the largest N."""
+    rng = np.random.default_rng(2)
+    rows = ["| N | sphere R (m), d_nn (m) | exact (ms) | r_c = 2 d_nn (ms) | pairs kept "
+            "| r_c = 3 d_nn (ms) | pairs kept |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    base = LawConfig()
+    obs = SwarmController(base).obstacles
+    centre = np.zeros(3)
+    for n in counts:
+        p, d_nn = sphere_swarm(n, base.gains)
+        v = rng.normal(size=(n, 3)) * 0.1
+        q = np.full(n, base.gains.q_default)
+        mode = _formation_mode(n)
+        reps = 30 if n <= 1000 else 10
+        inner = 10 if n <= 500 else 1
+        cells = [f"| {n} | {float(np.linalg.norm(p[0])):.2f}, {d_nn:.3f}"]
+        for factor in (None, 2.0, 3.0):
+            cfg = LawConfig(gains=Gains(repulsion_cutoff=None if factor is None else factor * d_nn))
+            law = partial(law_accelerations, cfg, mode, p, v, q, centre, obs)
+            cells.append(f"{_median_ms(law, reps, inner):.3f}")
+            if factor is not None:
+                i, _, _, _ = neighbour_pairs(p, factor * d_nn)
+                cells.append(f"{len(i) / (n * (n - 1) / 2):.1%}")
+        rows.append(" | ".join(cells) + " |")
+    n = max(counts)
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1).max() * 2.0  # all inside a ball of radius 0.5 m
+    q = np.full(n, 10.0)
+    mode = _formation_mode(n)
+    clump = []
+    for cutoff in (None, 1.0):
+        cfg = LawConfig(gains=Gains(repulsion_cutoff=cutoff))
+        law = partial(law_accelerations, cfg, mode, p, np.zeros((n, 3)), q, centre, obs)
+        clump.append(_median_ms(law, 5))
+    rows.append(f"| {n}, clump (all within 1 m = r_c) | | {clump[0]:.3f} | {clump[1]:.3f} "
+                "| 100 % | | |")  # fmt: skip
+    return rows
+
+
 def _episode_config() -> LawConfig:
     return LawConfig(
         leader=Leader(force=ConstantForce((10.0, 0.0, 0.0))),
@@ -151,9 +235,19 @@ def bench_station_path() -> list[str]:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description="Cost of the formation law, one core.")
+    ap.add_argument("--cutoff", action="store_true", help="only the cut-off table")
+    ap.add_argument("--counts", default="100,500,1000,2000", help="N of the cut-off table")
+    args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, "
           f"Python {platform.python_version()}, numpy {np.__version__}, "
           f"OMP/OPENBLAS/MKL threads = {os.environ['OPENBLAS_NUM_THREADS']}")  # fmt: skip
+    print(f"load average (1, 5, 15 min): {os.getloadavg()}")
+    print()
+    counts = [int(x) for x in args.counts.split(",")]
+    print("\n".join(bench_cutoff(counts)))
+    if args.cutoff:
+        return
     print()
     print("\n".join(bench_law_eval()))
     print()

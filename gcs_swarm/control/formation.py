@@ -13,6 +13,11 @@ The all-pairs repulsion (Eqs. 8-9) never builds an ``N x N x 3`` array: with
 i.e. matrix products on blocks of ``W`` (each symmetric block computed once),
 with ``|p_n - p_i|^2`` taken from an augmented Gram product of the centred
 positions. N = 1000 takes about 3 ms on one core (benchmarks/README.md).
+
+With ``Gains.repulsion_cutoff`` set (an option, docs/formation-law.md section
+3a) the repulsion sums only the pairs closer than the cut-off, found with a
+cell list (``gcs_swarm.control.cutoff``, Eq. 9c): O(N log N). Unset (the
+default) nothing here changes: the exact sum below, bit for bit.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from gcs_swarm.control.cutoff import ALL_PAIRS_BELOW, DENSE_SHARE, neighbour_pairs, pair_repulsion
 from gcs_swarm.control.params import Gains, Readings
 
 __all__ = [
@@ -70,7 +76,13 @@ def sphere_attraction(pos_m: F64, centre_m: F64, gains: Gains, readings: Reading
 
 
 def repulsion_force(
-    pos_m: F64, charges: F64, k_r: float, *, q_n_twice: bool = False, r_min_m: float = R_MIN_M
+    pos_m: F64,
+    charges: F64,
+    k_r: float,
+    *,
+    q_n_twice: bool = False,
+    r_min_m: float = R_MIN_M,
+    cutoff_m: float | None = None,
 ) -> F64:
     """Eqs. 8-9: ``F_n = sum_{i != n} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3`` [N].
 
@@ -78,11 +90,27 @@ def repulsion_force(
     (``q_n q_n`` in place of ``q_n q_i``). Distances are clamped from below at
     ``r_min_m`` (see :data:`R_MIN_M`). ``pos_m (N, 3)``, ``charges (N,)`` ->
     ``(N, 3)``. Cost: O(N^2) scalar work in blocks of rows, O(N * block) memory.
+
+    ``cutoff_m`` (``Gains.repulsion_cutoff``, [m]): when set, Eq. 9c (section
+    3a of docs/formation-law.md): only the pairs closer than it, found with
+    a cell list (``cutoff.neighbour_pairs``, ``cutoff.pair_repulsion``),
+    O(N log N); where the cells would leave more than ``cutoff.DENSE_SHARE``
+    of the pairs to test (a clump), these blocks with every pair at r_c or
+    beyond zeroed (the test then on the Gram form's ``|p_n - p_i|^2``, which
+    differs from the direct one by rounding, about eps times the squared
+    size of the swarm). None (the default) is the exact sum.
     """
     n = pos_m.shape[0]
     out = np.zeros((n, 3))
     if n < 2:
         return out
+    r2_cut = None
+    if cutoff_m is not None:
+        most = None if n < ALL_PAIRS_BELOW else int(DENSE_SHARE * (n * (n - 1) // 2))
+        pairs = neighbour_pairs(pos_m, cutoff_m, max_candidates=most)
+        if pairs is not None:
+            return pair_repulsion(pairs, charges, k_r, q_n_twice=q_n_twice, r_min_m=r_min_m)
+        r2_cut = cutoff_m * cutoff_m  # a clump: the blocks below, masked
     p = pos_m - pos_m.mean(axis=0)  # centred: smaller Gram cancellation error
     sq = np.einsum("ni,ni->n", p, p)
     # |p_n - p_i|^2 = [p_n, |p_n|^2, 1] . [-2 p_i, 1, |p_i|^2]: one product per block.
@@ -109,10 +137,13 @@ def repulsion_force(
         for bj in range(bi, nb):
             j0, j1 = bj * _BLOCK_ROWS, min(n, (bj + 1) * _BLOCK_ROWS)
             w = left[i0:i1] @ right[j0:j1].T  # |r|^2, (bi, bj)
+            far = None if r2_cut is None else w >= r2_cut  # Eq. 9c: pairs at r >= r_c
             np.maximum(w, r2_min, out=w)  # clamp |r| from below at r_min_m
             s = np.sqrt(w)
             w *= s  # |r|^3
             np.divide(1.0, w, out=w)
+            if far is not None:
+                w[far] = 0.0
             if bi == bj:
                 np.fill_diagonal(w, 0.0)  # no self-interaction
                 acc[i0:i1] += w @ rhs[j0:j1]
@@ -140,10 +171,17 @@ def formation_force(
 
     READING: ``F + f_s`` (Eq. 7's minus sign already pulls inward).
     ``readings.eq11_printed`` gives Eq. 11 literally, ``F - f_s`` (diverges).
+    ``F`` is Eq. 9, or Eq. 9c with ``gains.repulsion_cutoff`` set.
     """
     fs = sphere_attraction(pos_m, centre_m, gains, readings)
     if readings.eq11_printed:
         fs = -fs
     if not with_repulsion:
         return fs
-    return fs + repulsion_force(pos_m, charges, gains.k_r, q_n_twice=readings.eq10_printed)
+    return fs + repulsion_force(
+        pos_m,
+        charges,
+        gains.k_r,
+        q_n_twice=readings.eq10_printed,
+        cutoff_m=gains.repulsion_cutoff,
+    )

@@ -17,6 +17,11 @@ a Gram product of the centred positions, so the two differ by rounding
 (a few units in the last place of the pair terms; the direct form is the
 more accurate one). ``tests/control/test_formation_rows.py`` compares them
 on seeded random swarms.
+
+With ``Gains.repulsion_cutoff`` set, a pair at ``|p_n - p_i| >= r_c`` is
+skipped (Eq. 9c, docs/formation-law.md section 3a), decided on the same
+``dx*dx + dy*dy + dz*dz`` as ``cutoff.neighbour_pairs``, so both paths keep
+the same pairs.
 """
 
 from __future__ import annotations
@@ -57,11 +62,14 @@ def formation_accelerations(
     q = charges.tolist()
     cx, cy, cz = centre_m.tolist()
     n = len(pos)
-    # Eqs. 8-9 (READING: one q_n; Eq. 10 as printed: q_n q_n), each pair once,
+    # Eqs. 8-9 (READING: one q_n; Eq. 10 as printed: q_n q_n), each pair once (Eq. 9c: those
+    # closer than the cut-off),
     # |p_n - p_i| clamped from below at R_MIN_M as in formation.repulsion_force.
     twice = readings.eq10_printed
     qw = [1.0] * n if twice else q
     r2_min = R_MIN_M * R_MIN_M
+    rc = gains.repulsion_cutoff
+    r2_cut = math.inf if rc is None else rc * rc  # Eq. 9c: pairs at r >= r_c skipped
     acc = [[0.0, 0.0, 0.0] for _ in range(n)]
     for a in range(n):
         xa, ya, za = pos[a]
@@ -71,6 +79,8 @@ def formation_accelerations(
             xb, yb, zb = pos[b]
             dx, dy, dz = xa - xb, ya - yb, za - zb
             r2 = dx * dx + dy * dy + dz * dz
+            if r2 >= r2_cut:
+                continue
             if r2 < r2_min:
                 r2 = r2_min
             w = 1.0 / (r2 * math.sqrt(r2))

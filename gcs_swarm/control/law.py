@@ -77,7 +77,9 @@ def law_accelerations(
             heading_from_velocity=av.heading == "velocity",
         )
         if mode.repulsion:
-            f = f + repulsion_force(pos_m, charges, g.k_r, q_n_twice=rd.eq10_printed)
+            f = f + repulsion_force(
+                pos_m, charges, g.k_r, q_n_twice=rd.eq10_printed, cutoff_m=g.repulsion_cutoff
+            )
     return eq1_acceleration(f, vel_mps, g)
 
 

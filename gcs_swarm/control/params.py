@@ -80,6 +80,11 @@ class Gains:
     lambda^3 and speeds / lambda. The law uses ``mass_scaled`` and
     ``damping_scaled``; lambda = 1 is the paper, bit for bit. The virtual
     leader is slowed the same way (``gcs_swarm.control.leader``).
+
+    repulsion_cutoff [m] (an option, not the paper's): Eq. 9 summed only over
+    the vehicles closer than it (Eq. 9c, docs/formation-law.md section 3a),
+    through a cell list, O(N log N) instead of O(N^2). None (the default) is
+    the exact all-pairs sum, unchanged bit for bit.
     """
 
     M: float = 1.0
@@ -90,6 +95,7 @@ class Gains:
     alpha: float = 2.0
     q_default: float = 10.0
     time_scale: float = 1.0
+    repulsion_cutoff: float | None = None
 
     @property
     def mass_scaled(self) -> float:

@@ -15,6 +15,7 @@ import yaml
 
 from gcs_swarm.control.envelope import ARDUCOPTER
 from gcs_swarm.control.expr import validate_expression
+from gcs_swarm.control.formation import R_MIN_M
 from gcs_swarm.control.params import (
     Avoidance,
     Box,
@@ -66,7 +67,7 @@ def _build_gains(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) ->
             f"expected D + k > 0 (the damping of Eq. 1), got D = {v['D']:g}, k = {v['k']:g}",
         )
         return INVALID
-    names = ("M", "D", "k", "k_s", "k_r", "alpha", "time_scale")
+    names = ("M", "D", "k", "k_s", "k_r", "alpha", "time_scale", "repulsion_cutoff")
     return Gains(**{k: v[k] for k in names}, q_default=v["q"])
 
 
@@ -88,6 +89,14 @@ GAINS = Obj(
             _G.time_scale,
             "fly the law this many times slower, same shape: M -> lambda^2 M, D, k -> lambda D,"
             " lambda k, and the leader slowed alike (docs/vehicle-envelope.md)",
+        ),
+        Key(
+            "repulsion_cutoff",
+            Num(lo=R_MIN_M, lo_open=True, hi=POSITION_LIMIT_M, nullable=True),
+            None,
+            "cut-off radius of Eq. 9's repulsion [m]: only vehicles closer than this push"
+            " (Eq. 9c, a cell list, O(N log N)); null: every pair, the paper's exact law"
+            " (docs/formation-law.md section 3a)",
         ),
     ),
 )

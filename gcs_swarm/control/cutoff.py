@@ -1,0 +1,177 @@
+"""The inter-vehicle repulsion with a cut-off radius (Eq. 9c of
+docs/formation-law.md, section 3a), on a uniform cell list.
+
+READING (cut-off, an option; the paper's law has none): with ``r_c`` =
+``Gains.repulsion_cutoff`` [m], Eq. 9 sums only over the vehicles closer than
+``r_c``,
+
+    F_n = sum_{i != n, |p_n - p_i| < r_c} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3,
+
+each pair term exactly Eq. 9's (same clamp of ``|p_n - p_i|`` from below at
+``r_min_m``, same Eq. 10 variant). ``None`` (the default) is the exact
+all-pairs sum of ``gcs_swarm.control.formation.repulsion_force``, which stays
+the reference: this module is only reached when a cut-off is set.
+
+The pairs closer than ``r_c`` are found with a uniform grid of cubic cells of
+side ``r_c`` (a cell list): a pair closer than ``r_c`` lies in the same cell
+or in two cells that touch, so each vehicle is compared only with the
+vehicles of its own cell and of 13 of its 26 neighbours (a half shell, so
+each pair of cells is visited once). Sorting the vehicles by cell is
+O(N log N), finding each cell's range O(1) from a table of the cells when
+the swarm is compact (at most 32 cells per vehicle), else O(log N)
+(``searchsorted``), and the pair work O(N k), k the vehicles in a vehicle's
+27 cells. Below ``ALL_PAIRS_BELOW`` vehicles every pair is tested instead
+(cheaper there). ``pair_repulsion`` sums Eq. 9c over the pairs found.
+
+When the cells prune little (a clump, or ``r_c`` near the swarm's size) the
+pairs cost some 30 times more each than the exact sum's blocked matrix
+products (N = 2000 in a clump: 290 ms against 10 ms), so
+``formation.repulsion_force`` asks for at most ``DENSE_SHARE`` of all the
+pairs as candidates (``max_candidates``) and otherwise takes the exact
+sum's blocks with the pairs at r_c or beyond zeroed. Pure numpy, no state
+between calls.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["ALL_PAIRS_BELOW", "DENSE_SHARE", "Pairs", "neighbour_pairs", "pair_repulsion"]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+#: The 13 cell offsets of a half shell (lexicographically positive); the
+#: same cell, (0, 0, 0), is handled apart (the vehicles sorted after one).
+_UNIT = (-1, 0, 1)
+_HALF_SHELL = np.array(
+    [(a, b, c) for a in _UNIT for b in _UNIT for c in _UNIT if (a, b, c) > (0, 0, 0)],
+    dtype=np.int64,
+)
+
+#: At most this many cells along one axis (+ padding): the linear cell key of
+#: 3 axes then stays below 2^63. A swarm wider than ``_MAX_CELLS * r_c`` gets
+#: larger cells (still correct: a cell at least ``r_c`` wide is all the
+#: neighbour search needs; only the candidate count grows).
+_MAX_CELLS = 1 << 20
+
+#: Up to this many cells per vehicle the ranges come from a table of every
+#: cell (one gather per look-up) instead of binary searches.
+_DENSE_CELLS_PER_VEHICLE = 32
+
+DENSE_SHARE = 0.125
+"""Above this share of the N (N - 1) / 2 pairs as candidates the cell list
+is given up for the exact sum's blocks, masked (module docstring)."""
+
+ALL_PAIRS_BELOW = 64
+"""Below this many vehicles ``neighbour_pairs`` tests all N (N - 1) / 2 pairs
+(the same test, the same pairs): the cell list's fixed cost (sorting, 28
+searches) is then more than the pairs (about 150 us against 30 us at N = 12
+on the development machine)."""
+
+
+Pairs = tuple[I64, I64, F64, F64]
+
+
+def neighbour_pairs(
+    pos_m: F64, cutoff_m: float, *, max_candidates: int | None = None
+) -> Pairs | None:
+    """Every unordered pair of vehicles closer than ``cutoff_m`` [m], once.
+
+    ``pos_m (N, 3)`` mission frame, finite. Returns ``(i, j, d, r2)``: indices
+    ``(P,)`` into ``pos_m`` (``i != j``), ``d (P, 3) = p_i - p_j`` [m] and
+    ``r2 (P,) = |d|^2`` [m^2] (summed x, y, z in that order), every pair with
+    ``r2 < cutoff_m^2``; the order of the pairs is unspecified. Cell list of
+    side ``cutoff_m`` (module docstring): O(N log N + N k). None, without
+    building them, when the cell list has more than ``max_candidates``
+    candidate pairs to test (only when that is given; from
+    ``ALL_PAIRS_BELOW`` vehicles on).
+    """
+    n = pos_m.shape[0]
+    rc2 = float(cutoff_m) * float(cutoff_m)
+    if n < ALL_PAIRS_BELOW:  # every pair, then the same test: cheaper than sorting
+        a, b = np.triu_indices(n, k=1)
+        d = pos_m[a] - pos_m[b]
+        r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        close = r2 < rc2
+        return a[close].astype(np.int64), b[close].astype(np.int64), d[close], r2[close]
+    lo = pos_m.min(axis=0)
+    span = float((pos_m.max(axis=0) - lo).max())
+    side = max(float(cutoff_m), span / _MAX_CELLS)
+    cell = np.floor((pos_m - lo) / side).astype(np.int64) + 1  # >= 1: padding for -1 offsets
+    dims = cell.max(axis=0) + 2  # padding for +1 offsets: no key wraps into another row
+    stride = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
+    key = cell @ stride
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    xyz = np.ascontiguousarray(pos_m[order].T)  # (3, N): one contiguous row per axis
+    rank = np.arange(n, dtype=np.int64)
+    # Neighbouring cells (13 offsets x N vehicles): the sorted range of each.
+    nkey = (skey[None, :] + (_HALF_SHELL @ stride)[:, None]).reshape(-1)
+    ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
+    if ncell <= _DENSE_CELLS_PER_VEHICLE * n:  # a compact swarm: a table of every cell
+        start = np.zeros(ncell + 1, dtype=np.int64)
+        np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
+        first = start[nkey]
+        count = start[nkey + 1] - first
+        end = start[skey + 1]
+    else:  # a sparse one: binary search in the sorted keys
+        first = np.searchsorted(skey, nkey, side="left")
+        count = np.searchsorted(skey, nkey, side="right") - first
+        end = np.searchsorted(skey, skey, side="right")
+    # The same cell: the vehicles sorted after this one (each pair once).
+    first = np.concatenate((first, rank + 1))
+    count = np.concatenate((count, end - rank - 1))
+    owner = np.tile(rank, _HALF_SHELL.shape[0] + 1)
+    total = int(count.sum())
+    if max_candidates is not None and total > max_candidates:
+        return None
+    i_s = np.repeat(owner, count)
+    # j runs over first[k], first[k] + 1, ... first[k] + count[k] - 1 for each k.
+    starts = np.cumsum(count) - count
+    j_s = np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)
+    x, y, z = xyz
+    dx, dy, dz = x[i_s] - x[j_s], y[i_s] - y[j_s], z[i_s] - z[j_s]
+    r2 = dx * dx + dy * dy + dz * dz
+    near = np.flatnonzero(r2 < rc2)
+    d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+    return order[i_s[near]], order[j_s[near]], d, r2[near]
+
+
+def pair_repulsion(
+    pairs: Pairs,
+    charges: F64,
+    k_r: float,
+    *,
+    q_n_twice: bool,
+    r_min_m: float,
+) -> F64:
+    """Eq. 9c (Eqs. 8-9 with a cut-off, docs/formation-law.md section 3a) over
+    the given pairs (``neighbour_pairs``): ``F_n = sum_{i != n, |p_n - p_i| <
+    r_c} k_r q_n q_i (p_n - p_i) / |p_n - p_i|^3`` [N], ``(N, 3)``, N =
+    ``len(charges)``.
+
+    READING: one q_n (Eqs. 8-9); ``q_n_twice=True`` is Eq. 10 as printed.
+    ``|p_n - p_i|`` is clamped from below at ``r_min_m`` as in the exact sum
+    (``formation.R_MIN_M``). ``charges (N,)`` [C]. Each pair's term is
+    computed once and added to both vehicles with opposite signs, so the pair
+    forces are equal and opposite. O(P).
+    """
+    q = np.asarray(charges, dtype=np.float64)
+    n = q.shape[0]
+    out = np.zeros((n, 3))
+    i, j, d, r2 = pairs
+    if i.size == 0:
+        return out
+    qw = np.ones(n) if q_n_twice else q
+    r2 = np.maximum(r2, r_min_m * r_min_m)  # clamp |r| from below at r_min_m
+    w = 1.0 / (r2 * np.sqrt(r2))  # 1 / |p_i - p_j|^3
+    wi, wj = w * qw[j], w * qw[i]  # on i: q_j (p_i - p_j) w; on j: -q_i (p_i - p_j) w
+    idx = np.concatenate((i, j))
+    for axis in range(3):
+        col = d[:, axis]
+        out[:, axis] = np.bincount(idx, weights=np.concatenate((wi * col, -wj * col)), minlength=n)
+    qn = q * q if q_n_twice else q
+    out *= (k_r * qn)[:, None]
+    return out
