@@ -78,16 +78,7 @@ def bench_law_eval() -> list[str]:
         p = rng.normal(size=(n, 3)) * (n ** (1 / 3))
         v = rng.normal(size=(n, 3))
         q = np.full(n, 10.0)
-        mode = Mode(
-            behaviour="formation",
-            episode=0,
-            ids=tuple(range(n)),
-            targets_m=None,
-            vertical=np.zeros((n, 0), dtype=bool),
-            sense_h=np.ones((n, 0)),
-            sense_v=np.ones((n, 0)),
-            repulsion=True,
-        )
+        mode = _formation_mode(n)
         obs = SwarmController(cfg).obstacles
         reps = 200 if n <= 100 else (30 if n <= 1000 else 15)
         inner = 20 if n <= 100 else 1
