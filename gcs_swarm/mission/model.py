@@ -250,8 +250,9 @@ class Emulator:
 
     mode: ``lockstep`` (one step per answered telemetry) or ``realtime``
     (times ``speedup``); dynamics ``ideal`` or ``ardupilot-like``; lag [s]
-    first-order acceleration lag (``None``: 0 for ideal, 0.1 for
-    ardupilot-like); ekf_ready_delay [s] before arming is accepted;
+    first-order acceleration lag (``None``: the emulator preset's, 0 for
+    ideal, 0.05 for ardupilot-like: docs/emulator.md); ekf_ready_delay [s]
+    before arming is accepted;
     ground [m] mission-frame z of the sim vehicles' homes (their EKF origins)
     unless a vehicle names its own origin; origin_spread [m] east spacing of
     the default homes (like SITL instances 5 m apart); accel_max [m/s^2]
@@ -288,15 +289,6 @@ class Emulator:
     base_port: int = 0
     shared: bool = False
     impairments: Impairments = field(default_factory=Impairments)
-
-    @property
-    def lag_s(self) -> float:
-        """The first-order lag actually used [s]."""
-        if self.lag is not None:
-            return self.lag
-        # 0.1 s: ArduCopter 4.5.6 SITL's step responses, fitted with its jerk
-        # limit modelled (the emulator's ardupilot preset; docs/emulator.md)
-        return 0.0 if self.dynamics == "ideal" else 0.1
 
 
 @dataclass(frozen=True)

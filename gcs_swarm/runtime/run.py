@@ -248,7 +248,7 @@ def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConf
         # (sim_vehicle lockstep rule 4); the mission's speedup is realtime-only.
         speedup=em.speedup if em.mode == "realtime" else LOCKSTEP_GROUND_SPEEDUP,
         dynamics="ideal" if em.dynamics == "ideal" else "ardupilot",
-        accel_tau_s=em.lag_s,
+        accel_tau_s=em.lag,  # None: the preset's (one default, in sim_vehicle's config)
         ekf_ready_s=em.ekf_ready_delay,
         noise_pos_m=em.noise_pos,
         noise_vel_m_s=em.noise_vel,
