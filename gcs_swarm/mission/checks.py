@@ -282,7 +282,7 @@ def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | Non
                 f"contains the leader's start {_fmt(law.leader.start)}"
                 f" (leader.start, line {leader_line})",
             )
-        for i, v in enumerate(vehicles or ()):
+        for v in vehicles or ():
             if _inside(box, v.start):
                 vpath = f"{v.where}.start"
                 ctx.add(ctx.line_of(vpath), vpath, f"{_fmt(v.start)} is inside {path}")

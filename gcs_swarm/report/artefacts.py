@@ -36,6 +36,7 @@ import numpy as np
 
 from gcs_swarm.errors import ReportError
 from gcs_swarm.mission import Mission, load_mission
+from gcs_swarm.mission.model import DEFAULT_NETWORK
 from gcs_swarm.report.figures import summarize_record
 from gcs_swarm.report.record import FlightRecord
 from gcs_swarm.report.replay import ReplayStats, record_from_tlog
@@ -50,6 +51,7 @@ __all__ = [
     "create_run_folder",
     "flown_run",
     "from_sim_result",
+    "network_tlogs",
     "rebuild_report",
     "report_from_tlog",
     "run_folder_name",
@@ -60,6 +62,8 @@ __all__ = [
 ]
 
 TLOG_NAME = "flight.tlog"
+#: A network's log in a run with networks (``network_tlogs``).
+_NETWORK_TLOG = re.compile(r"flight-[A-Za-z][A-Za-z0-9_-]{0,31}\.tlog")
 MISSION_NAME = "mission.yaml"
 SUMMARY_NAME = "summary.json"
 PICTURE_NAME = "report.png"
@@ -76,6 +80,12 @@ class RunFolder:
     def tlog(self) -> Path:
         return self.path / TLOG_NAME
 
+    def tlogs(self, networks: tuple[str, ...]) -> list[Path]:
+        """The run's telemetry logs, one per network in the mission's order:
+        ``flight.tlog`` alone for a mission without networks (as ever),
+        ``flight-<name>.tlog`` each otherwise (``network_tlogs``)."""
+        return network_tlogs(self.path, networks)
+
     @property
     def mission(self) -> Path:
         return self.path / MISSION_NAME
@@ -91,6 +101,16 @@ class RunFolder:
     @property
     def vehicle_params(self) -> Path:
         return self.path / VEHICLE_PARAMS_NAME
+
+
+def network_tlogs(folder: Path, networks: tuple[str, ...]) -> list[Path]:
+    """The telemetry logs of a run in ``folder`` with ``networks`` (a
+    mission's ``networks``): one per network, since each network has its own
+    system ids and a .tlog holds one id space (pymavlink's tools read each
+    as it is); ``flight.tlog`` alone without networks."""
+    if networks == (DEFAULT_NETWORK,):
+        return [folder / TLOG_NAME]
+    return [folder / f"flight-{name}.tlog" for name in networks]
 
 
 def run_folder_name(mission_name: str, when: datetime) -> str:
@@ -212,12 +232,15 @@ def _paths(path: Path, mission_path: str | None) -> tuple[Path, Path, Path, Path
     if path.is_dir():
         folder = RunFolder(path)
         mission = Path(mission_path) if mission_path else folder.mission
-        return folder.tlog, mission, folder.summary, folder.picture
+        tlog = folder.tlog
+        if not tlog.is_file():  # a run with networks: one log per network, read together
+            tlog = next(iter(sorted(path.glob("flight-*.tlog"))), tlog)
+        return tlog, mission, folder.summary, folder.picture
     if mission_path:
         mission = Path(mission_path)
     else:
         mission = path.parent / MISSION_NAME
-    if path.name == TLOG_NAME:
+    if path.name == TLOG_NAME or _NETWORK_TLOG.fullmatch(path.name):
         return path, mission, path.parent / SUMMARY_NAME, path.parent / PICTURE_NAME
     return path, mission, path.with_name(path.stem + "-summary.json"), path.with_suffix(".png")
 
