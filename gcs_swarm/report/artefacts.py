@@ -38,6 +38,7 @@ from gcs_swarm.errors import ReportError
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.mission.model import DEFAULT_NETWORK
 from gcs_swarm.report.figures import summarize_record
+from gcs_swarm.report.networks import label_summary
 from gcs_swarm.report.record import FlightRecord
 from gcs_swarm.report.replay import ReplayStats, record_from_tlog
 
@@ -188,13 +189,16 @@ def write_report(
     picture_path: str | os.PathLike[str] | None,
     *,
     extra: dict[str, Any] | None = None,
+    networks: tuple[str, ...] = (DEFAULT_NETWORK,),
 ) -> dict[str, Any]:
     """Summarize ``rec``, write the JSON and (unless None) the PNG; returns
     the summary. ``extra`` is merged at the top level of the JSON (e.g. the
-    station's link counters)."""
+    station's link counters). ``networks``: the mission's; with named
+    networks every vehicle is told by ``network:sysid`` (``label_summary``)."""
     summary = summarize_record(rec)
     if extra:
         summary.update(extra)
+    label_summary(summary, networks)
     try:
         write_json(summary, summary_path)
         if picture_path is not None:
@@ -216,7 +220,7 @@ def report_from_tlog(
         rec = record_from_tlog(tlog_path, mission, stats=stats)
     except OSError as err:
         raise ReportError(f"{tlog_path}: cannot read the log: {err.strerror or err}") from None
-    summary = summarize_record(rec)
+    summary = label_summary(summarize_record(rec), mission.networks)
     summary["log"] = {
         "records": stats.records,
         "undecodable": stats.undecodable,
@@ -291,8 +295,10 @@ def rebuild_report(
     tlog, mission_file, summary_path, picture_path = _paths(Path(path), mission_path)
     if not force:
         summary_path, picture_path = _free_pair(summary_path, picture_path)
-    summary, rec = report_from_tlog(tlog, _flown_mission(tlog, mission_file))
-    write_report(rec, summary_path, picture_path, extra={"log": summary["log"]})
+    mission = _flown_mission(tlog, mission_file)
+    summary, rec = report_from_tlog(tlog, mission)
+    write_report(rec, summary_path, picture_path, extra={"log": summary["log"]},
+                 networks=mission.networks)  # fmt: skip
     return summary, summary_path, picture_path
 
 
@@ -335,7 +341,10 @@ def summary_text(summary: dict[str, Any]) -> str:
             f"({_f(tm['loss_percent'], '%', 2)})"
         )
     if o["events"]:
-        ev = ", ".join(f"{e['sysid']} {e['action']}s at {e['t_s']:.2f} s" for e in o["events"])
+        ev = ", ".join(
+            f"{e.get('vehicle', e['sysid'])} {e['action']}s at {e['t_s']:.2f} s"
+            for e in o["events"]
+        )
         lines.append(f"membership: {ev}")
     return "\n".join(lines)
 
@@ -392,13 +401,16 @@ def write_simulation_report(
     *,
     name: str = "",
     picture: bool = True,
+    networks: tuple[str, ...] = (DEFAULT_NETWORK,),
 ) -> dict[str, Any]:
     """``gcs-swarm simulate``: ``summary.json`` and ``report.png`` of a
-    simulation in ``out_dir`` (created); returns the summary."""
+    simulation in ``out_dir`` (created); returns the summary. ``networks``:
+    the mission's (``write_report``)."""
     rec = from_sim_result(result, name=name)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ReportError(f"{out}: cannot create the folder: {err.strerror or err}") from None
-    return write_report(rec, out / SUMMARY_NAME, out / PICTURE_NAME if picture else None)
+    return write_report(rec, out / SUMMARY_NAME, out / PICTURE_NAME if picture else None,
+                        networks=networks)  # fmt: skip

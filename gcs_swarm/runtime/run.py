@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
+from gcs_swarm.mission.model import KEY_STRIDE
 from gcs_swarm.offline import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
@@ -215,7 +216,8 @@ async def run_mission(
             if folder is not None:
                 _write_vehicle_params(folder, station)
             if folder is not None and recorder is not None:
-                await _write_run_report(folder, recorder, summary, picture=picture)
+                await _write_run_report(folder, recorder, summary, picture=picture,
+                                        networks=mission.networks)  # fmt: skip
             if on_summary is not None:
                 on_summary(summary)
     return summary
@@ -224,7 +226,12 @@ async def run_mission(
 def _write_vehicle_params(folder: RunFolder, station: Station) -> None:
     """``vehicle_params.json``: each vehicle's envelope and every parameter the
     station changed on it (old, new, read-back, restored)."""
-    records = [vp.vehicle_params.record() for _, vp in sorted(station.vehicles.items())]
+    records = []
+    for key, vp in sorted(station.vehicles.items()):
+        record = vp.vehicle_params.record()
+        if str(key) != vp.label:  # a named network: told by network:sysid (docs/mission-format.md)
+            record = {"vehicle": vp.label, **record, "sysid": key % KEY_STRIDE}
+        records.append(record)
     try:
         write_json({"vehicles": records}, folder.vehicle_params)
     except OSError as err:  # never let the record hide how the flight ended
@@ -246,7 +253,12 @@ def _frame_sink(tlog: TlogWriter) -> Callable[[bytes, str], None]:
 
 
 async def _write_run_report(
-    folder: RunFolder, recorder: FlightRecorder, summary: RunSummary, *, picture: bool
+    folder: RunFolder,
+    recorder: FlightRecorder,
+    summary: RunSummary,
+    *,
+    picture: bool,
+    networks: tuple[str, ...],
 ) -> None:
     """``summary.json`` and ``report.png`` of the run, off the event loop
     (matplotlib takes about a second); the station's link counters go in too."""
@@ -290,7 +302,12 @@ async def _write_run_report(
     try:
         await asyncio.shield(
             asyncio.to_thread(
-                write_report, rec, folder.summary, folder.picture if picture else None, extra=extra
+                write_report,
+                rec,
+                folder.summary,
+                folder.picture if picture else None,
+                extra=extra,
+                networks=networks,
             )
         )
     except Exception as err:  # never let the report hide how the flight ended
