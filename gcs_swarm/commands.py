@@ -178,6 +178,7 @@ def serve_replay(record: FlightRecord, mission: Mission, address: tuple[str, int
         record,
         scene_of(mission.law, name=mission.settings.name),
         autopilots={v.key: v.autopilot for v in mission.vehicles},
+        labels={v.key: mission.label(v.key) for v in mission.vehicles},
     )
 
     def url(text: str) -> None:
