@@ -136,8 +136,8 @@ def test_replay_view_labels_the_vehicles(flights: tuple[RunSummary, RunSummary, 
     _, _, folder = flights
     tlog, mission = flown_run(folder)
     record = record_from_tlog(tlog, mission)
-    frames = RecordFrames(record, scene_of(mission.law, name=mission.settings.name),
-                          labels={v.key: mission.label(v.key) for v in mission.vehicles})  # fmt: skip
+    labels = {v.key: mission.label(v.key) for v in mission.vehicles}
+    frames = RecordFrames(record, scene_of(mission.law, name=mission.settings.name), labels=labels)
     frame = frames.frame(DURATION_S)
     assert frame["vehicles"]["sysid"] == [1, 2, 3, 257, 258, 259]
     assert frame["vehicles"]["label"] == ["blue:1", "blue:2", "blue:3", "red:1", "red:2", "red:3"]
