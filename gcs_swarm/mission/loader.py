@@ -330,7 +330,8 @@ def describe(mission: Mission) -> str:
     s = mission.settings
     parts = [
         f'"{s.name}"',
-        f"{n} vehicle{'s' if n != 1 else ''} ({kinds})",
+        f"{n} vehicle{'s' if n != 1 else ''} ({kinds})"
+        + (f" on {len(mission.networks)} networks" if mission.multi_network else ""),
         f"{len(mission.reserves)} reserve",
         f"{len(mission.events)} event{'s' if len(mission.events) != 1 else ''}",
         f"{len(law.obstacles)} obstacle{'s' if len(law.obstacles) != 1 else ''}",

@@ -89,9 +89,10 @@ async def run_mission(
     is up; its ``EndRequest`` (the page's Hold, Land, Return) ends the run
     with that end action, as the end of the mission's duration does.
 
-    ``links`` maps system ids to connection strings and overrides the file's
-    (tests point them at their own emulator); vehicles still ``sim`` make this
-    start the bundled emulator on 127.0.0.1. ``lockstep`` tells the station
+    ``links`` maps vehicle keys (``Vehicle.key``: the system id on a mission
+    without networks) to connection strings and overrides the file's (tests
+    point them at their own emulator); vehicles still ``sim`` make this
+    start the bundled emulator on 127.0.0.1, one per network. ``lockstep`` tells the station
     the emulator runs in lockstep (default: from the mission, for sim
     vehicles). ``on_summary`` also receives the summary when the run is
     cancelled or fails to start (the exception then propagates).

@@ -14,7 +14,7 @@ import pytest
 
 import gcs_swarm
 from gcs_swarm.errors import MissionError
-from gcs_swarm.mission import load_mission, parse_mission
+from gcs_swarm.mission import describe, load_mission, parse_mission
 from gcs_swarm.mission.model import DEFAULT_NETWORK, key_label, vehicle_key
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
@@ -45,6 +45,7 @@ def test_two_networks_may_share_system_ids() -> None:
         + "  - {t: 2, leave: 2, network: red-2}\n"
     )
     assert m.networks == ("blue", "red-2") and m.multi_network
+    assert "4 vehicles (sim) on 2 networks" in describe(m)
     assert [(v.network, v.sysid, v.key) for v in m.vehicles] == [
         ("blue", 1, 1), ("blue", 2, 2), ("red-2", 1, 257), ("red-2", 2, 258)
     ]  # fmt: skip
