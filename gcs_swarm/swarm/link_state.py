@@ -120,7 +120,7 @@ class LinkState:
         ``base``: what the vehicles' keys add to their system ids on this
         link's network (``mission.vehicle_key``: network index * 256); the
         link speaks system ids on the wire and keys to everyone else
-        (``sysids``, ``send``, ``accel_setpoints``, the telemetry rows)
+        (``sysids``, ``send``, ``accel_setpoints``, the telemetry rows).
         ``unix_clock``: the Unix time now (signing timestamps of new codecs).
         ``sysids``: the system ids this link serves (None: any); only they
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
