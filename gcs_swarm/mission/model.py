@@ -290,7 +290,7 @@ class Emulator:
     mode: ``lockstep`` (one step per answered telemetry) or ``realtime``
     (times ``speedup``); dynamics ``ideal`` or ``ardupilot-like``; lag [s]
     first-order acceleration lag (``None``: the emulator preset's, 0 for
-    ideal, 0.05 for ardupilot-like: docs/emulator.md); ekf_ready_delay [s]
+    ideal, 0.1 for ardupilot-like: docs/emulator.md); ekf_ready_delay [s]
     before arming is accepted;
     ground [m] mission-frame z of the sim vehicles' homes (their EKF origins)
     unless a vehicle names its own origin; origin_spread [m] east spacing of
