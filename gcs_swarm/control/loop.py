@@ -21,7 +21,6 @@ after reading the vehicles' parameters at start-up) tightens it.
 from __future__ import annotations
 
 import math
-import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -61,6 +60,9 @@ class StepResult:
     min_separation_m: float
 
 
+_JUMP_MS = round(MAX_CLOCK_JUMP_S * 1000)
+
+
 class ControlLoop:
     """The law plus limits, stepped on telemetry in vehicle time."""
 
@@ -93,6 +95,9 @@ class ControlLoop:
         self._t_ms = 0
         """The mission clock in whole ms (vehicle time's resolution)."""
         self.last: StepResult | None = None
+        self._q_ids: tuple[int, ...] | None = None
+        self._q = np.zeros(0)
+        """The charges of the vehicles ``_q_ids``, in that order (``command``)."""
 
     def advance_clock(self, boot_ms: Mapping[int, int]) -> float:
         """Advance the mission clock to the fresh vehicles' ``time_boot_ms``.
@@ -107,19 +112,22 @@ class ControlLoop:
         clock past vehicle time, which summing per-step increments did.
         Returns the mission time [s].
         """
-        jump_ms = round(MAX_CLOCK_JUMP_S * 1000)
+        jump_ms = _JUMP_MS
         mapped = []
+        seen, offset, t_ms = self._boot_ms, self._offset_ms, self._t_ms
+        get = seen.get
         for sysid, ms in boot_ms.items():
-            last = self._boot_ms.get(sysid)
-            self._boot_ms[sysid] = ms
+            last = get(sysid)
+            seen[sysid] = ms
             if last is None or ms < last:
-                self._offset_ms[sysid] = ms - self._t_ms
+                offset[sysid] = ms - t_ms
                 continue
             if ms - last > jump_ms:
-                self._offset_ms[sysid] += ms - last - jump_ms
-            mapped.append(ms - self._offset_ms[sysid])
+                offset[sysid] += ms - last - jump_ms
+            mapped.append(ms - offset[sysid])
         if mapped:
-            self._t_ms = max(self._t_ms, statistics.median_low(mapped))
+            mapped.sort()  # statistics.median_low, without its copy and checks
+            self._t_ms = max(t_ms, mapped[(len(mapped) - 1) // 2])
             self.t_s = self._t_ms * 1e-3
         return self.t_s
 
@@ -155,7 +163,11 @@ class ControlLoop:
         """What goes out this step: the law's output, the accelerations after
         limits/safety (N, 3), and the filter's report (None when it is the
         identity). The station sends these before ``account``'s bookkeeping."""
-        q = np.array([self.charges[i] for i in ids], dtype=np.float64)
+        key = tuple(ids)
+        if self._q_ids != key:  # the same vehicles every step but a join or a leave
+            self._q = np.array([self.charges[i] for i in key], dtype=np.float64)
+            self._q_ids = key
+        q = self._q
         out = self.controller.step(self.t_s, ids, pos_m, vel_mps, q)
         accel, report = out.accel_mps2, None
         if self.filtering:
