@@ -36,6 +36,7 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
+from gcs_swarm.mavlink.frame_decode import decode_unsigned as _decode_unsigned
 from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
 from mavwire.framing import FrameBuilder
@@ -297,9 +298,14 @@ class Codec:
         """The whole unsigned MAVLink 2 frame ``data[i:end]`` through pymavlink's
         ``decode`` (what its parser calls once it has framed the bytes, minus
         the byte-by-byte framing): the message, ``_SKIP`` for an unknown id
-        (counted), or None if pymavlink would call it bad data."""
+        (counted), or None if pymavlink would call it bad data. The messages
+        ``frame_decode.decode_unsigned`` can make exactly are made there."""
+        frame = data[i:end]
+        msg = _decode_unsigned(frame)
+        if msg is not NotImplemented:
+            return msg
         try:
-            msg = self._mav.decode(bytearray(data[i:end]))
+            msg = self._mav.decode(bytearray(frame))
         except (_dialect.MAVError, struct.error, ValueError, IndexError):
             return None
         if isinstance(msg, _dialect.MAVLink_bad_data):
