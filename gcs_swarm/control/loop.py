@@ -225,9 +225,13 @@ def _min_separation(pos_m: FloatArray) -> float:
     """Smallest pairwise distance [m] of ``pos_m (N, 3)``, inf below two vehicles.
 
     Small swarms: every difference directly. Large swarms: squared distances
-    from the Gram matrix of the centred positions pick the candidate pairs (all
-    within the Gram form's rounding bound of the smallest), whose distances are
-    then computed directly, so the result is the same float either way.
+    from one augmented Gram product of the centred positions (``[c, |c|^2, 1]``
+    times ``[-2 c, 1, |c|^2]``, as the repulsion's blocks) pick the rows whose
+    nearest neighbour could be the nearest pair (within the product's
+    rounding bound of the smallest), then those rows' candidate pairs, whose
+    distances are computed directly: the same float either way. A swarm in
+    flight has one or two such rows; an exact grid (``bench_core.py``) ties
+    every row, and then every tied pair is computed.
     """
     n = pos_m.shape[0]
     if n < 2:
@@ -241,14 +245,20 @@ def _min_separation(pos_m: FloatArray) -> float:
         return math.sqrt(float(d2.min()))
     c = pos_m - pos_m.mean(axis=0)
     sq = np.einsum("ij,ij->i", c, c)
-    d2 = c @ c.T
-    d2 *= -2.0
-    d2 += sq[:, None]
-    d2 += sq[None, :]
+    left = np.empty((n, 5))
+    left[:, :3], left[:, 3], left[:, 4] = c, sq, 1.0
+    right = np.empty((n, 5))
+    right[:, :3], right[:, 3], right[:, 4] = c, 1.0, sq
+    right[:, :3] *= -2.0
+    d2 = left @ right.T  # |c_i|^2 + |c_j|^2 - 2 c_i . c_j
     np.fill_diagonal(d2, np.inf)
-    # |error| of each Gram entry <= ~8 eps (|c_i|^2 + |c_j|^2): keep every pair
-    # that could be the true minimum.
+    row_min = d2.min(axis=1)
+    # |error| of each entry <= ~8 eps (|c_i|^2 + |c_j|^2 + 2 |c_i| |c_j|) <= 32 eps
+    # max |c|^2, twice over (the smallest entry and the true nearest pair's): keep
+    # every pair that could be the true minimum.
     tol = 64.0 * np.finfo(np.float64).eps * 2.0 * float(sq.max()) + 1e-300
-    i, j = np.nonzero(d2 <= float(d2.min()) + tol)
-    diff = pos_m[i] - pos_m[j]
+    limit = float(row_min.min()) + tol
+    rows = np.flatnonzero(row_min <= limit)
+    i, j = np.nonzero((d2 if len(rows) == n else d2[rows]) <= limit)
+    diff = pos_m[rows[i]] - pos_m[j]
     return float(np.sqrt(np.einsum("ij,ij->i", diff, diff)).min())
