@@ -12,7 +12,12 @@ armed, taken off to 10 m, then flown through ``PROFILE``: steps of the
 acceleration setpoint (SET_POSITION_TARGET_LOCAL_NED, type_mask 3135, NED)
 at 50 Hz, each followed by a pause at zero. Every LOCAL_POSITION_NED is
 written to the CSV with the command in force, so the achieved acceleration
-(the derivative of the reported velocity) can be set against the command.
+(the derivative of the reported velocity) can be set against the command:
+``an, ae, ad`` as this script had last sent it when it read the report,
+and ``tn, te, td`` as the vehicle last echoed it (POSITION_TARGET_LOCAL_NED,
+on the vehicle's clock; NaN on a vehicle that does not send it). Fit
+against the echo: on ArduCopter SITL the script's own column ran
+0.04-0.05 s early (docs/emulator.md).
 ``--compare`` prints, per segment, the RMS difference of the two vehicles'
 velocities and the peak achieved acceleration of each.
 
@@ -32,6 +37,9 @@ import numpy as np
 
 PROFILE: list[tuple[str, tuple[float, float, float], float]] = [
     # (label, acceleration NED m/s^2, seconds); each is followed by 2 s at zero.
+    # A label with "Hz" is a sine: the vector is its amplitude, the frequency
+    # is read from the label (small, slow commands, as a formation's: the phase
+    # with which the vehicle follows them, docs/emulator.md Eq. D9).
     ("north +1 (sheet's step)", (1.0, 0.0, 0.0), 3.0),
     ("north -1", (-1.0, 0.0, 0.0), 3.0),
     ("east +4 (jerk)", (0.0, 4.0, 0.0), 1.5),
@@ -42,7 +50,22 @@ PROFILE: list[tuple[str, tuple[float, float, float], float]] = [
     ("down 2 (az +2)", (0.0, 0.0, 2.0), 1.5),
     ("reverse east +3 -> -3", (0.0, 3.0, 0.0), 1.0),
     ("reverse east -3", (0.0, -3.0, 0.0), 1.0),
+    ("north sine 0.3 at 0.1 Hz", (0.3, 0.0, 0.0), 10.0),
+    ("east sine 0.3 at 0.3 Hz", (0.0, 0.3, 0.0), 20.0 / 3.0),
+    ("north sine 0.3 at 1 Hz", (0.3, 0.0, 0.0), 3.0),
+    ("up sine 0.3 at 0.3 Hz", (0.0, 0.0, -0.3), 20.0 / 3.0),
 ]
+
+
+def _command(label: str, acc: tuple[float, float, float], t_s: float) -> tuple[float, ...]:
+    """The command of a profile segment ``t_s`` s after it began (module PROFILE)."""
+    if "Hz" not in label:
+        return acc
+    hz = float(label.split(" at ")[1].split()[0])
+    k = math.sin(2.0 * math.pi * hz * t_s)
+    return (acc[0] * k, acc[1] * k, acc[2] * k)
+
+
 PAUSE_S = 2.0
 RATE_HZ = 50.0
 MASK_ACCEL = 3135
@@ -74,6 +97,8 @@ def _ack(m, command: int, timeout: float = 3.0) -> int | None:  # type: ignore[n
 
 def _prepare(m, log: list[str]) -> None:  # type: ignore[no-untyped-def]
     _cmd(m, 511, 32, 20_000)  # LOCAL_POSITION_NED at 50 Hz
+    _ack(m, 511)
+    _cmd(m, 511, 85, 20_000)  # POSITION_TARGET_LOCAL_NED: what the vehicle took, on its clock
     _ack(m, 511)
     t0 = time.monotonic()
     while time.monotonic() - t0 < 180:
@@ -109,32 +134,44 @@ def measure(link: str, out: str) -> None:
     _prepare(m, log)
     rows: list[list[float | str]] = []
     boot0: int | None = None
+    # the target the vehicle reported last (POSITION_TARGET_LOCAL_NED), in the row of each
+    # LOCAL_POSITION_NED after it: the command as the vehicle had it, free of this
+    # script's own timing (its ``cur`` is what it had sent when it read the report)
+    echo: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     period = 1.0 / RATE_HZ
     next_send = time.monotonic()
     for label, acc, dur in PROFILE:
         for seg, a, d in ((label, acc, dur), (label + " / pause", (0.0, 0.0, 0.0), PAUSE_S)):
-            end = time.monotonic() + d
+            start = time.monotonic()
+            end = start + d
+            cur = a
             while time.monotonic() < end:
                 now = time.monotonic()
                 if now >= next_send:
+                    cur = _command(seg, a, next_send - start)
                     m.mav.set_position_target_local_ned_send(
-                        0, m.target_system, 1, 1, MASK_ACCEL, 0, 0, 0, 0, 0, 0, *a, 0, 0
+                        0, m.target_system, 1, 1, MASK_ACCEL, 0, 0, 0, 0, 0, 0, *cur, 0, 0
                     )
                     next_send += period
-                p = m.recv_match(type="LOCAL_POSITION_NED", blocking=False)
+                p = m.recv_match(type=["LOCAL_POSITION_NED", "POSITION_TARGET_LOCAL_NED"])
                 if p is None:
                     time.sleep(0.002)
                     continue
+                if p.get_type() == "POSITION_TARGET_LOCAL_NED":
+                    echo = (p.afx, p.afy, p.afz)
+                    continue
                 boot0 = p.time_boot_ms if boot0 is None else boot0
                 t = (p.time_boot_ms - boot0) / 1000.0
-                rows.append([t, seg, *a, p.x, p.y, p.z, p.vx, p.vy, p.vz])
+                rows.append([t, seg, *cur, p.x, p.y, p.z, p.vx, p.vy, p.vz, *echo])
     m.mav.set_position_target_local_ned_send(
         0, m.target_system, 1, 1, MASK_ACCEL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
     )
     _cmd(m, 176, 1, 9)  # LAND
     with open(out, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["t_s", "segment", "an", "ae", "ad", "x", "y", "z", "vx", "vy", "vz"])
+        w.writerow(
+            ["t_s", "segment", "an", "ae", "ad", "x", "y", "z", "vx", "vy", "vz", "tn", "te", "td"]
+        )
         w.writerows(rows)
     print("\n".join(log))
     print(f"{len(rows)} reports written to {out}")

@@ -128,7 +128,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from gcs_swarm.report import create_run_folder, write_simulation_report
 
         folder = create_run_folder(mission, base_dir=args.log_dir)
-        write_simulation_report(out, folder.path, name=mission.settings.name)
+        write_simulation_report(
+            out, folder.path, name=mission.settings.name, networks=mission.networks
+        )
         print(f"summary written to {folder.summary}")
         print(f"picture written to {folder.picture}")
     if view is not None:

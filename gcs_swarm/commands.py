@@ -177,7 +177,8 @@ def serve_replay(record: FlightRecord, mission: Mission, address: tuple[str, int
     frames = RecordFrames(
         record,
         scene_of(mission.law, name=mission.settings.name),
-        autopilots={v.sysid: v.autopilot for v in mission.vehicles},
+        autopilots={v.key: v.autopilot for v in mission.vehicles},
+        labels={v.key: mission.label(v.key) for v in mission.vehicles},
     )
 
     def url(text: str) -> None:

@@ -149,8 +149,8 @@ def simulate_mission(
         duration=mission.settings.duration if duration_s is None else duration_s,
         dt=dt_s,
         active=[not v.reserve for v in vehicles],
-        events=[(e.t, e.action, e.sysid) for e in mission.events],
-        ids=[v.sysid for v in vehicles],
+        events=[(e.t, e.action, e.key) for e in mission.events],
+        ids=[v.key for v in vehicles],
         accel_filter=hook,
         vehicle=model,
     )

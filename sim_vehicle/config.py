@@ -113,15 +113,17 @@ class EmulatorConfig:
     ``"lockstep"`` (see ``sim_vehicle`` docstring for the exact rule).
     ``dynamics``: ``"ardupilot"`` (ArduCopter's position-controller limits on
     the acceleration command: jerk PSC_JERK_XY / PSC_JERK_Z, lean ANGLE_MAX,
-    then a first-order lag ``accel_tau_s``, default 0.1 s with the limits on and
+    then a first-order lag ``accel_tau_s``, default 0.05 s with the limits on and
     0.2 s without; docs/emulator.md)
     or ``"ideal"`` (no jerk limit, no lean cap, no lag: exact kinematics).
     ``accel_shaping``: the jerk and lean limits on (True) or off (False)
     whatever the preset; None (the default): the preset's (on for
     ``ardupilot``, off for ``ideal``). Measured on ArduCopter 4.5.6 SITL
     (docs/emulator.md): a 4 m/s^2 step ramps at 5 m/s^3 and is then flown
-    with a lag of about 0.1 s, which is the ``ardupilot`` preset's lag when
-    shaping is on (0.2 s without it, the lag that fitted the spec sheet's
+    with a lag of about 0.05 s, timed by the vehicle's own echo of the
+    target (2026-12-03; 0.1 s before, when the measuring script's clock put
+    the command 0.04-0.05 s early), which is the ``ardupilot`` preset's lag
+    when shaping is on (0.2 s without it, the lag that fitted the spec sheet's
     1 m/s^2 step when the ramp was not modelled). Before the station planned
     within the vehicle's envelope its tests flew the paper's gains, which ArduCopter (and this
     model) cannot follow; ``sim-vehicle`` uses the preset.
@@ -250,7 +252,7 @@ class EmulatorConfig:
             return self.accel_tau_s
         if self.dynamics != "ardupilot":
             return 0.0
-        return 0.1 if self.shaping else 0.2  # fitted on SITL (docs/emulator.md)
+        return 0.05 if self.shaping else 0.2  # fitted on SITL (docs/emulator.md)
 
     @property
     def shaping(self) -> bool:

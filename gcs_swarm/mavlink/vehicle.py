@@ -126,7 +126,7 @@ class VehicleProtocol(_Startup, _Ending):
         until it leaves FLYING (telemetry_table.py); without one they come
         through ``handle_message`` (the reference path)."""
         if self.phase is not Phase.READY:
-            raise RuntimeError(f"vehicle {self.sysid} is {self.phase.value}, not ready")
+            raise RuntimeError(f"vehicle {self.label} is {self.phase.value}, not ready")
         self._set_phase(Phase.FLYING, now)
         self._rate_t0_ms = None
         self._rate_lows = 0
@@ -150,12 +150,12 @@ class VehicleProtocol(_Startup, _Ending):
             self._commands.on_ack(msg.command, msg.result, now)
         elif isinstance(msg, StatusText):
             self._commands.note_text(msg.severity, msg.text)
-            self._event("statustext", f"vehicle {self.sysid} says: {msg.text}")
+            self._event("statustext", f"vehicle {self.label} says: {msg.text}")
         elif isinstance(msg, Event):
             # PX4's reasons (an arming refusal has no STATUSTEXT): a reason like any.
             text = describe_event(msg.event_id, msg.log_levels, msg.arguments)
             self._commands.note_text(msg.log_levels & 0x0F, text)
-            self._event("statustext", f"vehicle {self.sysid} event: {text}")
+            self._event("statustext", f"vehicle {self.label} event: {text}")
         elif isinstance(msg, SysStatus):
             self._health.sys_health = msg.health
             self._decide(now)
@@ -209,7 +209,7 @@ class VehicleProtocol(_Startup, _Ending):
         if rate >= RATE_LOW_FRACTION * want:
             was_low = self.rate_low
             if was_low:
-                self._event("info", f"vehicle {self.sysid}: LOCAL_POSITION_NED back at "
+                self._event("info", f"vehicle {self.label}: LOCAL_POSITION_NED back at "
                                     f"{rate:.1f} Hz")  # fmt: skip
             self.rate_low, self._rate_lows = False, 0
             return was_low
@@ -224,7 +224,7 @@ class VehicleProtocol(_Startup, _Ending):
             self.rate_low = True
             self._event(
                 "warning",
-                f"vehicle {self.sysid}: LOCAL_POSITION_NED at {rate:.1f} Hz, below the mission "
+                f"vehicle {self.label}: LOCAL_POSITION_NED at {rate:.1f} Hz, below the mission "
                 f"rate {want:g} Hz for {self._rate_lows * RATE_WINDOW_MS / 1000:g} s; interval "
                 "asked again (a router lowering the stream rate?)",
             )

@@ -51,6 +51,7 @@ class _VehicleBase:
         enabled: bool = True,
         params: ParamSettings | None = None,
         personality: Personality | None = None,
+        label: str | None = None,
     ) -> None:
         if personality is None:
             from gcs_swarm.mavlink.ardupilot import ARDUPILOT
@@ -59,6 +60,11 @@ class _VehicleBase:
         self.personality = personality
         """The autopilot's own modes, commands and rules (personality.py)."""
         self.sysid = sysid
+        """The vehicle's key: its system id, plus network index * 256 on
+        another network than the first (``mission.vehicle_key``); the link
+        puts the system id alone on the wire."""
+        self.label = str(sysid) if label is None else label
+        """How its messages name it (``blue:7`` on a named network)."""
         self.enabled = enabled
         self.config = config
         self.phase = Phase.CONNECTING
@@ -127,7 +133,7 @@ class _VehicleBase:
         self.vehicle_params = VehicleParams(
             sysid, params or ParamSettings(), self.params, self._event,
             station_sets={n: v for n, v, _ in personality.station_sets(config)},
-            profile=personality.params,
+            profile=personality.params, label=self.label,
         )  # fmt: skip
         """Envelope read, failsafe and fence set, old values restored (vehicle_params.py)."""
 
@@ -206,7 +212,7 @@ class _VehicleBase:
     def state_mission(self) -> tuple[FloatArray, FloatArray]:
         """Latest (position [m], velocity [m/s]) in the mission frame."""
         if self.position is None or self.offset_m is None:
-            raise RuntimeError(f"vehicle {self.sysid} has no position or origin yet")
+            raise RuntimeError(f"vehicle {self.label} has no position or origin yet")
         p, o, c = self.position, self.offset_m, self.vel_correction_ned
         # p = (e, n, -d) + o_i; v = (v_e, v_n, -v_d) (formation-law.md s1) less
         # the velocity bias (docs/velocity-bias.md), written out because it runs
@@ -290,7 +296,7 @@ class _VehicleBase:
         e, n, u = self.offset_m
         self._event(
             "info",
-            f"vehicle {self.sysid}: frame offset {e:+.2f} E {n:+.2f} N {u:+.2f} U m "
+            f"vehicle {self.label}: frame offset {e:+.2f} E {n:+.2f} N {u:+.2f} U m "
             "from the mission origin",
         )
 
@@ -303,7 +309,7 @@ class _VehicleBase:
         (the STATUSTEXT heard while that command was pending); returns them."""
         why = refusal_reason(self._commands.answered_texts)
         verdict = MAV_RESULT_NAMES.get(result, str(result))
-        self._event("refused", f"vehicle {self.sysid}: {what} refused ({verdict}): {why}")
+        self._event("refused", f"vehicle {self.label}: {what} refused ({verdict}): {why}")
         return why
 
     def _reset(self) -> None:
@@ -315,7 +321,7 @@ class _VehicleBase:
         self._reset()
         self.failure = why
         self._set_phase(Phase.LOST, now)
-        self._event("lost", f"vehicle {self.sysid} lost: {why}")
+        self._event("lost", f"vehicle {self.label} lost: {why}")
 
     def _yield(self, now: float, why: str) -> None:
         """Someone else has the vehicle in flight: out of the formation for good
@@ -327,14 +333,14 @@ class _VehicleBase:
         self._reset()
         self.failure = why
         self._set_phase(Phase.FAILED, now)
-        self._event("failed", f"vehicle {self.sysid}: {why}")
+        self._event("failed", f"vehicle {self.label}: {why}")
 
     def _set_phase(self, phase: Phase, now: float) -> None:
         if phase is not self.phase:
             if self._table is not None:
                 self._detach()  # only FLYING vehicles are in the table
             self.phase = phase
-            self._event("phase", f"vehicle {self.sysid}: {phase.value}")
+            self._event("phase", f"vehicle {self.label}: {phase.value}")
             if phase in FINAL_PHASES:
                 end = self._end_mode if phase is Phase.ENDED else None
                 self.vehicle_params.restore(now, self._commands, self.compid,

@@ -50,7 +50,7 @@ class _Ending(_VehicleBase):
             return
         self._set_phase(Phase.ENDING, now)
         if ground:
-            self._event("info", f"vehicle {self.sysid} is {where}: disarming it")
+            self._event("info", f"vehicle {self.label} is {where}: disarming it")
             self._disarming = True
             self._send_disarm(now)
         else:
@@ -94,7 +94,7 @@ class _Ending(_VehicleBase):
         if result != 0:
             self._refused(now, f"mode {self.personality.mode_name(self._end_mode)}", result)
             if self._end_mode != land:
-                self._event("info", f"vehicle {self.sysid}: falling back to LAND")
+                self._event("info", f"vehicle {self.label}: falling back to LAND")
                 self._end_mode = land
                 self._send_end_mode(now)
                 return

@@ -171,8 +171,10 @@ class VehicleParams:
         *,
         station_sets: Mapping[str, float] | None = None,
         profile: ParamProfile = ARDUCOPTER,
+        label: str | None = None,
     ) -> None:
         self.sysid = sysid
+        self.label = str(sysid) if label is None else label
         self.settings = settings
         self.profile = profile
         self.envelope: Envelope = settings.fallback
@@ -243,7 +245,7 @@ class VehicleParams:
             cfg.geofence_min, cfg.geofence_max, home_m, cfg.end, cfg.fence_margin_m
         )
         for note in self.fence_notes:
-            self._emit("info", f"vehicle {self.sysid}: {note}")
+            self._emit("info", f"vehicle {self.label}: {note}")
         for setting in settings:
             self._push_set(now, queue, compid, setting)
 
@@ -253,7 +255,7 @@ class VehicleParams:
             self._silent = True
             if name not in self.unanswered:
                 self.unanswered.append(name)
-            self._emit("warning", f"vehicle {self.sysid}: no answer to PARAM_REQUEST_READ "
+            self._emit("warning", f"vehicle {self.label}: no answer to PARAM_REQUEST_READ "
                        f"{name} (not an {self.profile.autopilot}?)")  # fmt: skip
         else:
             self.old.setdefault(name, value)
@@ -276,7 +278,7 @@ class VehicleParams:
             source += f"; {', '.join(self.envelope_missing)} unanswered: the mission's bound"
         self._emit(
             "info",
-            f"vehicle {self.sysid}: envelope {e.describe()} ({source})",
+            f"vehicle {self.label}: envelope {e.describe()} ({source})",
         )
 
     def _change(self, name: str, value: float, why: str) -> ParamChange:
@@ -300,9 +302,9 @@ class VehicleParams:
         ch = self.changes[name]
         ch.readback = self._values.get(name)
         if ch.old is not None and not ch.changed:
-            self._emit("param", f"vehicle {self.sysid}: {name} {ch.new:g} (unchanged; {ch.why})")
+            self._emit("param", f"vehicle {self.label}: {name} {ch.new:g} (unchanged; {ch.why})")
         else:
-            self._emit("param", f"vehicle {self.sysid}: {name} {_fmt(ch.old)} -> {ch.new:g} "
+            self._emit("param", f"vehicle {self.label}: {name} {_fmt(ch.old)} -> {ch.new:g} "
                        f"({ch.why})")  # fmt: skip
 
     # ------------------------------------------------------------- ending
@@ -351,10 +353,10 @@ class VehicleParams:
             result != NO_ANSWER and current is not None and same_param_value(current, ch.old)
         )
         if ch.restored:
-            self._emit("param", f"vehicle {self.sysid}: {name} restored to {ch.old:g}")
+            self._emit("param", f"vehicle {self.label}: {name} restored to {ch.old:g}")
         else:
             ch.note = f"not restored: the vehicle reports {_fmt(current)}"
-            self._emit("warning", f"vehicle {self.sysid}: {name} not restored to {ch.old:g} "
+            self._emit("warning", f"vehicle {self.label}: {name} not restored to {ch.old:g} "
                        f"(no answer; the vehicle reports {_fmt(current)})")  # fmt: skip
 
     # ------------------------------------------------------------- record

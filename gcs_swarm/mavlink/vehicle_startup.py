@@ -34,7 +34,7 @@ class _Startup(_VehicleBase):
         self._timers.pop("origin", None)
         self._event(
             "info",
-            f"vehicle {self.sysid}: EKF origin {origin.lat_deg:.7f} {origin.lon_deg:.7f} "
+            f"vehicle {self.label}: EKF origin {origin.lat_deg:.7f} {origin.lon_deg:.7f} "
             f"{origin.alt_m:.2f} m",
         )
         self._update_offset()
@@ -78,13 +78,13 @@ class _Startup(_VehicleBase):
             verdict = MAV_RESULT_NAMES.get(result, str(result))
             self._event(
                 "info",
-                f"vehicle {self.sysid}: no EXTENDED_SYS_STATE stream ({verdict}): on the "
+                f"vehicle {self.label}: no EXTENDED_SYS_STATE stream ({verdict}): on the "
                 "ground or in the air is judged from the armed flag and the height",
             )
 
     def _param_set(self, name: str, why: str, result: int, now: float) -> None:
         value = self.params.get(name, math.nan)
-        self._event("param", f"vehicle {self.sysid}: {name} = {value:g} {why}")
+        self._event("param", f"vehicle {self.label}: {name} = {value:g} {why}")
         if not self._commands.busy and self.phase is Phase.CONFIGURING:
             self._after_configuring(now)
 
@@ -132,7 +132,7 @@ class _Startup(_VehicleBase):
         if self._guided_asks < self.config.guided_attempts:  # else _send_guided fails it
             self._event(
                 "warning",
-                f"vehicle {self.sysid}: {why}: asking for {self.personality.ready_label} again "
+                f"vehicle {self.label}: {why}: asking for {self.personality.ready_label} again "
                 f"({self._guided_asks + 1} of at most {self.config.guided_attempts})",
             )
         self._send_guided(now)
@@ -171,7 +171,7 @@ class _Startup(_VehicleBase):
                     self.took_over = True
                     self._event(
                         "info",
-                        f"vehicle {self.sysid} is {where}, armed in {self.mode_name}: "
+                        f"vehicle {self.label} is {where}, armed in {self.mode_name}: "
                         "taking it over without a take-off",
                     )
                 self._go_to_start(now)
@@ -182,7 +182,7 @@ class _Startup(_VehicleBase):
         if self.armed:
             self._event(
                 "info",
-                f"vehicle {self.sysid} is armed {where}: arming is a no-op; "
+                f"vehicle {self.label} is armed {where}: arming is a no-op; "
                 "taking off at once (it disarms itself after DISARM_DELAY)",
             )
             self._send_takeoff(now)
@@ -253,7 +253,7 @@ class _Startup(_VehicleBase):
             # It disarmed itself (DISARM_DELAY) before the take-off came.
             self._timers.pop("takeoff", None)
             self._set_phase(Phase.WAITING_ARMABLE, now)
-            what = f"vehicle {self.sysid}: disarmed before its take-off; arming again"
+            what = f"vehicle {self.label}: disarmed before its take-off; arming again"
             self._event("warning", what)
             self._decide(now)
         else:

@@ -17,7 +17,7 @@ import yaml
 from gcs_swarm.control.params import Box, LawConfig, Vec3, WaypointForce
 from gcs_swarm.mission.bounds import leader_path_problem
 from gcs_swarm.mission.context import Context
-from gcs_swarm.mission.model import Emulator, Event, GeoPoint, Settings, Vehicle
+from gcs_swarm.mission.model import DEFAULT_NETWORK, Emulator, Event, GeoPoint, Settings, Vehicle
 from gcs_swarm.mission.source import compose
 
 __all__ = ["earlier_within", "key_line", "run_checks"]
@@ -69,23 +69,24 @@ def run_checks(
 def _check_vehicles(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:
     first_of: dict[int, int] = {}
     for i, v in enumerate(vehicles):
-        path = f"vehicles[{i}].sysid"
-        if v.sysid in first_of:
+        path = f"{vehicles[i].where}.sysid"
+        if v.key in first_of:  # a system id is unique within its network
             ctx.add(
                 ctx.line_of(path),
                 path,
-                f"duplicate system id {v.sysid} (also vehicles[{first_of[v.sysid]}])",
+                f"duplicate system id {v.sysid} (also {vehicles[first_of[v.key]].where})",
             )
         else:
-            first_of[v.sysid] = i
+            first_of[v.key] = i
+    _check_network_links(ctx, vehicles)
     starts = [v.start for v in vehicles]
     for i, hit in enumerate(earlier_within(starts, SAME_POINT_M)):
         if hit is not None:
-            path = f"vehicles[{i}].start"
+            path = f"{vehicles[i].where}.start"
             ctx.add(
                 ctx.line_of(path),
                 path,
-                f"same start as vehicles[{hit[0]}] {_fmt(vehicles[i].start)};"
+                f"same start as {vehicles[hit[0]].where} {_fmt(vehicles[i].start)};"
                 " vehicles must start apart",
             )
     if all(v.reserve for v in vehicles):
@@ -94,6 +95,21 @@ def _check_vehicles(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:
             "vehicles",
             "every vehicle is a reserve; at least one must fly from the start",
         )
+
+
+def _check_network_links(ctx: Context, vehicles: tuple[Vehicle, ...]) -> None:
+    """A link (connection string) belongs to one network: each network has its
+    own system-id space, so one link cannot carry two (the ids would clash)."""
+    first: dict[str, Vehicle] = {}
+    for v in vehicles:
+        if v.is_sim:
+            continue  # the bundled emulator serves each network on its own endpoints
+        other = first.setdefault(v.link, v)
+        if other.net_index != v.net_index:
+            path = f"{v.where}.link"
+            ctx.add(ctx.line_of(path), path,
+                    f"{v.link} is network {other.network}'s link ({other.where}); a link"
+                    " carries one network")  # fmt: skip
 
 
 def _check_ground(
@@ -122,12 +138,12 @@ def _check_ground(
             where = "its origin"
         elif v.origin is not None:
             ground = v.origin[2]
-            where = f"vehicles[{i}].origin"
+            where = f"{vehicles[i].where}.origin"
         else:
             ground = emulator.ground
             where = "emulator.ground"
         if v.start[2] <= ground:
-            path = f"vehicles[{i}].start"
+            path = f"{vehicles[i].where}.start"
             ctx.add(
                 ctx.line_of(path),
                 path,
@@ -152,14 +168,18 @@ def _check_ports(ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator
             f"{n_sim} sim vehicles need ports up to {emulator.base_port} + 10 x {n_sim - 1}"
             f" = {last}, over 65535",
         )
+    # Shared: one endpoint per network with sim vehicles, base_port + 10 j.
+    n_nets = len({v.net_index for v in vehicles if v.is_sim})
     ports = (
-        {emulator.base_port} if emulator.shared else set(range(emulator.base_port, last + 1, 10))
+        set(range(emulator.base_port, emulator.base_port + 10 * n_nets, 10))
+        if emulator.shared
+        else set(range(emulator.base_port, last + 1, 10))
     )
     for i, v in enumerate(vehicles):
         scheme, _, rest = v.link.partition(":")
         port = int(rest.rpartition(":")[2]) if scheme == "udpin" else None
         if port in ports:
-            path = f"vehicles[{i}].link"
+            path = f"{vehicles[i].where}.link"
             ctx.add(
                 ctx.line_of(path),
                 path,
@@ -195,7 +215,7 @@ def _check_links(ctx: Context, vehicles: tuple[Vehicle, ...], settings: Settings
     for link, idx in on_link.items():
         load = len(idx) * settings.rate
         if load > settings.link_budget:
-            path = f"vehicles[{idx[0]}].link"
+            path = f"{vehicles[idx[0]].where}.link"
             ctx.add(
                 ctx.line_of(path),
                 path,
@@ -206,7 +226,7 @@ def _check_links(ctx: Context, vehicles: tuple[Vehicle, ...], settings: Settings
     if settings.origin == "first-vehicle":
         for i, v in enumerate(vehicles):
             if not v.is_sim and v.start[2] <= 0.0:
-                path = f"vehicles[{i}].start"
+                path = f"{vehicles[i].where}.start"
                 ctx.add(
                     ctx.line_of(path),
                     path,
@@ -218,17 +238,18 @@ def _check_links(ctx: Context, vehicles: tuple[Vehicle, ...], settings: Settings
 def _check_events(ctx: Context, vehicles: tuple[Vehicle, ...], events: tuple[Event, ...]) -> None:
     """Replay the events in time order (file order for ties): a join needs a
     vehicle out of the formation, a leave one in it."""
-    by_id = {v.sysid: v for v in vehicles}
-    active = {v.sysid for v in vehicles if not v.reserve}
+    by_id = {v.key: v for v in vehicles}
+    active = {v.key for v in vehicles if not v.reserve}
     order = sorted(range(len(events)), key=lambda k: events[k].t)
     for k in order:
         e = events[k]
         path = f"events[{k}].{e.action}"
-        vehicle = by_id.get(e.sysid)
+        vehicle = by_id.get(e.key)
         if vehicle is None:
-            ctx.add(ctx.line_of(path), path, f"no vehicle has system id {e.sysid}")
+            where = "" if e.network == DEFAULT_NETWORK else f" in network {e.network}"
+            ctx.add(ctx.line_of(path), path, f"no vehicle has system id {e.sysid}{where}")
         elif e.action == "join":
-            if e.sysid in active:
+            if e.key in active:
                 why = (
                     "it flies from the start: mark it reserve: true"
                     if not vehicle.reserve
@@ -239,15 +260,15 @@ def _check_events(ctx: Context, vehicles: tuple[Vehicle, ...], events: tuple[Eve
                     path,
                     f"vehicle {e.sysid} is already in the formation at t = {e.t:g} s ({why})",
                 )
-            active.add(e.sysid)
+            active.add(e.key)
         else:
-            if e.sysid not in active:
+            if e.key not in active:
                 ctx.add(
                     ctx.line_of(path),
                     path,
                     f"vehicle {e.sysid} is not in the formation at t = {e.t:g} s",
                 )
-            active.discard(e.sysid)
+            active.discard(e.key)
 
 
 def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | None) -> None:
@@ -261,9 +282,9 @@ def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | Non
                 f"contains the leader's start {_fmt(law.leader.start)}"
                 f" (leader.start, line {leader_line})",
             )
-        for i, v in enumerate(vehicles or ()):
+        for v in vehicles or ():
             if _inside(box, v.start):
-                vpath = f"vehicles[{i}].start"
+                vpath = f"{v.where}.start"
                 ctx.add(ctx.line_of(vpath), vpath, f"{_fmt(v.start)} is inside {path}")
     force = law.leader.force
     if isinstance(force, WaypointForce):
@@ -290,11 +311,11 @@ def _check_law(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | Non
         same = earlier_within(starts, SAME_POINT_M)
         for i, hit in enumerate(earlier_within(starts, law.safety.separation)):
             if hit is not None and same[i] is None:  # a shared start is reported already
-                path = f"vehicles[{i}].start"
+                path = f"{vehicles[i].where}.start"
                 ctx.add(
                     ctx.line_of(path),
                     path,
-                    f"{hit[1]:g} m from vehicles[{hit[0]}], closer than"
+                    f"{hit[1]:g} m from {vehicles[hit[0]].where}, closer than"
                     f" limits.safety.separation = {law.safety.separation:g}",
                 )
 
@@ -346,7 +367,7 @@ def _search_around(
 def _check_fence(ctx: Context, law: LawConfig, vehicles: tuple[Vehicle, ...] | None) -> None:
     lim = law.limits
     points: list[tuple[str, Vec3]] = [("leader.start", law.leader.start)]
-    points += [(f"vehicles[{i}].start", v.start) for i, v in enumerate(vehicles or ())]
+    points += [(f"{v.where}.start", v.start) for v in vehicles or ()]
     for path, p in points:
         if p[2] < lim.z_floor:
             ctx.add(

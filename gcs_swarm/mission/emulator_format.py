@@ -78,7 +78,7 @@ EMULATOR = Obj(
             "lag",
             Num(lo=0.0, hi=5.0, nullable=True),
             _EMU.lag,
-            "first-order acceleration lag [s]; default 0.1 for ardupilot-like",
+            "first-order acceleration lag [s]; null: the preset's (0.05 for ardupilot-like)",
         ),
         Key("accel_max", Pos(nullable=True), None, "clamp on |acceleration| [m/s^2]; null: 5"),
         Key(

@@ -16,6 +16,7 @@ so that a file which leaves a key out gets exactly the dataclass default.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import yaml
@@ -86,6 +87,7 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
         reserve=v["reserve"],
         origin=v["origin"],
         setpoint=setpoint,
+        where=path,
     )
 
 
@@ -93,6 +95,7 @@ VEHICLE = Obj(
     name="vehicle",
     cls=Vehicle,
     build=_build_vehicle,
+    extra_fields=("network", "net_index", "where"),
     keys=(
         Key("sysid", _SYSID, REQUIRED, "MAVLink system id (255 is the ground station)"),
         Key(
@@ -138,6 +141,39 @@ VEHICLE = Obj(
 )
 
 
+# ---------------------------------------------------------------- networks:
+_NETWORK_PATTERN = r"^[A-Za-z][A-Za-z0-9_-]{0,31}$"
+_NETWORK_WHAT = "a network name (a letter, then up to 31 letters, digits, _ or -)"
+
+
+def _build_network(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
+    """A network's vehicles, each told its network; ``path`` is ``networks[j]``."""
+    index = int(path[path.rindex("[") + 1 : -1])
+    vehicles = tuple(replace(x, network=v["name"], net_index=index) for x in v["vehicles"])
+    return (v["name"], vehicles)
+
+
+NETWORK = Obj(
+    name="network",
+    build=_build_network,
+    what="a mapping with keys name, vehicles",
+    keys=(
+        Key(
+            "name",
+            Str(what=_NETWORK_WHAT, pattern=_NETWORK_PATTERN),
+            REQUIRED,
+            "the network's name (unique; names its .tlog)",
+        ),
+        Key(
+            "vehicles",
+            ListOf(item=VEHICLE, min_items=1, what="a list of vehicles (at least one)"),
+            REQUIRED,
+            "the network's vehicles: system ids 1..254 of their own",
+        ),
+    ),
+)
+
+
 # ---------------------------------------------------------------- events:
 def _build_event(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
     join, leave = v["join"], v["leave"]
@@ -157,6 +193,8 @@ def _build_event(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) ->
         t=v["t"],
         action="join" if join is not None else "leave",
         sysid=join if join is not None else leave,
+        # None: the mission's only network, resolved with the networks (loader)
+        network=v["network"],
     )
 
 
@@ -164,9 +202,16 @@ EVENT = Obj(
     name="event",
     cls=Event,
     build=_build_event,
-    extra_fields=("action", "sysid"),
+    extra_fields=("action", "sysid", "network", "net_index"),
     keys=(
         Key("t", NonNeg(), REQUIRED, "time from the formation start [s]"),
+        Key(
+            "network",
+            Str(what=_NETWORK_WHAT, pattern=_NETWORK_PATTERN),
+            None,
+            "the network of the vehicle (required when the mission has several)",
+            target=None,
+        ),
         Key(
             "join",
             _SYSID,
@@ -191,7 +236,7 @@ MISSION = Obj(
     name="top",
     partial=True,
     cls=Mission,
-    extra_fields=("source", "law", "text"),
+    extra_fields=("source", "law", "text", "vehicles", "networks"),
     what="a mapping of sections (mission, vehicles, gains, ...)",
     keys=(
         Key(
@@ -206,8 +251,17 @@ MISSION = Obj(
         Key(
             "vehicles",
             ListOf(item=VEHICLE, min_items=1, what="a list of vehicles (at least one)"),
-            REQUIRED,
-            "the vehicles",
+            None,
+            'the vehicles, all on one network (named "default"); or "networks"',
+            target=None,
+        ),
+        Key(
+            "networks",
+            ListOf(item=NETWORK, min_items=1, what="a list of networks (at least one)"),
+            None,
+            "vehicles grouped in named networks, each with its own links and system ids;"
+            ' instead of "vehicles"',
+            target=None,
         ),
         Key("leader", LEADER, Leader, "the virtual leader (Eq. 13)", target=None),
         Key("obstacles", OBSTACLES, None, "boxes and the avoidance field", target=None),

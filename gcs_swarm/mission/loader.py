@@ -24,7 +24,14 @@ from gcs_swarm.mission.checks import run_checks
 from gcs_swarm.mission.context import Context, Problem
 from gcs_swarm.mission.declarations import INVALID
 from gcs_swarm.mission.format import MISSION
-from gcs_swarm.mission.model import Emulator, Mission, Settings, Signing, Vehicle
+from gcs_swarm.mission.model import (
+    DEFAULT_NETWORK,
+    Emulator,
+    Mission,
+    Settings,
+    Signing,
+    Vehicle,
+)
 from gcs_swarm.mission.source import (
     KEY_FILE_MAX_BYTES,
     SIGNING_KEY_BYTES,
@@ -147,7 +154,7 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
     elif _ok(settings) and settings.name is None:
         settings = replace(settings, name=name)
     emulator = s.get("emulator", INVALID)
-    vehicles = s.get("vehicles", INVALID)
+    vehicles, networks = _vehicles_and_networks(ctx, s)
     obstacles = s.get("obstacles", INVALID)
     no_obstacles = obstacles is None
     if obstacles is None:
@@ -178,6 +185,8 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
             heading_auto=heading_auto,
         )  # fmt: skip
     events = s.get("events", INVALID)
+    if _ok(events) and networks is not None:
+        events = _resolve_event_networks(ctx, events, networks)
     if _ok(settings) and settings.signing is not None:
         _check_key_file(ctx, source, settings.signing)
     run_checks(
@@ -201,7 +210,61 @@ def _assemble(ctx: Context, source: str, name: str, s: dict[str, Any]) -> Missio
         emulator=emulator,
         events=tuple(sorted(events, key=lambda e: e.t)),
         log=log,
+        networks=networks or (DEFAULT_NETWORK,),
     )
+
+
+def _vehicles_and_networks(ctx: Context, s: dict[str, Any]) -> tuple[Any, tuple[str, ...] | None]:
+    """The flat vehicle list (file order) and the networks' names: exactly one
+    of ``vehicles`` (one implicit network, ``DEFAULT_NETWORK``) or
+    ``networks`` (names unique). ``(INVALID, None)`` when it does not parse."""
+    flat, nets = s.get("vehicles", INVALID), s.get("networks", INVALID)
+    if flat is None and nets is None:
+        line = min(ctx.lines.values(), default=1)  # the first section's, as for any missing key
+        ctx.add(line, "(top level)", 'missing required key "vehicles" (or "networks")')
+        return INVALID, None
+    if flat is INVALID or nets is INVALID:
+        return INVALID, None
+    if flat is not None and nets is not None:
+        line = min(ctx.line_of("vehicles"), ctx.line_of("networks"))
+        ctx.add(line, "networks", 'expected either "vehicles" or "networks", got both')
+        return INVALID, None
+    if flat is not None:
+        return flat, (DEFAULT_NETWORK,)
+    first: dict[str, int] = {}
+    for j, (name, _) in enumerate(nets):
+        if name in first:
+            path = f"networks[{j}].name"
+            ctx.add(ctx.line_of(path), path,
+                    f'duplicate network name "{name}" (also networks[{first[name]}])')  # fmt: skip
+        else:
+            first[name] = j
+    if len(first) != len(nets):
+        return INVALID, None
+    return tuple(v for _, vs in nets for v in vs), tuple(name for name, _ in nets)
+
+
+def _resolve_event_networks(ctx: Context, events: Any, networks: tuple[str, ...]) -> Any:
+    """Each event's network: the one it names (which must exist), or the
+    mission's only network; with several networks it must name one."""
+    out, ok = [], True
+    for k, e in enumerate(events):
+        name = e.network
+        path = f"events[{k}].network"
+        if name is None and len(networks) > 1:
+            ctx.add(ctx.line_of(f"events[{k}]"), path,
+                    f"expected the vehicle's network, one of {', '.join(networks)}"
+                    " (the mission has several)")  # fmt: skip
+            ok = False
+        elif name is not None and name not in networks:
+            names = ", ".join(networks)
+            ctx.add(ctx.line_of(path), path,
+                    f'no network is named "{name}"; expected one of {names}')  # fmt: skip
+            ok = False
+        else:
+            name = networks[0] if name is None else name
+            out.append(replace(e, network=name, net_index=networks.index(name)))
+    return tuple(out) if ok else INVALID
 
 
 def _check_key_file(ctx: Context, source: str, signing: Signing) -> None:
@@ -267,7 +330,8 @@ def describe(mission: Mission) -> str:
     s = mission.settings
     parts = [
         f'"{s.name}"',
-        f"{n} vehicle{'s' if n != 1 else ''} ({kinds})",
+        f"{n} vehicle{'s' if n != 1 else ''} ({kinds})"
+        + (f" on {len(mission.networks)} networks" if mission.multi_network else ""),
         f"{len(mission.reserves)} reserve",
         f"{len(mission.events)} event{'s' if len(mission.events) != 1 else ''}",
         f"{len(law.obstacles)} obstacle{'s' if len(law.obstacles) != 1 else ''}",

@@ -19,8 +19,10 @@ from gcs_swarm.control.params import LawConfig, Vec3
 from gcs_swarm.control.velocity_bias import BiasSettings
 
 __all__ = [
+    "DEFAULT_NETWORK",
     "DEFAULT_SIM_HOME",
     "EARTH_RADIUS_M",
+    "KEY_STRIDE",
     "Autopilot",
     "Dynamics",
     "Emulator",
@@ -41,6 +43,8 @@ __all__ = [
     "VelocityBias",
     "enu_offset_m",
     "geodetic_at",
+    "key_label",
+    "vehicle_key",
 ]
 
 Autopilot = Literal["ardupilot", "sim", "px4"]
@@ -50,6 +54,30 @@ EmulatorMode = Literal["lockstep", "realtime"]
 Dynamics = Literal["ideal", "ardupilot-like"]
 Spawn = Literal["ground", "air"]
 EventAction = Literal["join", "leave"]
+
+#: Name of the one network of a mission without ``networks:`` (docs/mission-format.md).
+DEFAULT_NETWORK = "default"
+#: A vehicle's key is ``network index * KEY_STRIDE + system id``: unique over
+#: the mission's networks, and equal to the system id in the first network.
+KEY_STRIDE = 256
+
+
+def vehicle_key(net_index: int, sysid: int) -> int:
+    """The vehicle's identity in the station: (network, system id) as one
+    integer, ``net_index * KEY_STRIDE + sysid`` (the system id itself in
+    network 0, so a mission without networks keys vehicles as it always did)."""
+    return net_index * KEY_STRIDE + sysid
+
+
+def key_label(key: int, networks: tuple[str, ...] = (DEFAULT_NETWORK,)) -> str:
+    """How a vehicle is named to people: its system id alone in a mission
+    without networks (``"7"``), else ``"network:sysid"`` (``"blue:7"``)."""
+    index, sysid = divmod(key, KEY_STRIDE)
+    if networks == (DEFAULT_NETWORK,) and index == 0:
+        return str(sysid)
+    name = networks[index] if index < len(networks) else f"#{index}"
+    return f"{name}:{sysid}"
+
 
 #: Flat-earth radius of mavlink-protocol.md "Frames and origins" [m].
 EARTH_RADIUS_M = 6378137.0
@@ -223,6 +251,17 @@ class Vehicle:
     reserve: bool = False
     origin: Vec3 | GeoPoint | None = None
     setpoint: Setpoint = "acceleration"
+    network: str = DEFAULT_NETWORK
+    """The network it is on (its system-id space and links); ``net_index`` its
+    place in the mission's ``networks`` list."""
+    net_index: int = 0
+    where: str = field(default="", compare=False, repr=False)
+    """Its key path in the file (``vehicles[2]``, ``networks[1].vehicles[0]``)."""
+
+    @property
+    def key(self) -> int:
+        """(network, system id) as one integer (``vehicle_key``)."""
+        return self.net_index * KEY_STRIDE + self.sysid
 
     @property
     def is_sim(self) -> bool:
@@ -250,8 +289,9 @@ class Emulator:
 
     mode: ``lockstep`` (one step per answered telemetry) or ``realtime``
     (times ``speedup``); dynamics ``ideal`` or ``ardupilot-like``; lag [s]
-    first-order acceleration lag (``None``: 0 for ideal, 0.1 for
-    ardupilot-like); ekf_ready_delay [s] before arming is accepted;
+    first-order acceleration lag (``None``: the emulator preset's, 0 for
+    ideal, 0.05 for ardupilot-like: docs/emulator.md); ekf_ready_delay [s]
+    before arming is accepted;
     ground [m] mission-frame z of the sim vehicles' homes (their EKF origins)
     unless a vehicle names its own origin; origin_spread [m] east spacing of
     the default homes (like SITL instances 5 m apart); accel_max [m/s^2]
@@ -289,24 +329,22 @@ class Emulator:
     shared: bool = False
     impairments: Impairments = field(default_factory=Impairments)
 
-    @property
-    def lag_s(self) -> float:
-        """The first-order lag actually used [s]."""
-        if self.lag is not None:
-            return self.lag
-        # 0.1 s: ArduCopter 4.5.6 SITL's step responses, fitted with its jerk
-        # limit modelled (the emulator's ardupilot preset; docs/emulator.md)
-        return 0.0 if self.dynamics == "ideal" else 0.1
-
 
 @dataclass(frozen=True)
 class Event:
     """At mission time ``t`` [s] (from the formation start) vehicle ``sysid``
-    joins or leaves the formation."""
+    of network ``network`` (index ``net_index``) joins or leaves the formation."""
 
     t: float
     action: EventAction
     sysid: int
+    network: str = DEFAULT_NETWORK
+    net_index: int = 0
+
+    @property
+    def key(self) -> int:
+        """The vehicle's key (``vehicle_key``)."""
+        return self.net_index * KEY_STRIDE + self.sysid
 
 
 @dataclass(frozen=True)
@@ -328,6 +366,8 @@ class Mission:
     emulator: Emulator = field(default_factory=Emulator)
     events: tuple[Event, ...] = ()
     log: LogSettings = field(default_factory=LogSettings)
+    networks: tuple[str, ...] = (DEFAULT_NETWORK,)
+    """The networks' names in file order (one ``default`` without ``networks:``)."""
     text: str = field(default="", repr=False, compare=False)
     """The YAML exactly as read and validated: a run folder's copy of the
     mission is this, not the file re-read later (it may have changed)."""
@@ -336,12 +376,26 @@ class Mission:
         """The law's parameters (same object as ``self.law``)."""
         return self.law
 
-    def vehicle(self, sysid: int) -> Vehicle:
-        """The vehicle with system id ``sysid`` (KeyError if none)."""
+    def vehicle(self, key: int) -> Vehicle:
+        """The vehicle with key ``key`` (its system id in a mission without
+        networks; KeyError if none)."""
         for v in self.vehicles:
-            if v.sysid == sysid:
+            if v.key == key:
                 return v
-        raise KeyError(sysid)
+        raise KeyError(key)
+
+    @property
+    def multi_network(self) -> bool:
+        """True when the file names its networks (``networks:``)."""
+        return self.networks != (DEFAULT_NETWORK,)
+
+    def label(self, key: int) -> str:
+        """The vehicle ``key`` as people read it (``key_label``)."""
+        return key_label(key, self.networks)
+
+    def network_vehicles(self, index: int) -> tuple[Vehicle, ...]:
+        """The vehicles of network ``index``, file order."""
+        return tuple(v for v in self.vehicles if v.net_index == index)
 
     @property
     def initial(self) -> tuple[Vehicle, ...]:
@@ -376,7 +430,7 @@ class Mission:
         return geodetic_at(DEFAULT_SIM_HOME, (-offset[0], -offset[1], -offset[2]))
 
     def sim_origins(self, mission_origin: GeoPoint) -> dict[int, GeoPoint]:
-        """Geodetic EKF origin (home) of every ``sim`` vehicle, by system id,
+        """Geodetic EKF origin (home) of every ``sim`` vehicle, by key,
         given the resolved mission origin (``origin_geo()`` or, for a real
         first vehicle, its GPS_GLOBAL_ORIGIN)."""
         out: dict[int, GeoPoint] = {}
@@ -384,8 +438,8 @@ class Mission:
             if not v.is_sim:
                 continue
             if isinstance(v.origin, GeoPoint):
-                out[v.sysid] = v.origin
+                out[v.key] = v.origin
             else:
                 offset = v.origin if v.origin is not None else (0.0, 0.0, self.emulator.ground)
-                out[v.sysid] = geodetic_at(mission_origin, offset)
+                out[v.key] = geodetic_at(mission_origin, offset)
         return out

@@ -27,4 +27,6 @@ def schema() -> dict[str, Any]:
         ),
     }
     out.update(MISSION.schema())
+    # Exactly one of the two: the vehicles on one network, or named networks.
+    out["oneOf"] = [{"required": ["vehicles"]}, {"required": ["networks"]}]
     return out

@@ -36,7 +36,9 @@ import numpy as np
 
 from gcs_swarm.errors import ReportError
 from gcs_swarm.mission import Mission, load_mission
+from gcs_swarm.mission.model import DEFAULT_NETWORK
 from gcs_swarm.report.figures import summarize_record
+from gcs_swarm.report.networks import label_summary
 from gcs_swarm.report.record import FlightRecord
 from gcs_swarm.report.replay import ReplayStats, record_from_tlog
 
@@ -50,6 +52,7 @@ __all__ = [
     "create_run_folder",
     "flown_run",
     "from_sim_result",
+    "network_tlogs",
     "rebuild_report",
     "report_from_tlog",
     "run_folder_name",
@@ -60,6 +63,8 @@ __all__ = [
 ]
 
 TLOG_NAME = "flight.tlog"
+#: A network's log in a run with networks (``network_tlogs``).
+_NETWORK_TLOG = re.compile(r"flight-[A-Za-z][A-Za-z0-9_-]{0,31}\.tlog")
 MISSION_NAME = "mission.yaml"
 SUMMARY_NAME = "summary.json"
 PICTURE_NAME = "report.png"
@@ -76,6 +81,12 @@ class RunFolder:
     def tlog(self) -> Path:
         return self.path / TLOG_NAME
 
+    def tlogs(self, networks: tuple[str, ...]) -> list[Path]:
+        """The run's telemetry logs, one per network in the mission's order:
+        ``flight.tlog`` alone for a mission without networks (as ever),
+        ``flight-<name>.tlog`` each otherwise (``network_tlogs``)."""
+        return network_tlogs(self.path, networks)
+
     @property
     def mission(self) -> Path:
         return self.path / MISSION_NAME
@@ -91,6 +102,16 @@ class RunFolder:
     @property
     def vehicle_params(self) -> Path:
         return self.path / VEHICLE_PARAMS_NAME
+
+
+def network_tlogs(folder: Path, networks: tuple[str, ...]) -> list[Path]:
+    """The telemetry logs of a run in ``folder`` with ``networks`` (a
+    mission's ``networks``): one per network, since each network has its own
+    system ids and a .tlog holds one id space (pymavlink's tools read each
+    as it is); ``flight.tlog`` alone without networks."""
+    if networks == (DEFAULT_NETWORK,):
+        return [folder / TLOG_NAME]
+    return [folder / f"flight-{name}.tlog" for name in networks]
 
 
 def run_folder_name(mission_name: str, when: datetime) -> str:
@@ -168,13 +189,16 @@ def write_report(
     picture_path: str | os.PathLike[str] | None,
     *,
     extra: dict[str, Any] | None = None,
+    networks: tuple[str, ...] = (DEFAULT_NETWORK,),
 ) -> dict[str, Any]:
     """Summarize ``rec``, write the JSON and (unless None) the PNG; returns
     the summary. ``extra`` is merged at the top level of the JSON (e.g. the
-    station's link counters)."""
+    station's link counters). ``networks``: the mission's; with named
+    networks every vehicle is told by ``network:sysid`` (``label_summary``)."""
     summary = summarize_record(rec)
     if extra:
         summary.update(extra)
+    label_summary(summary, networks)
     try:
         write_json(summary, summary_path)
         if picture_path is not None:
@@ -196,7 +220,7 @@ def report_from_tlog(
         rec = record_from_tlog(tlog_path, mission, stats=stats)
     except OSError as err:
         raise ReportError(f"{tlog_path}: cannot read the log: {err.strerror or err}") from None
-    summary = summarize_record(rec)
+    summary = label_summary(summarize_record(rec), mission.networks)
     summary["log"] = {
         "records": stats.records,
         "undecodable": stats.undecodable,
@@ -212,12 +236,15 @@ def _paths(path: Path, mission_path: str | None) -> tuple[Path, Path, Path, Path
     if path.is_dir():
         folder = RunFolder(path)
         mission = Path(mission_path) if mission_path else folder.mission
-        return folder.tlog, mission, folder.summary, folder.picture
+        tlog = folder.tlog
+        if not tlog.is_file():  # a run with networks: one log per network, read together
+            tlog = next(iter(sorted(path.glob("flight-*.tlog"))), tlog)
+        return tlog, mission, folder.summary, folder.picture
     if mission_path:
         mission = Path(mission_path)
     else:
         mission = path.parent / MISSION_NAME
-    if path.name == TLOG_NAME:
+    if path.name == TLOG_NAME or _NETWORK_TLOG.fullmatch(path.name):
         return path, mission, path.parent / SUMMARY_NAME, path.parent / PICTURE_NAME
     return path, mission, path.with_name(path.stem + "-summary.json"), path.with_suffix(".png")
 
@@ -268,8 +295,10 @@ def rebuild_report(
     tlog, mission_file, summary_path, picture_path = _paths(Path(path), mission_path)
     if not force:
         summary_path, picture_path = _free_pair(summary_path, picture_path)
-    summary, rec = report_from_tlog(tlog, _flown_mission(tlog, mission_file))
-    write_report(rec, summary_path, picture_path, extra={"log": summary["log"]})
+    mission = _flown_mission(tlog, mission_file)
+    summary, rec = report_from_tlog(tlog, mission)
+    write_report(rec, summary_path, picture_path, extra={"log": summary["log"]},
+                 networks=mission.networks)  # fmt: skip
     return summary, summary_path, picture_path
 
 
@@ -312,7 +341,10 @@ def summary_text(summary: dict[str, Any]) -> str:
             f"({_f(tm['loss_percent'], '%', 2)})"
         )
     if o["events"]:
-        ev = ", ".join(f"{e['sysid']} {e['action']}s at {e['t_s']:.2f} s" for e in o["events"])
+        ev = ", ".join(
+            f"{e.get('vehicle', e['sysid'])} {e['action']}s at {e['t_s']:.2f} s"
+            for e in o["events"]
+        )
         lines.append(f"membership: {ev}")
     return "\n".join(lines)
 
@@ -369,13 +401,16 @@ def write_simulation_report(
     *,
     name: str = "",
     picture: bool = True,
+    networks: tuple[str, ...] = (DEFAULT_NETWORK,),
 ) -> dict[str, Any]:
     """``gcs-swarm simulate``: ``summary.json`` and ``report.png`` of a
-    simulation in ``out_dir`` (created); returns the summary."""
+    simulation in ``out_dir`` (created); returns the summary. ``networks``:
+    the mission's (``write_report``)."""
     rec = from_sim_result(result, name=name)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ReportError(f"{out}: cannot create the folder: {err.strerror or err}") from None
-    return write_report(rec, out / SUMMARY_NAME, out / PICTURE_NAME if picture else None)
+    return write_report(rec, out / SUMMARY_NAME, out / PICTURE_NAME if picture else None,
+                        networks=networks)  # fmt: skip

@@ -70,8 +70,12 @@ def build_figure(rec: FlightRecord, summary: dict[str, Any] | None = None) -> Fi
     colours = _colours(len(rec.ids))
     ser = series(rec)
     stride = max(1, rec.steps // _MAX_POINTS)
-    _draw_3d(ax3d, rec, colours, stride)
-    _draw_time(axes, rec, ser, colours, stride)
+    names = {int(k): str(k) for k in rec.ids}
+    if summary is not None and len(summary.get("vehicles", {})) == len(names):
+        # The summary's names: network:sysid on a mission with networks (report.networks).
+        names = dict(zip(names, summary["vehicles"], strict=True))
+    _draw_3d(ax3d, rec, colours, stride, names)
+    _draw_time(axes, rec, ser, colours, stride, names)
 
     when = f"{rec.times_s[-1]:.1f} s of mission time" if rec.steps else "no control step"
     head = f"{rec.name or 'gcs-swarm run'}: {when}, {len(rec.ids)} vehicles ({rec.source})"
@@ -105,7 +109,9 @@ def _box_faces(centre: F64, half: F64) -> list[list[F64]]:
     return [[v[i] for i in face] for face in idx]
 
 
-def _draw_3d(ax: Any, rec: FlightRecord, colours: list[Any], stride: int) -> None:
+def _draw_3d(
+    ax: Any, rec: FlightRecord, colours: list[Any], stride: int, names: dict[int, str]
+) -> None:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # type: ignore[import-untyped]
@@ -118,7 +124,7 @@ def _draw_3d(ax: Any, rec: FlightRecord, colours: list[Any], stride: int) -> Non
         if not ok.any():
             continue
         (line,) = ax.plot(p[:, 0], p[:, 1], p[:, 2], color=colours[j], lw=1.4,
-                          label=f"vehicle {sysid}")  # fmt: skip
+                          label=f"vehicle {names[int(sysid)]}")  # fmt: skip
         handles.append(line)
         first, last = p[ok][0], rec.pos_m[:, j][~np.isnan(rec.pos_m[:, j, 0])][-1]
         ax.scatter(*first, color=colours[j], marker="o", s=22)
@@ -182,7 +188,7 @@ def _marked(rec: FlightRecord) -> list[tuple[float, str, int]]:
             if not (a == "join" and ts <= t0) and not (a == "leave" and ts >= t1)]  # fmt: skip
 
 
-def _mark_events(axes: list[Axes], rec: FlightRecord) -> list[Any]:
+def _mark_events(axes: list[Axes], rec: FlightRecord, names: dict[int, str]) -> list[Any]:
     """Shade avoidance episodes and draw join/leave lines on every panel;
     returns legend handles for them."""
     from matplotlib.lines import Line2D
@@ -208,7 +214,7 @@ def _mark_events(axes: list[Axes], rec: FlightRecord) -> list[Any]:
             ax.axvline(ts, color=_JOIN_COLOUR if join else _LEAVE_COLOUR,
                        ls="-" if join else "--", lw=1.0, alpha=0.8)  # fmt: skip
     for ts, action, sysid in _marked(rec):
-        axes[0].annotate(f"{'+' if action == 'join' else '−'}{sysid}", (ts, 1.0),
+        axes[0].annotate(f"{'+' if action == 'join' else '−'}{names.get(sysid, sysid)}", (ts, 1.0),
                          xycoords=("data", "axes fraction"), xytext=(2, -10),
                          textcoords="offset points", fontsize=8,
                          color=_JOIN_COLOUR if action == "join" else _LEAVE_COLOUR)  # fmt: skip
@@ -223,13 +229,19 @@ def _mark_events(axes: list[Axes], rec: FlightRecord) -> list[Any]:
 
 
 def _draw_time(
-    axes: list[Axes], rec: FlightRecord, ser: Series, colours: list[Any], stride: int
+    axes: list[Axes],
+    rec: FlightRecord,
+    ser: Series,
+    colours: list[Any],
+    stride: int,
+    names: dict[int, str],
 ) -> None:
     t = rec.times_s[::stride]
     ax_r, ax_s, ax_c, ax_a = axes
-    marks = _mark_events(axes, rec)
+    marks = _mark_events(axes, rec, names)
     for j, sysid in enumerate(rec.ids):
-        ax_r.plot(t, ser.radius_m[::stride, j], color=colours[j], lw=1.1, label=f"vehicle {sysid}")
+        ax_r.plot(t, ser.radius_m[::stride, j], color=colours[j], lw=1.1,
+                  label=f"vehicle {names[int(sysid)]}")  # fmt: skip
         ax_a.plot(t, ser.accel_mps2[::stride, j], color=colours[j], lw=0.9)
     ax_r.set_ylabel("radius [m]")
     ax_r.legend(handles=[*ax_r.get_legend_handles_labels()[0][:10], *marks], fontsize=8,

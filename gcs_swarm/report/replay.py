@@ -30,8 +30,10 @@ Two ways to find the control steps, the leader and the behaviour:
 
 from __future__ import annotations
 
+import heapq
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,6 +44,7 @@ from gcs_swarm.control.safety import filter_acts
 from gcs_swarm.mavlink.builders import TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
 from gcs_swarm.mavlink.coordinates import GeoOrigin, origin_offset_m, vector_ned_to_mission
 from gcs_swarm.mission import Mission
+from gcs_swarm.mission.model import KEY_STRIDE
 from gcs_swarm.report.notes import parse_note
 from gcs_swarm.report.record import F64, FlightRecord, FlightRecorder
 from gcs_swarm.report.tlog import TlogRecord, TlogStats, read_tlog
@@ -90,7 +93,7 @@ class _State:
     def __init__(self, mission: Mission) -> None:
         geo = mission.origin_geo()
         self.reference = None if geo is None else GeoOrigin(geo.lat, geo.lon, geo.alt)
-        self.first = mission.vehicles[0].sysid
+        self.first = mission.vehicles[0].key
         self.origins: dict[int, GeoOrigin] = {}
         self.lpn: dict[int, Any] = {}
         self.mav: Any = _dialect.MAVLink(None)
@@ -102,8 +105,8 @@ class _State:
         except (_dialect.MAVError, ValueError, IndexError, KeyError, TypeError):
             return None
 
-    def take(self, msg: Any) -> None:
-        sysid = int(msg.get_srcSystem())
+    def take(self, msg: Any, base: int = 0) -> None:
+        sysid = int(msg.get_srcSystem()) + base  # the vehicle's key
         if msg.get_msgId() == _LPN:
             self.lpn[sysid] = msg
         else:
@@ -139,9 +142,9 @@ def record_from_tlog(
 ) -> FlightRecord:
     """The flight record of the run logged in ``path`` (see the module docstring)."""
     st = stats if stats is not None else ReplayStats()
-    records = list(read_tlog(path, st.tlog))
+    records = _network_records(path, mission, st)
     st.records = len(records)
-    st.annotated = any(r.direction == "note" for r in records)
+    st.annotated = any(r.direction == "note" for r, _ in records)
     law = mission.law
     recorder = FlightRecorder(
         name=mission.settings.name,
@@ -159,32 +162,55 @@ def record_from_tlog(
     return recorder.record()
 
 
-def _inbound(rec: TlogRecord, state: _State, recorder: FlightRecorder, st: ReplayStats) -> bool:
+_Keyed = tuple[TlogRecord, int]
+"""A record and the base of its network's keys (``mission.vehicle_key``)."""
+
+
+def _network_records(
+    path: str | os.PathLike[str], mission: Mission, st: ReplayStats
+) -> list[_Keyed]:
+    """The records of the run: ``path`` alone for a mission without networks;
+    else every network's ``.tlog`` beside it (``flight-<name>.tlog``), each
+    record with its network's key base, merged in time order (the first
+    network's first on a tie: it holds the station's notes)."""
+    if not mission.multi_network:
+        return [(r, 0) for r in read_tlog(path, st.tlog)]
+    folder = Path(path).parent
+    streams = [
+        [(r, j * KEY_STRIDE) for r in read_tlog(folder / f"flight-{name}.tlog", st.tlog)]
+        for j, name in enumerate(mission.networks)
+    ]
+    return list(heapq.merge(*streams, key=lambda kr: kr[0].t_us))
+
+
+def _inbound(
+    rec: TlogRecord, base: int, state: _State, recorder: FlightRecorder, st: ReplayStats
+) -> bool:
     """Count an inbound frame; take LOCAL_POSITION_NED / GPS_GLOBAL_ORIGIN.
     True when it was a LOCAL_POSITION_NED."""
     h = rec.header
     if h.msgid not in (_LPN, _ORIGIN):
-        recorder.inbound(h.sysid, h.compid, h.seq, h.msgid)
+        recorder.inbound(h.sysid + base, h.compid, h.seq, h.msgid)
         return False
     msg = state.decode(rec)
     if msg is None:
         st.undecodable += 1
         return False
-    recorder.inbound(h.sysid, h.compid, h.seq, h.msgid)
-    state.take(msg)
+    recorder.inbound(h.sysid + base, h.compid, h.seq, h.msgid)
+    state.take(msg, base)
     return h.msgid == _LPN
 
 
 def _replay_notes(
-    records: list[TlogRecord], state: _State, recorder: FlightRecorder, st: ReplayStats
+    records: list[_Keyed], state: _State, recorder: FlightRecorder, st: ReplayStats
 ) -> None:
     members: set[int] = set()
     behaviour, episode = "formation", 0
     stepped = False
-    for rec in records:
+    for rec, base in records:
         direction, msgid = rec.direction, rec.header.msgid
         if direction == "in":
-            _inbound(rec, state, recorder, st)
+            _inbound(rec, base, state, recorder, st)
             continue
         if msgid not in (_SETPOINT, _DEBUG_VECT):
             continue
@@ -195,7 +221,7 @@ def _replay_notes(
         if direction == "out":
             a = _accel(msg) if msgid == _SETPOINT else None
             if a is not None and stepped:
-                recorder.set_accel(int(msg.target_system), a)
+                recorder.set_accel(int(msg.target_system) + base, a)
             continue
         note = parse_note(msg)
         if note is None:
@@ -224,14 +250,14 @@ def _replay_notes(
 
 
 def _replay_law(
-    records: list[TlogRecord],
+    records: list[_Keyed],
     state: _State,
     recorder: FlightRecorder,
     st: ReplayStats,
     mission: Mission,
 ) -> None:
-    px4 = {v.sysid for v in mission.vehicles if v.autopilot == "px4"}
-    loop = ControlLoop(mission.law, {v.sysid: v.q for v in mission.vehicles},
+    px4 = {v.key for v in mission.vehicles if v.autopilot == "px4"}
+    loop = ControlLoop(mission.law, {v.key: v.q for v in mission.vehicles},
                        mission.settings.rate, defer=False)  # fmt: skip
     stale_us = mission.settings.stale_timeout * 1e6
     last_sent: dict[int, int] = {}
@@ -269,12 +295,12 @@ def _replay_law(
                 recorder.set_accel(sysid, a)
         group.clear()
 
-    for rec in records:
+    for rec, base in records:
         h = rec.header
         if rec.direction == "in":
             if h.msgid == _LPN:
                 flush()  # the step used the positions before this one
-            _inbound(rec, state, recorder, st)
+            _inbound(rec, base, state, recorder, st)
             continue
         if rec.direction != "out" or h.msgid not in (_SETPOINT, _COMMAND_LONG):
             continue
@@ -282,7 +308,7 @@ def _replay_law(
         if msg is None:
             st.undecodable += 1
             continue
-        target = int(msg.target_system)
+        target = int(msg.target_system) + base
         if h.msgid == _COMMAND_LONG:
             if target in members and _ends_flight(msg, target in px4):
                 flush()

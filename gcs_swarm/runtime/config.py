@@ -10,16 +10,18 @@ from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mavlink.states import ProtocolConfig
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
-from gcs_swarm.mission.model import Startup
+from gcs_swarm.mission.model import KEY_STRIDE, Startup
 
 __all__ = ["StationConfig", "VehiclePlan"]
 
 
 @dataclass(frozen=True)
 class VehiclePlan:
-    """One vehicle as the station sees it: ``link`` a connection string,
-    ``start_m`` mission frame [m], ``q`` charge [C] (Eq. 9), ``params`` what
-    the station reads and sets among its parameters (envelope, failsafe, fence)."""
+    """One vehicle as the station sees it: ``sysid`` its key (its system id,
+    plus network index * 256 on a later network: ``mission.vehicle_key``),
+    ``link`` a connection string, ``start_m`` mission frame [m], ``q``
+    charge [C] (Eq. 9), ``params`` what the station reads and sets among its
+    parameters (envelope, failsafe, fence)."""
 
     sysid: int
     link: str
@@ -32,6 +34,13 @@ class VehiclePlan:
     setpoint: str = "acceleration"
     """The mission's ``setpoint``: ``acceleration`` (type_mask 3135) or
     ``velocity+acceleration`` (3079, Eq. V1 of docs/setpoints.md)."""
+    label: str = ""
+    """How people read its identity (``blue:7``; empty: the key as a number)."""
+
+    @property
+    def base(self) -> int:
+        """Its key less its system id: its network index * 256."""
+        return self.sysid - self.sysid % KEY_STRIDE
 
 
 @dataclass(frozen=True)

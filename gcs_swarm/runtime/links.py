@@ -92,6 +92,7 @@ class Link:
         sysids: Collection[int] | None = None,
         allow_rebind: bool = False,
         on_notice: Callable[[str], None] | None = None,
+        base: int = 0,
     ) -> None:
         """``on_message`` gets every decoded message, except the flying
         vehicles' reports written into ``telemetry`` (``LinkState``); after a
@@ -100,7 +101,9 @@ class Link:
         ``sysids``: the system ids this link serves (None: any); only they
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
         only (``LinkState``). ``on_notice`` gets one line per refused or
-        accepted rebinding of a vehicle (the first refusal only)."""
+        accepted rebinding of a vehicle (the first refusal only). ``base``:
+        the keys of this link's network less its system ids (``LinkState``;
+        ``sysids`` and what is sent are keys)."""
         self.connection = connection
         """The connection string as given (the swarm core's name of the link)."""
         self.endpoint = parse_connection(connection)
@@ -113,6 +116,7 @@ class Link:
             telemetry=telemetry,
             on_frame=on_frame,
             on_notice=on_notice,
+            base=base,
         )
         self.latency = LatencyRing()
         """Telemetry-arrival-to-setpoint-write times of this link's setpoints."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import os
 import shutil
 import time
 from collections.abc import Callable, Mapping
@@ -24,29 +23,27 @@ from contextlib import AbstractAsyncContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
-from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned, origin_offset_m
-from gcs_swarm.mavlink.vehicle_params import ParamSettings
-from gcs_swarm.mission import GeoPoint as MissionGeoPoint
-from gcs_swarm.mission import Mission, Vehicle
-from gcs_swarm.mission.source import (
-    KEY_FILE_MAX_BYTES,
-    key_file_path,
-    read_regular,
-    signing_key_bytes,
-)
+from gcs_swarm.mission import Mission
+from gcs_swarm.mission.model import KEY_STRIDE
 from gcs_swarm.offline import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.report.replay import safety_applied
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
-from gcs_swarm.runtime.station import Station, StationConfig, VehiclePlan
+from gcs_swarm.runtime.plans import (
+    END_MODES,
+    EXIT_CODES,
+    emulator_config,
+    param_settings,
+    signing_key,
+    station_config,
+)
+from gcs_swarm.runtime.station import Station, StationConfig
 from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.tlog import TlogWriter
-from sim_vehicle import Emulator, EmulatorConfig, Impairment, VehicleSpec
+from sim_vehicle import Emulator
 
 if TYPE_CHECKING:
     from gcs_swarm.control.envelope import Demand
@@ -65,208 +62,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger("gcs_swarm.run")
-
-END_MODES = {
-    "hold": b.COPTER_MODES["BRAKE"],
-    "land": b.COPTER_MODES["LAND"],
-    "rtl": b.COPTER_MODES["RTL"],
-}
-"""Mission end action -> ArduCopter mode (mavlink-protocol.md, "Ending")."""
-
-EXIT_CODES = {"completed": 0, "degraded": 1, "failed": 1, "startup failed": 2, "cancelled": 130}
-"""``gcs-swarm run``'s exit code per outcome (``Station.outcome``): only a
-run in which every vehicle that flew ended is 0."""
-
-
-LOCKSTEP_GROUND_SPEEDUP = 20.0
-"""Pace of a lockstep emulator's ground phases (take-off etc.), x real time."""
-
-
-def _geo(point: MissionGeoPoint | None) -> GeoOrigin | None:
-    return None if point is None else GeoOrigin(point.lat, point.lon, point.alt)
-
-
-def _key_bytes(raw: bytes, where: str) -> bytes:
-    key = signing_key_bytes(raw)
-    if key is not None:
-        return key
-    # Never echo the content: only its length.
-    raise StartupError(
-        f"{where}: expected a {SIGNING_KEY_BYTES}-byte signing key "
-        f"(raw, or {2 * SIGNING_KEY_BYTES} hex digits), got {len(raw)} bytes"
-    )
-
-
-def signing_key(mission: Mission) -> bytes | None:
-    """The MAVLink 2 signing key ``mission.signing`` names (None: no signing),
-    read from its file or environment variable. ``StartupError`` when it is
-    missing or malformed; the message never contains the key."""
-    sig = mission.settings.signing
-    if sig is None:
-        return None
-    if sig.key_env is not None:
-        value = os.environ.get(sig.key_env)
-        if value is None:
-            raise StartupError(f"signing key: environment variable {sig.key_env} is not set")
-        return _key_bytes(value.encode("utf-8", "replace"), f"signing key in ${sig.key_env}")
-    assert sig.key_file is not None
-    path = key_file_path(mission.source, sig.key_file)
-    try:
-        raw = read_regular(path, KEY_FILE_MAX_BYTES)
-    except OSError as err:
-        raise StartupError(f"signing key file {path}: {err.strerror or err}") from None
-    return _key_bytes(raw, f"signing key file {path}")
-
-
-def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
-    """What the station reads and sets among ``vehicle``'s parameters: the
-    mission's ``startup.read_envelope`` and ``failsafe`` keys, where null
-    means on for an ``ardupilot`` vehicle and off for a ``sim`` one (today's
-    emulator does not answer these parameters: docs/vehicle-safety.md). A
-    ``px4`` vehicle, real or emulated, counts as real: the emulator's PX4
-    answers its parameters (COM_OF_LOSS_T, COM_OBL_RC_ACT, MPC_*); PX4 gets
-    no fence from the station (ArduCopter's FENCE_* only)."""
-    s, limits = mission.settings, mission.law.limits
-    fs, real = s.failsafe, vehicle.autopilot in ("ardupilot", "px4")
-
-    def on(choice: bool | None) -> bool:
-        return real if choice is None else choice
-
-    return ParamSettings(
-        read_envelope=on(s.startup.read_envelope),
-        gcs_failsafe=on(fs.gcs),
-        gcs_timeout_s=fs.timeout,
-        fence=on(fs.fence) and limits.geofence_min is not None,
-        fence_margin_m=fs.fence_margin,
-        restore=fs.restore,
-        end=s.end,
-        geofence_min=limits.geofence_min,
-        geofence_max=limits.geofence_max,
-        station_sysid=STATION_SYSID,
-        # The envelope of a vehicle that does not answer a read: the mission's
-        # (limits.envelope; unbounded when it names none).
-        fallback=limits.envelope,
-    )
-
-
-def station_config(
-    mission: Mission, links: Mapping[int, str], *, lockstep: bool = False
-) -> StationConfig:
-    """The station's view of ``mission``, with each vehicle's connection string
-    and autopilot (ArduCopter GUIDED or PX4 OFFBOARD: mavlink/personality.py)."""
-    s = mission.settings
-    return StationConfig(
-        vehicles=tuple(
-            VehiclePlan(
-                v.sysid,
-                links[v.sysid],
-                v.start,
-                v.q,
-                v.reserve,
-                param_settings(mission, v),
-                autopilot=v.autopilot,
-                setpoint=v.setpoint,
-            )
-            for v in mission.vehicles
-        ),
-        law=mission.law,
-        rate_hz=s.rate,
-        duration_s=s.duration,
-        end_mode=END_MODES[s.end],
-        stale_timeout_s=s.stale_timeout,
-        ready_timeout_s=s.startup.ready_timeout,
-        guid_timeout_s=s.startup.guid_timeout,
-        command_attempts=s.startup.command_attempts,
-        takeoff_alt_m=s.startup.takeoff_alt,
-        start_tolerance_m=s.startup.start_tolerance,
-        start_speed_tolerance_mps=s.startup.start_speed_tolerance,
-        mission_origin=_geo(mission.origin_geo()),
-        events=tuple((e.t, e.action, e.sysid) for e in mission.events),
-        lockstep=lockstep,
-        delay_compensation=s.delay_compensation,
-        velocity_bias=BiasSettings(
-            correct=s.velocity_bias.correct,
-            window_s=s.velocity_bias.window,
-            max_mps=s.velocity_bias.max,
-        ),
-        signing_key=signing_key(mission),
-        allow_rebind=s.signing is not None and s.signing.allow_rebind,
-    )
-
-
-def emulator_config(mission: Mission, *, airborne: bool = False) -> EmulatorConfig:
-    """The ``sim_vehicle.EmulatorConfig`` of the mission's ``sim`` vehicles.
-
-    Each sim vehicle's EKF origin (its home, on the ground) comes from the
-    mission; with ``airborne`` (or ``emulator.spawn: air``) the initial
-    vehicles start armed in GUIDED, hovering at their mission start points
-    (the station then takes them over); reserves always start on the ground
-    (the station readies them with the others: take-off, then holding at
-    their start until their join event). ``emulator.accel_max`` sets SIM_ACC_MAX,
-    ``noise_pos``/``noise_vel`` the seeded telemetry noise, ``base_port`` and
-    ``shared`` where the endpoints bind.
-    """
-    airborne = airborne or mission.emulator.spawn == "air"
-    origin = mission.origin_geo()
-    if origin is None:
-        raise StartupError("sim vehicles need a mission origin or a sim first vehicle")
-    homes = mission.sim_origins(origin)
-    ref = GeoOrigin(origin.lat, origin.lon, origin.alt)
-    specs = []
-    for v in mission.vehicles:
-        if not v.is_sim:
-            continue
-        # Snap each home to GPS_GLOBAL_ORIGIN's resolution (1e-7 deg, 1 mm): the
-        # station learns origins from that message, and an origin it cannot
-        # represent would put a constant bias of up to ~1 cm on the vehicle.
-        home = _snap(homes[v.sysid])
-        start = (0.0, 0.0, 0.0)
-        if airborne and not v.reserve:
-            offset = origin_offset_m(home, ref)
-            ned = mission_to_ned(v.start, offset)
-            start = (float(ned[0]), float(ned[1]), float(ned[2]))
-        specs.append(
-            VehicleSpec(
-                sysid=v.sysid,
-                origin=(home.lat_deg, home.lon_deg, home.alt_m),
-                start_ned_m=start,
-                airborne=airborne and not v.reserve,
-                autopilot="px4" if v.autopilot == "px4" else "ardupilot",
-            )
-        )
-    em = mission.emulator
-    imp = em.impairments
-    link = Impairment(loss=imp.loss, delay_s=imp.delay, jitter_s=imp.jitter,
-                      duplicate=imp.duplicate)  # fmt: skip
-    return EmulatorConfig(
-        vehicles=tuple(specs),
-        host=em.host,
-        rate_hz=mission.settings.rate,
-        clock=em.mode,
-        # Lockstep: steps taken while no vehicle holds the clock (start-up on
-        # the ground, after the ending) are paced at speedup x wall clock
-        # (sim_vehicle lockstep rule 4); the mission's speedup is realtime-only.
-        speedup=em.speedup if em.mode == "realtime" else LOCKSTEP_GROUND_SPEEDUP,
-        dynamics="ideal" if em.dynamics == "ideal" else "ardupilot",
-        accel_tau_s=em.lag_s,
-        ekf_ready_s=em.ekf_ready_delay,
-        noise_pos_m=em.noise_pos,
-        noise_vel_m_s=em.noise_vel,
-        vel_bias_ned_m_s=em.velocity_bias_ned,
-        vel_bias_flip_s=em.velocity_bias_flip,
-        base_port=0 if em.shared else em.base_port,
-        shared_port=em.base_port if em.shared else None,
-        params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},
-        seed=imp.seed,
-        uplink=link,
-        downlink=link,
-        signing_key=signing_key(mission),
-    )
-
-
-def _snap(point: MissionGeoPoint) -> GeoOrigin:
-    return GeoOrigin(round(point.lat * 1e7) / 1e7, round(point.lon * 1e7) / 1e7,
-                    round(point.alt * 1e3) / 1e3)  # fmt: skip
 
 
 async def run_mission(
@@ -294,9 +89,10 @@ async def run_mission(
     is up; its ``EndRequest`` (the page's Hold, Land, Return) ends the run
     with that end action, as the end of the mission's duration does.
 
-    ``links`` maps system ids to connection strings and overrides the file's
-    (tests point them at their own emulator); vehicles still ``sim`` make this
-    start the bundled emulator on 127.0.0.1. ``lockstep`` tells the station
+    ``links`` maps vehicle keys (``Vehicle.key``: the system id on a mission
+    without networks) to connection strings and overrides the file's (tests
+    point them at their own emulator); vehicles still ``sim`` make this
+    start the bundled emulator on 127.0.0.1, one per network. ``lockstep`` tells the station
     the emulator runs in lockstep (default: from the mission, for sim
     vehicles). ``on_summary`` also receives the summary when the run is
     cancelled or fails to start (the exception then propagates).
@@ -305,12 +101,13 @@ async def run_mission(
     """
     wall0 = time.monotonic()
     given = dict(links or {})
-    sims = [v for v in mission.vehicles if v.is_sim and v.sysid not in given]
+    sims = [v for v in mission.vehicles if v.is_sim and v.key not in given]
     if lockstep is None:
         lockstep = bool(sims) and mission.emulator.mode == "lockstep"
     folder: RunFolder | None = None
     recorder: FlightRecorder | None = None
-    tlog: TlogWriter | None = None
+    tlogs: list[TlogWriter] = []
+    """One per network, in the mission's order (the first holds the station's notes)."""
     if log_dir is not None:
         folder = create_run_folder(mission, base_dir=log_dir)
         if on_folder is not None:
@@ -327,7 +124,9 @@ async def run_mission(
     try:
         async with contextlib.AsyncExitStack() as stack:
             if folder is not None:
-                tlog = await stack.enter_async_context(TlogWriter(folder.tlog, on_error=log_failed))
+                for path in folder.tlogs(mission.networks):
+                    tlogs.append(await stack.enter_async_context(
+                        TlogWriter(path, on_error=log_failed)))  # fmt: skip
                 recorder = FlightRecorder(
                     name=mission.settings.name,
                     source="run",
@@ -335,29 +134,35 @@ async def run_mission(
                     r0=mission.law.avoidance.r0,
                     rate_hz=mission.settings.rate,
                     safety=safety_applied(mission),
-                    sink=_note_sink(tlog),
+                    sink=_note_sink(tlogs[0]),
                 )
-            if sims:
-                cfg = emulator_config(mission, airborne=sim_airborne)
+            # One emulator per network: each speaks its own system ids, on its
+            # own endpoints (and its own lockstep; the station answers them all).
+            for j in sorted({v.net_index for v in sims}):
+                cfg = emulator_config(mission, airborne=sim_airborne, network=j)
                 try:
                     emu = await stack.enter_async_context(Emulator(cfg))
                 except OSError as err:  # e.g. emulator.host does not resolve, a port in use
                     raise LinkError(
                         f"bundled emulator on {cfg.host}: {err.strerror or err}"
                     ) from None
-                for v in sims:
+                mine = [v for v in sims if v.net_index == j]
+                for v in mine:
                     host, port = emu.endpoints[v.sysid]
-                    given[v.sysid] = f"udpout:{host}:{port}"
-                _log.info("bundled emulator: %d vehicles on %s", len(sims), cfg.host)
+                    given[v.key] = f"udpout:{host}:{port}"
+                _log.info("bundled emulator: %d vehicles on %s", len(mine), cfg.host)
             for v in mission.vehicles:
-                given.setdefault(v.sysid, v.link)
+                given.setdefault(v.key, v.link)
             station_cfg = station_config(mission, given, lockstep=lockstep)
+            network_of = {given[v.key]: v.net_index for v in mission.vehicles}
             station = await stack.enter_async_context(
                 Station(
                     _with_end_timeout(station_cfg, end_timeout_s),
                     on_status=on_status,
                     recorder=recorder,
-                    on_frame=None if tlog is None else _frame_sink(tlog),
+                    on_frame_for=None
+                    if not tlogs
+                    else lambda link: _frame_sink(tlogs[network_of[link]]),
                 )
             )
             end_mode: int | None = None
@@ -407,12 +212,13 @@ async def run_mission(
                 station,
                 outcome=outcome,
                 wall_time_s=time.monotonic() - wall0,
-                logging_error=None if tlog is None else tlog.error,
+                logging_error=next((t.error for t in tlogs if t.error), None),
             )
             if folder is not None:
                 _write_vehicle_params(folder, station)
             if folder is not None and recorder is not None:
-                await _write_run_report(folder, recorder, summary, picture=picture)
+                await _write_run_report(folder, recorder, summary, picture=picture,
+                                        networks=mission.networks)  # fmt: skip
             if on_summary is not None:
                 on_summary(summary)
     return summary
@@ -421,7 +227,12 @@ async def run_mission(
 def _write_vehicle_params(folder: RunFolder, station: Station) -> None:
     """``vehicle_params.json``: each vehicle's envelope and every parameter the
     station changed on it (old, new, read-back, restored)."""
-    records = [vp.vehicle_params.record() for _, vp in sorted(station.vehicles.items())]
+    records = []
+    for key, vp in sorted(station.vehicles.items()):
+        record = vp.vehicle_params.record()
+        if str(key) != vp.label:  # a named network: told by network:sysid (docs/mission-format.md)
+            record = {"vehicle": vp.label, **record, "sysid": key % KEY_STRIDE}
+        records.append(record)
     try:
         write_json({"vehicles": records}, folder.vehicle_params)
     except OSError as err:  # never let the record hide how the flight ended
@@ -443,7 +254,12 @@ def _frame_sink(tlog: TlogWriter) -> Callable[[bytes, str], None]:
 
 
 async def _write_run_report(
-    folder: RunFolder, recorder: FlightRecorder, summary: RunSummary, *, picture: bool
+    folder: RunFolder,
+    recorder: FlightRecorder,
+    summary: RunSummary,
+    *,
+    picture: bool,
+    networks: tuple[str, ...],
 ) -> None:
     """``summary.json`` and ``report.png`` of the run, off the event loop
     (matplotlib takes about a second); the station's link counters go in too."""
@@ -487,7 +303,12 @@ async def _write_run_report(
     try:
         await asyncio.shield(
             asyncio.to_thread(
-                write_report, rec, folder.summary, folder.picture if picture else None, extra=extra
+                write_report,
+                rec,
+                folder.summary,
+                folder.picture if picture else None,
+                extra=extra,
+                networks=networks,
             )
         )
     except Exception as err:  # never let the report hide how the flight ended

@@ -62,10 +62,14 @@ class Station:
         status_interval_s: float = 1.0,
         recorder: FlightRecorder | None = None,
         on_frame: OnFrame | None = None,
+        on_frame_for: Callable[[str], OnFrame | None] | None = None,
     ) -> None:
         """``recorder`` receives every control step, membership change and
         received message (the run's flight record); ``on_frame`` every raw
-        frame in and out on every link (the ``.tlog``)."""
+        frame in and out on every link (the ``.tlog``), or ``on_frame_for``
+        gives each link's own (by connection string: one ``.tlog`` per
+        network)."""
+        self._on_frame_for = on_frame_for
         self.config = config
         self.on_status = on_status
         self.recorder = recorder
@@ -168,7 +172,11 @@ class Station:
         try:
             for key in self.core.links:
                 served = [p.sysid for p in self.config.vehicles if p.link == key]
-                link = Link(key, self._on_message, on_frame=self._on_frame,
+                on_frame = self._on_frame
+                if self._on_frame_for is not None:
+                    on_frame = self._on_frame_for(key)
+                link = Link(key, self._on_message, on_frame=on_frame,
+                            base=self.core.base_of[key],
                             telemetry=self.core.table,
                             on_telemetry=self._on_telemetry,
                             signing_key=self.config.signing_key, sysids=served,
@@ -398,7 +406,8 @@ class Station:
         than the one it is bound to (``Link.rebinds_refused``), by system id."""
         total: Counter[int] = Counter()
         for link in self._links.values():
-            total.update(link.rebinds_refused)
+            base = link.state.base
+            total.update({s + base: n for s, n in link.rebinds_refused.items()})
         return dict(sorted(total.items()))
 
     # ---------------------------------------------------------------- misc
@@ -424,7 +433,7 @@ class Station:
 
 def _not_ready(what: str, vps: list[VehicleProtocol]) -> str:
     who = "; ".join(
-        f"vehicle {vp.sysid} {vp.phase.value}" + (f" ({vp.failure})" if vp.failure else "")
+        f"vehicle {vp.label} {vp.phase.value}" + (f" ({vp.failure})" if vp.failure else "")
         for vp in vps
     )
     return f"{what}: {who}" if who else what

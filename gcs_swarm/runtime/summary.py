@@ -42,6 +42,9 @@ class VehicleAtEnd:
     """Lowest LOCAL_POSITION_NED rate over a 2 s window in flight (vehicle time)."""
     rate_requests: int = 0
     """Times the station asked for the mission rate again because it was low."""
+    label: str = ""
+    """How it is named: ``network:sysid`` on a named network (``sysid`` is
+    then its key, ``mission.vehicle_key``); its system id otherwise."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +122,7 @@ class RunSummary:
                     vp.telemetry_rate_min_hz if math.isfinite(vp.telemetry_rate_min_hz) else None
                 ),
                 rate_requests=vp.rate_requests,
+                label=vp.label,
             )
             for s, vp in sorted(station.vehicles.items())
         )
@@ -194,7 +198,8 @@ class RunSummary:
             if v.rate_requests:
                 why += (f" [telemetry as low as {v.telemetry_rate_min_hz:.1f} Hz; "
                         f"rate asked again {v.rate_requests} times]")  # fmt: skip
-            lines.append(f"  vehicle {v.sysid:3d}: {v.phase:<8} {v.mode:<9} {where}{bias}{why}")
+            who = v.label or str(v.sysid)
+            lines.append(f"  vehicle {who:>3}: {v.phase:<8} {v.mode:<9} {where}{bias}{why}")
         lines.append(
             f"links: {self.messages_sent} messages sent, {self.setpoints_dropped} setpoints "
             f"and {self.messages_dropped} messages dropped, {self.bad_packets} bad packets, "

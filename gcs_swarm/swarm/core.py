@@ -36,6 +36,7 @@ is over. A link is the mission's connection string (``VehiclePlan.link``).
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import logging
 from collections import Counter, deque
@@ -88,9 +89,12 @@ class SwarmCore:
                 goto_m=p.start_m,
                 params=p.params,
                 personality=personality_for(p.autopilot),
+                label=p.label or None,
             )
             for p in config.vehicles
         }
+        self.labels = {p.sysid: p.label or str(p.sysid) for p in config.vehicles}
+        """How each vehicle is named in the log (``blue:7`` on a named network)."""
         self.table = TelemetryTable([p.sysid for p in config.vehicles])
         """The flying vehicles' telemetry (the links write it, the step reads it)."""
         if recorder is not None:
@@ -100,6 +104,8 @@ class SwarmCore:
         self.links = list(dict.fromkeys(p.link for p in config.vehicles))
         """The mission's links (connection strings), in the order first named."""
         self.link_of = {p.sysid: p.link for p in config.vehicles}
+        self.base_of = {p.link: p.base for p in config.vehicles}
+        """What each link's keys add to the system ids it carries (its network's)."""
         self.members = {p.sysid for p in config.vehicles if not p.reserve}
         self.velocity_tracked = {
             p.sysid for p in config.vehicles if p.setpoint == "velocity+acceleration"
@@ -151,7 +157,8 @@ class SwarmCore:
     def receive(self, msg: Any, link: str, now: float, rx_s: float) -> None:
         """A pymavlink message from ``link``, which arrived at ``rx_s`` [s]
         (the clock of the setpoints' latency), handled at ``now``."""
-        sysid = int(msg.get_srcSystem())
+        base = self.base_of.get(link, 0)
+        sysid = int(msg.get_srcSystem()) + base  # the vehicle's key
         if self.recorder is not None:
             self.recorder.inbound(sysid, int(msg.get_srcComponent()), int(msg.get_seq()),
                                   int(msg.get_msgId()))  # fmt: skip
@@ -164,6 +171,8 @@ class SwarmCore:
             return
         inbound = from_pymavlink(msg)
         if inbound is not None:
+            if base:
+                inbound = _keyed(inbound, sysid)
             self._handle(vp, inbound, now, rx_s)
 
     def telemetry_written(self, now: float) -> None:
@@ -187,7 +196,8 @@ class SwarmCore:
         vp = self.vehicles.get(sysid)
         if vp is None or self.link_of.get(sysid) != link:
             if sysid not in self.unknown_sysids:
-                self.note(f"ignoring traffic from system {sysid} on {link}",
+                wire = sysid - self.base_of.get(link, 0)
+                self.note(f"ignoring traffic from system {wire} on {link}",
                           level=logging.WARNING)  # fmt: skip
             self.unknown_sysids[sysid] += 1
             return None
@@ -219,7 +229,7 @@ class SwarmCore:
         if self._origin is None and vp.origin is not None:
             if vp.sysid == self.config.vehicles[0].sysid:
                 self._origin = vp.origin
-                self.note(f"mission origin = vehicle {vp.sysid}'s EKF origin")
+                self.note(f"mission origin = vehicle {vp.label}'s EKF origin")
                 for other in self.vehicles.values():
                     other.set_reference(vp.origin)
         self._arm(vp)
@@ -239,7 +249,7 @@ class SwarmCore:
             self.reference.forget(sysid)
             if self.recorder is not None:
                 self.recorder.member(self.control.t_s, sysid, False)
-            self.note(f"vehicle {sysid} out of the formation ({vp.phase.value}); "
+            self.note(f"vehicle {vp.label} out of the formation ({vp.phase.value}); "
                       f"{len(self.flying)} re-form")  # fmt: skip
             self._maybe_step(now)
             if not self.flying:
@@ -302,7 +312,8 @@ class SwarmCore:
         self.started = True
         for sysid in sorted(self.members):
             self._join(self.vehicles[sysid], now)
-        self.note(f"formation started with vehicles {sorted(self.flying)}")
+        who = ", ".join(self.labels[s] for s in sorted(self.flying))
+        self.note(f"formation started with vehicles [{who}]")
 
     def finish_all(self, now: float, mode: int | None = None) -> None:
         """Zero acceleration and the end mode (``mode``, else the mission's)
@@ -320,14 +331,14 @@ class SwarmCore:
             if self.recorder is not None:
                 self.recorder.member(self.control.t_s, vp.sysid, True)
             if self.started:
-                self.note(f"t={self.control.t_s:.2f} s: vehicle {vp.sysid} joins the formation "
+                self.note(f"t={self.control.t_s:.2f} s: vehicle {vp.label} joins the formation "
                           f"({len(self.flying)} flying)")  # fmt: skip
 
     def _run_events(self, t: float, now: float) -> None:
         while self._events and self._events[0][0] <= t:
             at, action, sysid = self._events.pop(0)
             vp = self.vehicles[sysid]
-            self.note(f"t={at:g} s: vehicle {sysid} {action}s")
+            self.note(f"t={at:g} s: vehicle {vp.label} {action}s")
             if action == "join":
                 self.members.add(sysid)
                 self.left.discard(sysid)
@@ -433,3 +444,11 @@ class SwarmCore:
         _log.log(level, "%s", text)
         if level >= logging.INFO:
             self.log.append(text)
+
+
+def _keyed(inbound: Inbound, key: int) -> Inbound:
+    """``inbound`` from a vehicle of a later network, told by its key
+    (``VehicleProtocol.sysid``) instead of its system id."""
+    if type(inbound) is LocalPositionNed:
+        return inbound._replace(sysid=key)
+    return dataclasses.replace(inbound, sysid=key)  # type: ignore[type-var]

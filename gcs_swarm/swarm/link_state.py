@@ -114,8 +114,13 @@ class LinkState:
         telemetry: TelemetryTable | None = None,
         on_frame: OnFrame | None = None,
         on_notice: Callable[[str], None] | None = None,
+        base: int = 0,
     ) -> None:
         """``name``: the link's connection string (for notices and the log).
+        ``base``: what the vehicles' keys add to their system ids on this
+        link's network (``mission.vehicle_key``: network index * 256); the
+        link speaks system ids on the wire and keys to everyone else
+        (``sysids``, ``send``, ``accel_setpoints``, the telemetry rows).
         ``unix_clock``: the Unix time now (signing timestamps of new codecs).
         ``sysids``: the system ids this link serves (None: any); only they
         bind a peer. ``allow_rebind`` takes effect with a ``signing_key``
@@ -126,13 +131,15 @@ class LinkState:
         self.name = name
         self._unix_clock = unix_clock
         self._signing_key = signing_key
-        self._sysids = None if sysids is None else frozenset(sysids)
+        self.base = base
+        self._sysids = None if sysids is None else frozenset(s - base for s in sysids)
         self._allow_rebind = allow_rebind and signing_key is not None
         self._table = telemetry
         self._rows: dict[int, int] = {}
         """Table row of each system id this link serves."""
         if telemetry is not None and self._sysids is not None:
-            self._rows = {s: telemetry.slot[s] for s in self._sysids if s in telemetry.slot}
+            slot = telemetry.slot
+            self._rows = {s: slot[s + base] for s in self._sysids if s + base in slot}
         self.positions_written = 0
         """Reports the last ``receive`` wrote into the table."""
         self._on_frame = on_frame
@@ -307,6 +314,9 @@ class LinkState:
         """Queue ``spec`` for vehicle ``sysid`` (None: every peer); False if
         it went nowhere (a broadcast with nobody connected yet). ``since_s``:
         for a setpoint, when the telemetry it answers arrived."""
+        if self.base and sysid is not None:
+            sysid -= self.base
+            spec = _on_wire(spec, self.base)
         if sysid is None and not self._codecs:
             return False
         if spec.kind == "setpoint" and sysid is not None:
@@ -377,6 +387,8 @@ class LinkState:
             has = np.asarray(np.isfinite(vel_ned).all(axis=1))
             masks = np.where(has, TYPE_MASK_VEL_ACCEL, TYPE_MASK_ACCEL).tolist()
             vel = np.where(has[:, None], vel_ned, 0.0)
+        if self.base:
+            sysids = [s - self.base for s in sysids]
         queued = self._setpoints
         if queued:
             for sysid in sysids:
@@ -456,3 +468,12 @@ class LinkState:
         if self._on_frame is not None:
             self._on_frame(data, "out")
         return data
+
+
+def _on_wire(spec: MessageSpec, base: int) -> MessageSpec:
+    """``spec`` addressed by system id: its ``target_system`` (a vehicle's
+    key, from the station) less the network's ``base``."""
+    target = spec.fields.get("target_system")
+    if not isinstance(target, int) or target < base:
+        return spec
+    return MessageSpec(spec.name, {**spec.fields, "target_system": target - base}, spec.kind)

@@ -50,11 +50,11 @@ class StatusLine:
                 parts.append(f"min clearance {clr:.3f} m")
             parts.append(f"peak |a| {control.peak_accel_mps2:.2f} m/s^2")
         vehicles = core.vehicles
-        parts.append(" ".join(f"{s}:{vp.phase.value}/{vp.mode_name}"
-                              for s, vp in sorted(vehicles.items())))  # fmt: skip
+        parts.append(" ".join(f"{vp.label}:{vp.phase.value}/{vp.mode_name}"
+                              for _, vp in sorted(vehicles.items())))  # fmt: skip
         if drops:
             parts.append(f"drops {drops}")
-        low = [f"{s}:{vp.telemetry_rate_hz:.1f}Hz" for s, vp in sorted(vehicles.items())
+        low = [f"{vp.label}:{vp.telemetry_rate_hz:.1f}Hz" for _, vp in sorted(vehicles.items())
                if vp.rate_low and vp.telemetry_rate_hz is not None]  # fmt: skip
         if low:
             parts.append("low telemetry " + " ".join(low))

@@ -85,13 +85,18 @@ class RecordFrames:
         scene: Mapping[str, Any],
         *,
         autopilots: Mapping[int, str] | None = None,
+        labels: Mapping[int, str] | None = None,
     ) -> None:
+        """``autopilots`` and ``labels`` (``network:sysid`` on named networks;
+        default the key itself) by vehicle key."""
         self.record = record
         self.scene = dict(scene)
         self._obstacles = obstacles_of(scene)
         ids = [int(s) for s in record.ids]
         self._ids = ids
         self._autopilot = [(autopilots or {}).get(s) for s in ids]
+        named = labels or {}
+        self._labels = [named.get(s, str(s)) for s in ids]
         loss = np.full(len(ids), np.nan)
         for k, s in enumerate(ids):
             c = (record.telemetry or {}).get(s)
@@ -102,7 +107,7 @@ class RecordFrames:
         self.t0_s = float(times[0]) if times.size else 0.0
         self.t1_s = float(times[-1]) if times.size else 0.0
         self._happened = sorted(
-            [(t, kind, s, f"vehicle {s} {'joins' if kind == 'join' else 'leaves'}")
+            [(t, kind, s, f"vehicle {named.get(s, s)} {'joins' if kind == 'join' else 'leaves'}")
              for t, kind, s in record.events]
             + [(t, "switch", None, "avoidance" if what == "start" else "formation")
                for t, what, _ in record.switches()]
@@ -153,6 +158,7 @@ class RecordFrames:
             "leader": None if leader is None else float_column(np.asarray(leader), 3),
             "vehicles": {
                 "sysid": self._ids,
+                "label": self._labels,
                 "autopilot": self._autopilot,
                 "phase": ["flying" if x else None for x in inside.tolist()],
                 "mode": unknown,

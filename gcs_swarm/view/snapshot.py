@@ -252,6 +252,7 @@ class SnapshotBuilder:
             "leader": None if leader is None else float_column(np.asarray(leader), 3),
             "vehicles": {
                 "sysid": ids,
+                "label": [vp.label for vp in vps],
                 "autopilot": [station.plans[s].autopilot for s in ids],
                 "phase": [vp.phase._value_ for vp in vps],  # ._value_: no enum descriptor
                 "mode": modes,
@@ -295,11 +296,12 @@ class SnapshotBuilder:
         out: list[dict[str, Any]] = []
         flying = set(station.flying)
         for s in sorted(flying - self._flying):
-            out.append({"t": t, "kind": "join", "sysid": s, "text": f"vehicle {s} joins"})
+            text = f"vehicle {station.vehicles[s].label} joins"
+            out.append({"t": t, "kind": "join", "sysid": s, "text": text})
         for s in sorted(self._flying - flying):
             vp = station.vehicles[s]
             kind = "lost" if vp.phase in (Phase.LOST, Phase.FAILED) else "leave"
-            text = f"vehicle {s} out of the formation ({vp.phase.value})"
+            text = f"vehicle {vp.label} out of the formation ({vp.phase.value})"
             out.append({"t": t, "kind": kind, "sysid": s, "text": text})
         self._flying = flying
         if behaviour is not None and self._behaviour is not None and behaviour != self._behaviour:

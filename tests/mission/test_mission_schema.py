@@ -126,21 +126,29 @@ def _schema_at(s: dict[str, Any], path: str) -> list[dict[str, Any]]:
     for part in [p for p in re.split(r"\.|(\[\])", path) if p]:
         nxt: list[dict[str, Any]] = []
         for n in nodes:
-            for alt in n.get("oneOf", [n]):
+            for alt in _alternatives(n):
                 if part == "[]":
                     if "items" in alt:
                         nxt.append(alt["items"])
                 elif part in alt.get("properties", {}):
                     nxt.append(alt["properties"][part])
         nodes = nxt
-    return [alt for n in nodes for alt in n.get("oneOf", [n]) if alt.get("type") == "object"]
+    return [alt for n in nodes for alt in _alternatives(n) if alt.get("type") == "object"]
+
+
+def _alternatives(n: dict[str, Any]) -> list[dict[str, Any]]:
+    """A node's shapes: its ``oneOf`` alternatives, or itself when it has
+    properties of its own (the top level's ``oneOf`` only says which of
+    ``vehicles`` and ``networks`` is required)."""
+    return [n] if "properties" in n else list(n.get("oneOf", [n]))
 
 
 def test_schema_is_draft_2020_12_json() -> None:
     s = schema()
     assert s["$schema"] == "https://json-schema.org/draft/2020-12/schema"
     assert json.loads(json.dumps(s)) == s
-    assert s["required"] == ["vehicles"] and s["additionalProperties"] is False
+    assert "required" not in s and s["additionalProperties"] is False
+    assert s["oneOf"] == [{"required": ["vehicles"]}, {"required": ["networks"]}]
 
 
 @pytest.mark.parametrize(("path", "obj"), _objects(MISSION), ids=lambda x: str(x) or "top")

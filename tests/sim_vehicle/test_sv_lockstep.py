@@ -68,22 +68,26 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
             await _accel_steps(emu, (1.0, 0.0, 0.0), n)
             st = emu.vehicle_state(1)
             # the pure dynamics advanced by hand n steps (jerk Eq. D5 at PSC_JERK_XY 5 m/s^3,
-            # lean cap D6 at 30 deg, lag D1-D2 at the preset's 0.1 s): the same to rounding
+            # lean cap D6 at 30 deg, lag D1-D2 at the preset's 0.05 s): the same to rounding
             ref = KinState(np.array([START]), np.zeros((1, 3)), np.zeros((1, 3)),
                            np.zeros(1, dtype=bool), np.zeros((1, 3)))  # fmt: skip
             one = np.ones(1)
-            par = DynParams(0.1 * one, 5.0 * one, 0.0 * one, 5.0 * one, 5.0 * one,
+            par = DynParams(0.05 * one, 5.0 * one, 0.0 * one, 5.0 * one, 5.0 * one,
                             GRAVITY_M_S2 * math.tan(math.radians(30.0)) * one)  # fmt: skip
             for _ in range(n):
                 ref = step(ref, np.array([[1.0, 0.0, 0.0]]), DT, par)
             np.testing.assert_allclose(st.vel_ned_m_s, ref.vel_ned_m_s[0], rtol=0, atol=1e-9)
             # closed form: the ramp 0.1, 0.2, .. 1.0 m/s^2 over 10 steps (5 m/s^3 x 0.02 s per
-            # step) costs DT * sum(1 - k / 10) = 0.09 m/s, the lag tau (1 - e^-t/tau) = 0.1 m/s
-            assert abs(st.vel_ned_m_s[0] - (n * DT - 0.09 - 0.1)) < 1e-6
-            # sheet: 0.985-0.989 m/s^2 and 2.74 m/s reached (ideal 2.95); state tolerance
-            # 0.02 m/s^2 and 0.1 m/s covers the SITL spread and its unmodelled drag
-            assert abs(st.accel_ned_m_s2[0] - 0.987) < 0.02
-            assert abs(st.vel_ned_m_s[0] - 2.74) < 0.1
+            # step) costs DT * sum(1 - k / 10) = 0.09 m/s, the lag tau (1 - e^-t/tau) = 0.05 m/s
+            assert abs(st.vel_ned_m_s[0] - (n * DT - 0.09 - 0.05)) < 1e-6
+            # SITL, 3 s of +1 m/s^2 from hover: 2.74 m/s (sheet), 2.78 (2026-12-01), 2.80
+            # (2026-12-03, timed by the vehicle's echo of the target, which it ignored for the
+            # first 2.2 s); the reversed step -1 m/s^2 gave 2.85 m/s, the accel reached
+            # 0.97-1.05 m/s^2 (docs/emulator.md). Stated tolerance: 0.1 m/s about 2.80 and
+            # 0.05 m/s^2 about 1.0 cover that spread (SITL's loop catches up after a step,
+            # which this open-loop model does not)
+            assert abs(st.accel_ned_m_s2[0] - 1.0) < 0.05
+            assert abs(st.vel_ned_m_s[0] - 2.80) < 0.1
             assert abs(st.vel_ned_m_s[1]) < 0.05 and abs(st.vel_ned_m_s[2]) < 0.05
 
     asyncio.run(run())

@@ -158,7 +158,7 @@ def test_config_shaping_presets() -> None:
     from sim_vehicle import EmulatorConfig
 
     assert EmulatorConfig().shaping is True  # the ardupilot preset's, by default
-    assert EmulatorConfig().tau_s == 0.1  # the lag fitted on SITL with the ramp modelled
+    assert EmulatorConfig().tau_s == 0.05  # the lag fitted on SITL with the ramp modelled
     assert EmulatorConfig(accel_shaping=None).shaping is True  # the ardupilot preset's
     assert EmulatorConfig(dynamics="ideal", accel_shaping=None).shaping is False
     assert EmulatorConfig(dynamics="ideal", accel_shaping=True).shaping is True

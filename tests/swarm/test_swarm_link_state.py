@@ -160,3 +160,21 @@ def test_a_steps_setpoints_follow_a_vehicle_that_moved_to_a_new_address() -> Non
     assert len(st.receive(_lpn(2, 2, mav2), B, REBIND_S + 0.1, datagram=True)) == 1
     assert st.route(2) == B
     assert step() == {A: [1], B: [2]}
+
+
+def test_a_later_networks_link_speaks_system_ids_on_the_wire_and_keys_above() -> None:
+    """Issue 19: a link of network 1 (``base`` 256) serves keys 257, 258 as
+    system ids 1, 2: a flying vehicle's report goes into key 257's row, and
+    what the station sends to keys goes out to the system ids."""
+    table = TelemetryTable([1, 257])  # key 1 is network 0's vehicle 1, on another link
+    st, _ = _state(telemetry=table, sysids=[257, 258], base=256)
+    _flying(table, 257)
+    items = st.receive(_lpn(1, 20) + _lpn(2, 20), A, 0.5, datagram=True)
+    assert st.positions_written == 1 and table.take_fresh() == {257: 20}
+    assert [m.get_srcSystem() for m in items] == [2]  # on the wire's id: the core adds the base
+    st.send(b.arm(258, 1), 258)
+    writes = st.accel_setpoints([257], [1], [20], np.zeros((1, 3)), [None])
+    sent = [m for _, data, _ in writes for m in _parse(data)]
+    assert [(m.get_type(), m.target_system) for m in sent] == [  # type: ignore[attr-defined]
+        ("COMMAND_LONG", 2), ("SET_POSITION_TARGET_LOCAL_NED", 1)
+    ]  # fmt: skip

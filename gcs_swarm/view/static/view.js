@@ -103,7 +103,7 @@
       const row = body.rows[k] || body.insertRow();
       const p = v.pos[k];
       const cells = [
-        v.sysid[k], txt(v.autopilot[k]), txt(v.phase[k]), txt(v.mode[k]),
+        v.label ? v.label[k] : v.sysid[k], txt(v.autopilot[k]), txt(v.phase[k]), txt(v.mode[k]),
         v.armed[k] === null ? "-" : v.armed[k] ? "yes" : "no",
         fmt(v.rate_hz[k], 1), v.loss[k] === null ? "-" : (100 * v.loss[k]).toFixed(1) + "%",
         fmt(v.heard_s[k], 2), p ? `${p[0].toFixed(2)} ${p[1].toFixed(2)} ${p[2].toFixed(2)}` : "-",
@@ -276,7 +276,7 @@
       const r = Math.max(3, Math.min(9, 60 / s[2]));
       ctx.fillStyle = colour(v, k);
       ctx.beginPath(); ctx.arc(s[0], s[1], r, 0, 2 * Math.PI); ctx.fill();
-      ctx.fillStyle = "#d8dee6"; ctx.fillText(String(v.sysid[k]), s[0] + r + 2, s[1] - r);
+      ctx.fillStyle = "#d8dee6"; ctx.fillText(String(v.label ? v.label[k] : v.sysid[k]), s[0] + r + 2, s[1] - r);
       view.drawn.push({ sysid: v.sysid[k], x: s[0], y: s[1] });
     }
     axes();
