@@ -21,7 +21,6 @@ after reading the vehicles' parameters at start-up) tightens it.
 from __future__ import annotations
 
 import math
-import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -61,6 +60,9 @@ class StepResult:
     min_separation_m: float
 
 
+_JUMP_MS = round(MAX_CLOCK_JUMP_S * 1000)
+
+
 class ControlLoop:
     """The law plus limits, stepped on telemetry in vehicle time."""
 
@@ -93,6 +95,9 @@ class ControlLoop:
         self._t_ms = 0
         """The mission clock in whole ms (vehicle time's resolution)."""
         self.last: StepResult | None = None
+        self._q_ids: tuple[int, ...] | None = None
+        self._q = np.zeros(0)
+        """The charges of the vehicles ``_q_ids``, in that order (``command``)."""
 
     def advance_clock(self, boot_ms: Mapping[int, int]) -> float:
         """Advance the mission clock to the fresh vehicles' ``time_boot_ms``.
@@ -107,19 +112,22 @@ class ControlLoop:
         clock past vehicle time, which summing per-step increments did.
         Returns the mission time [s].
         """
-        jump_ms = round(MAX_CLOCK_JUMP_S * 1000)
+        jump_ms = _JUMP_MS
         mapped = []
+        seen, offset, t_ms = self._boot_ms, self._offset_ms, self._t_ms
+        get = seen.get
         for sysid, ms in boot_ms.items():
-            last = self._boot_ms.get(sysid)
-            self._boot_ms[sysid] = ms
+            last = get(sysid)
+            seen[sysid] = ms
             if last is None or ms < last:
-                self._offset_ms[sysid] = ms - self._t_ms
+                offset[sysid] = ms - t_ms
                 continue
             if ms - last > jump_ms:
-                self._offset_ms[sysid] += ms - last - jump_ms
-            mapped.append(ms - self._offset_ms[sysid])
+                offset[sysid] += ms - last - jump_ms
+            mapped.append(ms - offset[sysid])
         if mapped:
-            self._t_ms = max(self._t_ms, statistics.median_low(mapped))
+            mapped.sort()  # statistics.median_low, without its copy and checks
+            self._t_ms = max(t_ms, mapped[(len(mapped) - 1) // 2])
             self.t_s = self._t_ms * 1e-3
         return self.t_s
 
@@ -155,7 +163,11 @@ class ControlLoop:
         """What goes out this step: the law's output, the accelerations after
         limits/safety (N, 3), and the filter's report (None when it is the
         identity). The station sends these before ``account``'s bookkeeping."""
-        q = np.array([self.charges[i] for i in ids], dtype=np.float64)
+        key = tuple(ids)
+        if self._q_ids != key:  # the same vehicles every step but a join or a leave
+            self._q = np.array([self.charges[i] for i in key], dtype=np.float64)
+            self._q_ids = key
+        q = self._q
         out = self.controller.step(self.t_s, ids, pos_m, vel_mps, q)
         accel, report = out.accel_mps2, None
         if self.filtering:
@@ -213,9 +225,13 @@ def _min_separation(pos_m: FloatArray) -> float:
     """Smallest pairwise distance [m] of ``pos_m (N, 3)``, inf below two vehicles.
 
     Small swarms: every difference directly. Large swarms: squared distances
-    from the Gram matrix of the centred positions pick the candidate pairs (all
-    within the Gram form's rounding bound of the smallest), whose distances are
-    then computed directly, so the result is the same float either way.
+    from one augmented Gram product of the centred positions (``[c, |c|^2, 1]``
+    times ``[-2 c, 1, |c|^2]``, as the repulsion's blocks) pick the rows whose
+    nearest neighbour could be the nearest pair (within the product's
+    rounding bound of the smallest), then those rows' candidate pairs, whose
+    distances are computed directly: the same float either way. A swarm in
+    flight has one or two such rows; an exact grid (``bench_core.py``) ties
+    every row, and then every tied pair is computed.
     """
     n = pos_m.shape[0]
     if n < 2:
@@ -229,14 +245,20 @@ def _min_separation(pos_m: FloatArray) -> float:
         return math.sqrt(float(d2.min()))
     c = pos_m - pos_m.mean(axis=0)
     sq = np.einsum("ij,ij->i", c, c)
-    d2 = c @ c.T
-    d2 *= -2.0
-    d2 += sq[:, None]
-    d2 += sq[None, :]
+    left = np.empty((n, 5))
+    left[:, :3], left[:, 3], left[:, 4] = c, sq, 1.0
+    right = np.empty((n, 5))
+    right[:, :3], right[:, 3], right[:, 4] = c, 1.0, sq
+    right[:, :3] *= -2.0
+    d2 = left @ right.T  # |c_i|^2 + |c_j|^2 - 2 c_i . c_j
     np.fill_diagonal(d2, np.inf)
-    # |error| of each Gram entry <= ~8 eps (|c_i|^2 + |c_j|^2): keep every pair
-    # that could be the true minimum.
+    row_min = d2.min(axis=1)
+    # |error| of each entry <= ~8 eps (|c_i|^2 + |c_j|^2 + 2 |c_i| |c_j|) <= 32 eps
+    # max |c|^2, twice over (the smallest entry and the true nearest pair's): keep
+    # every pair that could be the true minimum.
     tol = 64.0 * np.finfo(np.float64).eps * 2.0 * float(sq.max()) + 1e-300
-    i, j = np.nonzero(d2 <= float(d2.min()) + tol)
-    diff = pos_m[i] - pos_m[j]
+    limit = float(row_min.min()) + tol
+    rows = np.flatnonzero(row_min <= limit)
+    i, j = np.nonzero((d2 if len(rows) == n else d2[rows]) <= limit)
+    diff = pos_m[rows[i]] - pos_m[j]
     return float(np.sqrt(np.einsum("ij,ij->i", diff, diff)).min())

@@ -36,6 +36,8 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
+from gcs_swarm.mavlink.frame_decode import decode_unsigned as _decode_unsigned
+from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
 from mavwire.framing import FrameBuilder
 from mavwire.protocols import MAVLinkInterface, MAVLinkMessage
@@ -296,9 +298,14 @@ class Codec:
         """The whole unsigned MAVLink 2 frame ``data[i:end]`` through pymavlink's
         ``decode`` (what its parser calls once it has framed the bytes, minus
         the byte-by-byte framing): the message, ``_SKIP`` for an unknown id
-        (counted), or None if pymavlink would call it bad data."""
+        (counted), or None if pymavlink would call it bad data. The messages
+        ``frame_decode.decode_unsigned`` can make exactly are made there."""
+        frame = data[i:end]
+        msg = _decode_unsigned(frame)
+        if msg is not NotImplemented:
+            return msg
         try:
-            msg = self._mav.decode(bytearray(data[i:end]))
+            msg = self._mav.decode(bytearray(frame))
         except (_dialect.MAVError, struct.error, ValueError, IndexError):
             return None
         if isinstance(msg, _dialect.MAVLink_bad_data):
@@ -349,6 +356,13 @@ _LPN_SIZE: int = _LPN.unpacker.size
 _LPN_ID0: int = _LPN.id  # a 24-bit id: (32, 0, 0) on the wire
 _LPN_EXTRA = bytes((_LPN.crc_extra,))
 _LPN_UNPACK = _LPN.unpacker.unpack
+_LPN_UNPACK_FROM = _LPN.unpacker.unpack_from
+_LPN_PAD = [bytes(_LPN_SIZE - n) for n in range(_LPN_SIZE + 1)]
+"""The zeros MAVLink 2 trimmed off a payload of ``n`` bytes."""
+_CRC = _MCRF4XX
+_tuple_new = tuple.__new__
+"""``RawPosition`` made from a tuple in C (the NamedTuple's ``__new__`` is a
+Python function)."""
 
 
 _SKIP = object()
@@ -357,15 +371,26 @@ _SKIP = object()
 
 def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
     """The unsigned MAVLink 2 LOCAL_POSITION_NED frame ``data[i:end]``, or
-    None if its length or CRC is wrong."""
+    None if its length or CRC is wrong.
+
+    50 Hz per vehicle, so written for speed: one slice for the frame, one
+    for the CRC's body, the payload unpacked in place (or once padded, when
+    MAVLink 2 trimmed its trailing zeros), the tuple made in C."""
     plen = end - i - 12
     if not 0 < plen <= _LPN_SIZE:
         return None
     frame = data[i:end]
-    if _frame_crc(frame[1:-2], _LPN_EXTRA) != frame[-2] | (frame[-1] << 8):
+    crc = (
+        _frame_crc(frame[1:-2], _LPN_EXTRA) if _CRC is None else _CRC(_LPN_EXTRA, _CRC(frame[1:-2]))
+    )
+    if crc != frame[-2] | (frame[-1] << 8):
         return None
-    payload = frame[10:-2] if plen == _LPN_SIZE else frame[10:-2] + bytes(_LPN_SIZE - plen)
-    return RawPosition(data[i + 5], data[i + 6], data[i + 4], frame, _LPN_UNPACK(payload))
+    values = (
+        _LPN_UNPACK_FROM(frame, 10)
+        if plen == _LPN_SIZE
+        else _LPN_UNPACK(frame[10:-2] + _LPN_PAD[plen])
+    )
+    return _tuple_new(RawPosition, (frame[5], frame[6], frame[4], frame, values))
 
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message

@@ -60,6 +60,11 @@ class Phase(enum.Enum):
     LOST = "lost"
     FAILED = "failed"
 
+    # Members are singletons compared by identity: hash them by identity too,
+    # in C (Enum's own __hash__ is a Python function hashing the name, and
+    # every message of a vehicle tests its phase against a few sets).
+    __hash__ = object.__hash__
+
 
 AIRBORNE_PHASES = frozenset({Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY, Phase.FLYING})
 """Phases in which the vehicle is (or is becoming) airborne under our control."""

@@ -65,6 +65,8 @@ REBOOT_MS = 10_000
 _ROW = struct.Struct("<I6f")
 """LOCAL_POSITION_NED's payload in wire order: time_boot_ms [ms], x, y, z [m],
 vx, vy, vz [m/s] NED (28 bytes)."""
+_ROW_SIZE = _ROW.size
+_PACK_ROW = _ROW.pack_into
 _ROW_DTYPE = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
 _LPN_ID = 32
 """LOCAL_POSITION_NED's message id."""
@@ -216,6 +218,11 @@ class TelemetryTable:
         ms = self._ms[k]
         return 0 if ms == _NO_REPORT else ms
 
+    def boot_ms_of(self, ks: npt.NDArray[np.intp]) -> list[int]:
+        """``boot_ms`` of each of rows ``ks``."""
+        ms = self._ms
+        return [0 if m == _NO_REPORT else m for m in map(ms.__getitem__, ks.tolist())]
+
     def write(
         self,
         k: int,
@@ -233,6 +240,8 @@ class TelemetryTable:
         the protocol, which counts it). ``seq >= 0``: the frame's sequence
         number, for ``on_inbound`` (called for a report taken; one not taken
         goes on as a message, counted where messages are)."""
+        # 50 Hz per vehicle: each list attribute read once, the struct's method
+        # bound at import; the checks and their order are the reference's.
         vp = self.owners[k]
         if vp is None:
             return False
@@ -242,10 +251,11 @@ class TelemetryTable:
         if not (-p <= x <= p and -p <= y <= p and -p <= z <= p
                 and -v <= vx <= v and -v <= vy <= v and -v <= vz <= v):  # fmt: skip
             return False
-        if 0 <= self._ms[k] - ms < REBOOT_MS:
+        last_ms = self._ms
+        if 0 <= last_ms[k] - ms < REBOOT_MS:
             return False  # a duplicated or reordered frame: the protocol counts it
-        _ROW.pack_into(self._buf, k * _ROW.size, *values)
-        self._ms[k] = ms
+        _PACK_ROW(self._buf, k * _ROW_SIZE, *values)
+        last_ms[k] = ms
         self._compid[k] = compid
         self.seen_s[k] = now
         self.arrival_s[k] = rx_s
@@ -257,21 +267,22 @@ class TelemetryTable:
             self._corr[k] = c
             self._set_bias(k, c)
         # VehicleProtocol._count_report, column-wise: the window's report count.
-        t0 = self._rate_t0[k]
+        rate_t0 = self._rate_t0
+        t0 = rate_t0[k]
         if t0 is None or ms < t0:
-            self._rate_t0[k], self._rate_n[k] = ms, 0
+            rate_t0[k], self._rate_n[k] = ms, 0
+        elif ms - t0 < RATE_WINDOW_MS:
+            self._rate_n[k] += 1
         else:
             count = self._rate_n[k] + 1
-            if ms - t0 < RATE_WINDOW_MS:
-                self._rate_n[k] = count
-            else:
-                self._rate_t0[k], self._rate_n[k] = ms, 0
-                if vp.rate_window(count / ((ms - t0) * 1e-3)):
-                    self.attention.append(vp.sysid)
+            rate_t0[k], self._rate_n[k] = ms, 0
+            if vp.rate_window(count / ((ms - t0) * 1e-3)):
+                self.attention.append(vp.sysid)
         if self._incomplete and k in self._incomplete and not math.isnan(self.offset_m[k, 0]):
             self._incomplete.discard(k)  # the first report of a row attached without one
-        if not self.fresh[k]:
-            self.fresh[k] = True
+        fresh = self.fresh
+        if not fresh[k]:
+            fresh[k] = True
             self._fresh_rows.append(k)
             self.fresh_count += 1
         self.taken += 1

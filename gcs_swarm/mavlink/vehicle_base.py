@@ -231,15 +231,21 @@ class _VehicleBase:
 
     def next_deadline(self) -> float | None:
         """The earliest time [s] at which ``handle_timer`` has work, or None."""
-        deadlines = list(self._timers.values())
+        # Called after every message: the smallest of the candidates, without a list.
+        due = min(self._timers.values()) if self._timers else None
         command = self._commands.next_deadline()
-        if command is not None:
-            deadlines.append(command)
-        if self.phase not in IDLE_PHASES:
-            deadlines.append(self._silent_since() + self.config.heartbeat_timeout_s)
-            if self.phase in TELEMETRY_PHASES:
-                deadlines.append(self.position_at + self.config.stale_timeout_s)
-        return min(deadlines) if deadlines else None
+        if command is not None and (due is None or command < due):
+            due = command
+        phase = self.phase
+        if phase not in IDLE_PHASES:
+            hb = self._silent_since() + self.config.heartbeat_timeout_s
+            if due is None or hb < due:
+                due = hb
+            if phase in TELEMETRY_PHASES:
+                stale = self.position_at + self.config.stale_timeout_s
+                if stale < due:
+                    due = stale
+        return due
 
     def take_outbound(self) -> list[MessageSpec]:
         out = self._out[:]

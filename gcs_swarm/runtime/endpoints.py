@@ -5,6 +5,7 @@ no tasks)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -65,6 +66,29 @@ class LatencyRing:
         self.count += 1
         if latency_s > self.max_s:
             self.max_s = latency_s
+
+    def add_since(self, now_s: float, since_s: Sequence[float | None]) -> None:
+        """``add(now_s - t0)`` for each ``t0`` of ``since_s`` that is not None,
+        in order (one datagram's setpoints, written at ``now_s``)."""
+        lat = [now_s - t0 for t0 in since_s if t0 is not None]
+        if not lat:
+            return
+        buf, i, size = self._buf, self._i, len(self._buf)
+        if len(lat) >= size:  # more than the ring holds: one at a time
+            for x in lat:
+                self.add(x)
+            return
+        end = i + len(lat)
+        if end <= size:
+            buf[i:end] = lat
+        else:
+            buf[i:] = lat[: size - i]
+            buf[: end - size] = lat[size - i :]
+        self._i = end % size
+        self.count += len(lat)
+        peak = max(lat)
+        if peak > self.max_s:
+            self.max_s = peak
 
     def samples(self) -> list[float]:
         """The retained samples [s], oldest first."""

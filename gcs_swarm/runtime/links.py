@@ -257,10 +257,7 @@ class Link:
                 else:
                     udp.sendto(data, peer)
             if since:
-                now = time.monotonic()
-                for t0 in since:
-                    if t0 is not None:
-                        latency.add(now - t0)
+                latency.add_since(time.monotonic(), since)
 
     # ---------------------------------------------------------- receiving
     def _on_bytes(self, data: bytes, peer: Any, *, datagram: bool) -> None:

@@ -162,12 +162,15 @@ class LinkState:
         self._setpoints: dict[int, MessageSpec] = {}
         self._since: dict[int, float] = {}
         self._messages: deque[tuple[MessageSpec, int | None]] = deque()
+        self._rows_cache: tuple[tuple[int, ...], dict[Any, list[int]]] | None = None
+        """``_peer_rows``' last answer, dropped when a route or a codec changes."""
 
     # -------------------------------------------------------------- peers
     def connect(self, peer: Peer, *, stream: bool = False) -> None:
         """A peer known without having spoken: a ``udpout`` address, or a
         stream connection (which keeps its codec until ``disconnect``)."""
         self._codecs[peer] = self._codec()
+        self._rows_cache = None
         if stream:
             self._held.add(peer)
             self.stats.peers.add("tcp")
@@ -177,6 +180,7 @@ class LinkState:
         """A stream connection closed: its codec and its system ids' routes go."""
         self._held.discard(peer)
         self._codecs.pop(peer, None)
+        self._rows_cache = None
         for sysid in [s for s, p in self._routes.items() if p == peer]:
             del self._routes[sysid]
 
@@ -225,23 +229,28 @@ class LinkState:
         rows = self._rows
         spoke: set[int] = set()
         """System ids with a message already out of this datagram."""
-        written = 0
+        written = received = 0
+        route, heard = self._routes.get, self._heard
+        write = None if table is None else table.write
         for msg in msgs:
             raw = type(msg) is RawPosition
-            sysid = msg.sysid if raw else msg.get_srcSystem()
-            if not self._bound(sysid, peer, now):
+            sysid = msg[0] if raw else msg.get_srcSystem()
+            if route(sysid) == peer:
+                heard[sysid] = now  # ``_bound``'s answer for a peer already bound to it
+            elif not self._bound(sysid, peer, now):
                 stats.spoofed += 1
                 continue
-            stats.received += 1
+            received += 1
             if raw:
+                _, compid, seq, frame, values = msg
                 if on_frame is not None:
-                    on_frame(msg.frame, "in")
+                    on_frame(frame, "in")
                 k = rows.get(sysid)
                 if (
                     k is not None
+                    and write is not None
                     and sysid not in spoke
-                    and table is not None
-                    and table.write(k, msg.compid, msg.seq, msg.values, now, now)
+                    and write(k, compid, seq, values, now, now)
                 ):
                     written += 1
                     continue
@@ -250,6 +259,7 @@ class LinkState:
                 on_frame(bytes(msg.get_msgbuf()), "in")
             spoke.add(sysid)
             out.append(msg)
+        stats.received += received
         self.positions_written = written
         return out
 
@@ -278,12 +288,16 @@ class LinkState:
                     "signing.allow_rebind)"
                 )
             self._routes[sysid] = peer
+            self._rows_cache = None
             if bound not in self._routes.values() and bound not in self._held:
                 self._codecs.pop(bound, None)  # speaks for nobody now: its state goes
+                self._rows_cache = None
         elif bound is None:
             self._routes[sysid] = peer
+            self._rows_cache = None
         if peer not in self._codecs:
             self._codecs[peer] = self._codec()
+            self._rows_cache = None
             self.stats.peers.add(self.peer_name(peer))
             self.peer_added = True  # what was queued while nobody was connected may go
         self._heard[sysid] = now
@@ -376,21 +390,19 @@ class LinkState:
         if self.base:
             sysids = [s - self.base for s in sysids]
         queued = self._setpoints
-        for sysid in sysids:
-            if queued.pop(sysid, None) is not None:
-                self.stats.setpoints_dropped += 1
-                self._since.pop(sysid, None)
+        if queued:
+            for sysid in sysids:
+                if queued.pop(sysid, None) is not None:
+                    self.stats.setpoints_dropped += 1
+                    self._since.pop(sysid, None)
         out = self.datagrams_to_send()
-        rows: dict[Any, list[int]] = {}
-        for k, sysid in enumerate(sysids):
-            peer = self.route(sysid)
-            if peer is not None:
-                rows.setdefault(peer, []).append(k)
-        for peer, idx in rows.items():
+        for peer, idx in self._peer_rows(sysids).items():
             whole = len(idx) == len(sysids)
             try:
                 data, size = self._codecs[peer].encode_accel_setpoints(
-                    [(sysids[k], compids[k]) for k in idx],
+                    list(zip(sysids, compids, strict=True))
+                    if whole
+                    else [(sysids[k], compids[k]) for k in idx],
                     time_boot_ms if whole else [time_boot_ms[k] for k in idx],
                     accel_ned if whole else accel_ned[idx],
                     type_mask=masks if isinstance(masks, int) or whole else [masks[k] for k in idx],
@@ -405,8 +417,25 @@ class LinkState:
             if self._on_frame is not None:
                 for j in range(0, len(data), size):
                     self._on_frame(data[j : j + size], "out")
-            self._join(out, peer, data, [size] * len(idx), [since_s[k] for k in idx])
+            self._join(out, peer, data, [size] * len(idx),
+                       list(since_s) if whole else [since_s[k] for k in idx])  # fmt: skip
         return out
+
+    def _peer_rows(self, sysids: Sequence[int]) -> dict[Any, list[int]]:
+        """The rows of ``sysids`` each peer gets (``route``), kept for the
+        next step with the same vehicles until a route or a codec changes
+        (``_routes_changed``): the same vehicles every 20 ms."""
+        key = tuple(sysids)
+        cached = self._rows_cache
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        rows: dict[Any, list[int]] = {}
+        for k, sysid in enumerate(key):
+            peer = self.route(sysid)
+            if peer is not None:
+                rows.setdefault(peer, []).append(k)
+        self._rows_cache = (key, rows)
+        return rows
 
     def _join(
         self,

@@ -96,7 +96,7 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
             core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
                                out.episode, accel_mps2=accel, sent=fresh.keys(),
                                correction_mps2=cor)  # fmt: skip
-        if len(fresh) == len(ids) and all(s in fresh for s in ids):  # every one: no copies
+        if len(fresh) == len(ids) and all(map(fresh.__contains__, ids)):  # every one: no copies
             _answer(core, ids, ks, accel, now, t, vel, write)
         else:
             rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
@@ -131,7 +131,9 @@ def _answer(
     table = core.table
     ned = table.answer(ks, accel)
     vel_ned: FloatArray | None = None
-    tracked = [k for k, s in enumerate(sysids) if s in core.velocity_tracked]
+    tracked = []
+    if core.velocity_tracked:
+        tracked = [k for k, s in enumerate(sysids) if s in core.velocity_tracked]
     if tracked:
         # What was sent (the NED rows, clipped) back in the mission frame: V1 integrates it.
         sent = np.stack([ned[tracked, 1], ned[tracked, 0], -ned[tracked, 2]], axis=1)
@@ -143,11 +145,14 @@ def _answer(
         vel_ned[tracked, 1] = ref[:, 0] + bias[:, 1]
         vel_ned[tracked, 2] = -ref[:, 2] + bias[:, 2]
     rows: dict[str, list[int]] = {}
-    link_of = core.link_of
-    for k, sysid in enumerate(sysids):
-        rows.setdefault(link_of[sysid], []).append(k)
+    if len(core.links) == 1:  # one link: every vehicle's (core.link_of)
+        rows[core.links[0]] = list(range(len(sysids)))
+    else:
+        link_of = core.link_of
+        for k, sysid in enumerate(sysids):
+            rows.setdefault(link_of[sysid], []).append(k)
     vehicles = core.vehicles
-    boot_ms = [table.boot_ms(k) for k in ks.tolist()]
+    boot_ms = table.boot_ms_of(ks)
     arrival = table.arrival_s[ks].tolist()
     for link in core.links:
         idx = rows.get(link)

@@ -141,6 +141,27 @@ def test_a_signed_vehicle_silent_for_rebind_s_may_move_to_a_new_address() -> Non
     assert unsigned.receive(_lpn(1, 2), B, 100.0, datagram=True) == []
 
 
+def test_a_steps_setpoints_follow_a_vehicle_that_moved_to_a_new_address() -> None:
+    """The rows each peer gets are kept from one step to the next
+    (``LinkState._peer_rows``); a rebinding drops them, so the next step's
+    setpoint goes to the vehicle's new address, and a new peer's first frame
+    too."""
+    st, _ = _state(signing_key=KEY, allow_rebind=True)
+    mav1, mav2 = mavlink(1, 1, KEY, unix_s=1.7e9), mavlink(2, 1, KEY, unix_s=1.7e9)
+    st.receive(_lpn(1, 1, mav1) + _lpn(2, 1, mav2), A, 0.0, datagram=True)
+    accel = np.zeros((2, 3))
+
+    def step() -> dict[object, list[int]]:
+        writes = st.accel_setpoints([1, 2], [1, 1], [7, 7], accel, [None, None])
+        return {p: [m.target_system for m in _parse(d)] for p, d, _ in writes}  # type: ignore[attr-defined]
+
+    assert step() == {A: [1, 2]}
+    assert step() == {A: [1, 2]}  # the same rows again
+    assert len(st.receive(_lpn(2, 2, mav2), B, REBIND_S + 0.1, datagram=True)) == 1
+    assert st.route(2) == B
+    assert step() == {A: [1], B: [2]}
+
+
 def test_a_later_networks_link_speaks_system_ids_on_the_wire_and_keys_above() -> None:
     """Issue 19: a link of network 1 (``base`` 256) serves keys 257, 258 as
     system ids 1, 2: a flying vehicle's report goes into key 257's row, and
