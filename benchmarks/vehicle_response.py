@@ -35,33 +35,33 @@ import time
 
 import numpy as np
 
-PROFILE: list[tuple[str, tuple[float, float, float], float]] = [
-    # (label, acceleration NED m/s^2, seconds); each is followed by 2 s at zero.
-    # A label with "Hz" is a sine: the vector is its amplitude, the frequency
-    # is read from the label (small, slow commands, as a formation's: the phase
-    # with which the vehicle follows them, docs/emulator.md Eq. D9).
-    ("north +1 (sheet's step)", (1.0, 0.0, 0.0), 3.0),
-    ("north -1", (-1.0, 0.0, 0.0), 3.0),
-    ("east +4 (jerk)", (0.0, 4.0, 0.0), 1.5),
-    ("east -4", (0.0, -4.0, 0.0), 1.5),
-    ("north +8 (saturation)", (8.0, 0.0, 0.0), 1.2),
-    ("north -8", (-8.0, 0.0, 0.0), 1.2),
-    ("up 2 (az -2)", (0.0, 0.0, -2.0), 1.5),
-    ("down 2 (az +2)", (0.0, 0.0, 2.0), 1.5),
-    ("reverse east +3 -> -3", (0.0, 3.0, 0.0), 1.0),
-    ("reverse east -3", (0.0, -3.0, 0.0), 1.0),
-    ("north sine 0.3 at 0.1 Hz", (0.3, 0.0, 0.0), 10.0),
-    ("east sine 0.3 at 0.3 Hz", (0.0, 0.3, 0.0), 20.0 / 3.0),
-    ("north sine 0.3 at 1 Hz", (0.3, 0.0, 0.0), 3.0),
-    ("up sine 0.3 at 0.3 Hz", (0.0, 0.0, -0.3), 20.0 / 3.0),
+PROFILE: list[tuple[str, tuple[float, float, float], float, float]] = [
+    # (label, acceleration NED m/s^2, seconds, Hz); each is followed by 2 s at zero.
+    # Hz 0 is a step; otherwise a sine of that frequency whose amplitude is the
+    # vector (small, slow commands, as a formation's: the phase with which the
+    # vehicle follows them, docs/emulator.md).
+    ("north +1 (sheet's step)", (1.0, 0.0, 0.0), 3.0, 0.0),
+    ("north -1", (-1.0, 0.0, 0.0), 3.0, 0.0),
+    ("east +4 (jerk)", (0.0, 4.0, 0.0), 1.5, 0.0),
+    ("east -4", (0.0, -4.0, 0.0), 1.5, 0.0),
+    ("north +8 (saturation)", (8.0, 0.0, 0.0), 1.2, 0.0),
+    ("north -8", (-8.0, 0.0, 0.0), 1.2, 0.0),
+    ("up 2 (az -2)", (0.0, 0.0, -2.0), 1.5, 0.0),
+    ("down 2 (az +2)", (0.0, 0.0, 2.0), 1.5, 0.0),
+    ("reverse east +3 -> -3", (0.0, 3.0, 0.0), 1.0, 0.0),
+    ("reverse east -3", (0.0, -3.0, 0.0), 1.0, 0.0),
+    ("north sine 0.3 at 0.1 Hz", (0.3, 0.0, 0.0), 10.0, 0.1),
+    ("east sine 0.3 at 0.3 Hz", (0.0, 0.3, 0.0), 20.0 / 3.0, 0.3),
+    ("north sine 0.3 at 1 Hz", (0.3, 0.0, 0.0), 3.0, 1.0),
+    ("up sine 0.3 at 0.3 Hz", (0.0, 0.0, -0.3), 20.0 / 3.0, 0.3),
 ]
 
 
-def _command(label: str, acc: tuple[float, float, float], t_s: float) -> tuple[float, ...]:
-    """The command of a profile segment ``t_s`` s after it began (module PROFILE)."""
-    if "Hz" not in label:
+def _command(acc: tuple[float, float, float], hz: float, t_s: float) -> tuple[float, ...]:
+    """A profile segment's command ``t_s`` s after it began: ``acc`` itself for a
+    step (``hz`` 0), else ``acc`` times the sine of that frequency."""
+    if hz == 0.0:
         return acc
-    hz = float(label.split(" at ")[1].split()[0])
     k = math.sin(2.0 * math.pi * hz * t_s)
     return (acc[0] * k, acc[1] * k, acc[2] * k)
 
@@ -140,15 +140,16 @@ def measure(link: str, out: str) -> None:
     echo: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     period = 1.0 / RATE_HZ
     next_send = time.monotonic()
-    for label, acc, dur in PROFILE:
-        for seg, a, d in ((label, acc, dur), (label + " / pause", (0.0, 0.0, 0.0), PAUSE_S)):
+    for label, acc, dur, hz in PROFILE:
+        pause = (label + " / pause", (0.0, 0.0, 0.0), PAUSE_S, 0.0)
+        for seg, a, d, f in ((label, acc, dur, hz), pause):
             start = time.monotonic()
             end = start + d
             cur = a
             while time.monotonic() < end:
                 now = time.monotonic()
                 if now >= next_send:
-                    cur = _command(seg, a, next_send - start)
+                    cur = _command(a, f, next_send - start)
                     m.mav.set_position_target_local_ned_send(
                         0, m.target_system, 1, 1, MASK_ACCEL, 0, 0, 0, 0, 0, 0, *cur, 0, 0
                     )
