@@ -78,7 +78,7 @@ def bench_law_eval() -> list[str]:
         p = rng.normal(size=(n, 3)) * (n ** (1 / 3))
         v = rng.normal(size=(n, 3))
         q = np.full(n, 10.0)
-        mode = _formation_mode(n)
+        mode = Mode.formation(tuple(range(n)))
         obs = SwarmController(cfg).obstacles
         reps = 200 if n <= 100 else (30 if n <= 1000 else 15)
         inner = 20 if n <= 100 else 1
@@ -92,19 +92,6 @@ def bench_law_eval() -> list[str]:
         )
         rows.append(f"| {n} | {t_law:.3f} | {t_rep:.3f} | {naive} |")
     return rows
-
-
-def _formation_mode(n: int) -> Mode:
-    return Mode(
-        behaviour="formation",
-        episode=0,
-        ids=tuple(range(n)),
-        targets_m=None,
-        vertical=np.zeros((n, 0), dtype=bool),
-        sense_h=np.ones((n, 0)),
-        sense_v=np.ones((n, 0)),
-        repulsion=True,
-    )
 
 
 def sphere_swarm(n: int, gains: Gains) -> tuple[np.ndarray, float]:
@@ -145,7 +132,7 @@ def bench_cutoff(counts: list[int]) -> list[str]:
         p, d_nn = sphere_swarm(n, base.gains)
         v = rng.normal(size=(n, 3)) * 0.1
         q = np.full(n, base.gains.q_default)
-        mode = _formation_mode(n)
+        mode = Mode.formation(tuple(range(n)))
         reps = 30 if n <= 1000 else 10
         inner = 10 if n <= 500 else 1
         cells = [f"| {n} | {float(np.linalg.norm(p[0])):.2f}, {d_nn:.3f}"]
@@ -161,7 +148,7 @@ def bench_cutoff(counts: list[int]) -> list[str]:
     p = rng.normal(size=(n, 3))
     p /= np.linalg.norm(p, axis=1).max() * 2.0  # all inside a ball of radius 0.5 m
     q = np.full(n, 10.0)
-    mode = _formation_mode(n)
+    mode = Mode.formation(tuple(range(n)))
     clump = []
     for cutoff in (None, 1.0):
         cfg = LawConfig(gains=Gains(repulsion_cutoff=cutoff))

@@ -92,6 +92,22 @@ class Mode:
     sense_v: F64
     repulsion: bool
 
+    @classmethod
+    def formation(cls, ids: tuple[int, ...]) -> Mode:
+        """Formation behaviour for ``ids`` with no obstacle (K = 0): what the
+        supervisor holds for a swarm that meets none, episode 0, Eq. 9 on."""
+        n = len(ids)
+        return cls(
+            behaviour="formation",
+            episode=0,
+            ids=ids,
+            targets_m=None,
+            vertical=np.zeros((n, 0), dtype=bool),
+            sense_h=np.ones((n, 0)),
+            sense_v=np.ones((n, 0)),
+            repulsion=True,
+        )
+
 
 @dataclass
 class _Vehicle:

@@ -247,19 +247,6 @@ def test_below_small_n_a_cut_off_beyond_every_distance_is_bit_identical(seed: in
     np.testing.assert_array_equal(far, exact)
 
 
-def _formation_mode(n: int) -> Mode:
-    return Mode(
-        behaviour="formation",
-        episode=0,
-        ids=tuple(range(n)),
-        targets_m=None,
-        vertical=np.zeros((n, 0), dtype=bool),
-        sense_h=np.ones((n, 0)),
-        sense_v=np.ones((n, 0)),
-        repulsion=True,
-    )
-
-
 @pytest.mark.parametrize("n", [3, 6, 9, 10, 40, 100])
 def test_the_law_applies_the_cut_off_on_both_of_its_paths(n: int) -> None:
     """``law_accelerations`` takes the float rows below SMALL_N and the
@@ -272,14 +259,16 @@ def test_the_law_applies_the_cut_off_on_both_of_its_paths(n: int) -> None:
     g = Gains(repulsion_cutoff=2.5)
     cfg = LawConfig(gains=g)
     obs = Ellipsoids.from_boxes(())
-    got = law_accelerations(cfg, _formation_mode(n), pos, vel, q, np.zeros(3), obs)
+    got = law_accelerations(cfg, Mode.formation(tuple(range(n))), pos, vel, q, np.zeros(3), obs)
     rep, size = reference(pos, q, g.k_r, 2.5)
     fs = formation_force(pos, q, np.zeros(3), g, Readings(), with_repulsion=False)
     want = (fs + rep - g.damping_scaled * vel) / g.mass_scaled
     scale = size + np.abs(fs).sum(axis=1) + g.damping_scaled * np.abs(vel).sum(axis=1)
     bound = 4 * (n + 8) * EPS * scale + gram_bound(pos, size, q, 2.5)  # N = 100: a clump
     assert (np.abs(got - want).max(axis=1) <= bound).all()
-    exact = law_accelerations(LawConfig(), _formation_mode(n), pos, vel, q, np.zeros(3), obs)
+    exact = law_accelerations(
+        LawConfig(), Mode.formation(tuple(range(n))), pos, vel, q, np.zeros(3), obs
+    )
     assert not np.array_equal(got, exact)  # the cut-off did drop some pairs
 
 
