@@ -38,7 +38,7 @@ from gcs_swarm.runtime.links import Link
 from gcs_swarm.swarm.core import SwarmCore
 from gcs_swarm.swarm.link_state import OnFrame
 from gcs_swarm.swarm.status import StatusLine
-from gcs_swarm.swarm.step import SetpointBatch
+from gcs_swarm.swarm.step import SetpointBatch, Write
 
 __all__ = ["Station", "StationConfig", "VehiclePlan"]
 
@@ -63,12 +63,15 @@ class Station:
         recorder: FlightRecorder | None = None,
         on_frame: OnFrame | None = None,
         on_frame_for: Callable[[str], OnFrame | None] | None = None,
+        control_step: Callable[[float, Write], None] | None = None,
     ) -> None:
         """``recorder`` receives every control step, membership change and
         received message (the run's flight record); ``on_frame`` every raw
         frame in and out on every link (the ``.tlog``), or ``on_frame_for``
         gives each link's own (by connection string: one ``.tlog`` per
-        network)."""
+        network). ``control_step(now, write)`` replaces the core's when a
+        step is wanted (a link shard sends its states to its controller
+        instead: ``runtime.shard``)."""
         self._on_frame_for = on_frame_for
         self.config = config
         self.on_status = on_status
@@ -79,6 +82,7 @@ class Station:
         if config.delay_compensation and not config.lockstep:
             self.delay = DelayCompensator(config.predict_accel_max_mps2)
         self.core = SwarmCore(config, recorder=recorder, delay=self.delay)
+        self._control_step = control_step or self.core.control_step
         self.on_step: Callable[[], None] | None = None
         """Called after each control step, once its setpoints are written (the
         operator view builds its next frame then, while the loop waits for the
@@ -252,12 +256,22 @@ class Station:
         # Collect once now, while the vehicles hold at their start points, and
         # freeze what is left so that later passes scan only the flight's own
         # objects; ``__aexit__`` unfreezes.
+        self.begin()
+        await self._finished.wait()
+
+    def begin(self) -> None:
+        """Start the formation now (``fly`` without waiting for its end)."""
         gc.collect()
         gc.freeze()
         self._froze = True
         self.core.start(self.now())
         self._after()
-        await self._finished.wait()
+
+    def apply(self, work: Callable[[float, Write], None]) -> None:
+        """``work(now, write)`` on the core from outside (a controller's
+        setpoints arriving at a shard), then what the core asks for."""
+        work(self.now(), self._write)
+        self._after()
 
     async def end(self, mode: int | None = None) -> None:
         """Zero acceleration and the end mode for everyone, confirmed by heartbeat.
@@ -347,7 +361,7 @@ class Station:
         while True:
             await self._step.wait()
             self._step.clear()
-            self.core.control_step(self.now(), self._write)
+            self._control_step(self.now(), self._write)
             if self.on_step is not None:
                 self.on_step()
             for job in self.core.lookahead:
