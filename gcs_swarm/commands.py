@@ -28,7 +28,15 @@ if TYPE_CHECKING:
     from gcs_swarm.report.record import FlightRecord
     from gcs_swarm.runtime.summary import RunSummary
 
-__all__ = ["check_command", "report_command", "run_command", "serve_replay", "view_command"]
+__all__ = [
+    "check_command",
+    "report_command",
+    "run_command",
+    "serve_replay",
+    "shard_command",
+    "sharded_run_command",
+    "view_command",
+]
 
 
 def check_command(path: str) -> int:
@@ -140,6 +148,49 @@ async def _main(
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
     return EXIT_CODES.get(summary.outcome, 1)
+
+
+def sharded_run_command(path: str, shards: int) -> int:
+    """``gcs-swarm run PATH --shards N``: the mission flown by N link shards
+    on this machine (``gcs_swarm.runtime.sharded``; no run folder yet), its
+    summary printed; exit codes as ``run_command``'s. Ctrl-C or SIGTERM ends
+    every vehicle (the end action) through its shard."""
+    from gcs_swarm.runtime.run import EXIT_CODES
+    from gcs_swarm.runtime.sharded import check_shards, run_sharded
+
+    mission = load_mission(path)
+    check_shards(mission, shards)
+
+    async def main() -> int:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+
+        def interrupt() -> None:
+            print("\nending: the end action for every vehicle, through its shard",
+                  file=sys.stderr)  # fmt: skip
+            task.cancel()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, interrupt)
+        try:
+            summary = await run_sharded(mission, shards)
+        except asyncio.CancelledError:
+            return 130
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+        print(summary.format())
+        return EXIT_CODES.get(summary.outcome, 1)
+
+    return asyncio.run(main())
+
+
+def shard_command(endpoint: str) -> int:
+    """``gcs-swarm shard --connect ENDPOINT`` (``gcs_swarm.runtime.shard``)."""
+    from gcs_swarm.runtime.shard import shard_command as serve
+
+    return serve(endpoint)
 
 
 def report_command(
