@@ -22,6 +22,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import secrets
 import signal
 from dataclasses import asdict, replace
@@ -63,7 +64,7 @@ async def run_shard(endpoint: str, *, token: str | None = None) -> int:
         try:
             async with asyncio.timeout(HELLO_TIMEOUT_S):
                 while not assigned.done():
-                    bus.put_json("hello", {"token": token})
+                    bus.put_json("hello", {"token": token, "pid": os.getpid()})
                     await asyncio.wait([assigned], timeout=0.2)
         except TimeoutError:
             raise LinkError(
@@ -114,6 +115,7 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
             ended.set()
 
     station = Station(cfg, control_step=step)
+    station.hold_when_ready = cfg.lockstep
     side = ShardSide(station.core, index, cfg.stale_timeout_s)
     bus.subscribe(f"down/{index}/reply", on_reply)
     bus.subscribe("down/all", on_down)
@@ -149,9 +151,11 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
                     await _until(start.wait(), ended)
                     if start.is_set() and not ended.is_set():
                         station.begin()
+                        station.release()
                         side.heard(station.now())
                         await ended.wait()
         finally:
+            station.release()  # what a lockstep shard held before the start
             with contextlib.suppress(asyncio.CancelledError):
                 await station.end(end_mode[0])
             beating.cancel()

@@ -86,6 +86,10 @@ class ShardedRun:
         self.processes: list[asyncio.subprocess.Process] = []
         """The shard processes this run started (their ids: ``pid``)."""
         self.tokens: dict[str, int] = {}
+        self.pids: dict[int, int] = {}
+        """Each shard's process id, as its hello said (shard index -> pid)."""
+        self.emulators: dict[int, Emulator] = {}
+        """The bundled emulators, by network index (the vehicles' side of a test)."""
         self.ready: dict[int, dict[str, Any]] = {}
         self.failed: dict[int, str] = {}
         self.done: dict[int, dict[str, Any]] = {}
@@ -106,12 +110,14 @@ class ShardedRun:
             self.bus.subscribe(f"up/{i}/msg", self._on_msg)
 
     def _on_hello(self, key: str, data: bytes) -> None:
-        token = str(json.loads(data)["token"])
+        hello = json.loads(data)
+        token = str(hello["token"])
         index = self.tokens.get(token)
         if index is None:
             if len(self.tokens) >= len(self.assignment):
                 return  # one shard too many: not answered
             index = self.tokens[token] = len(self.tokens)
+            self.pids[index] = int(hello.get("pid", 0))
             _log.info("shard %d joined (token %s)", index, token)
         self.bus.put_json(f"assign/{token}", {"index": index, **self.assignment[index]})
         self.changed.set()
@@ -152,6 +158,7 @@ class ShardedRun:
             self._arm()
         if core.finished:
             self.finished.set()
+        self.changed.set()  # wait_for looks again (a step, a dead shard)
 
     def _arm(self) -> None:
         due = self.core.get_timer()
@@ -217,7 +224,7 @@ async def run_sharded(
                           shards=shards, duration_s=s.duration,
                           stale_timeout_s=s.stale_timeout, lockstep=lockstep)  # fmt: skip
     outcome = "cancelled"
-    run: ShardedRun | None = None
+    emulators: dict[int, Emulator] = {}
     async with contextlib.AsyncExitStack() as stack:
         for j in sorted({v.net_index for v in sims}):
             cfg = emulator_config(mission, network=j)
@@ -225,6 +232,7 @@ async def run_sharded(
                 emu = await stack.enter_async_context(Emulator(cfg))
             except OSError as err:
                 raise LinkError(f"bundled emulator on {cfg.host}: {err.strerror or err}") from None
+            emulators[j] = emu
             for v in sims:
                 if v.net_index == j:
                     host, port = emu.endpoints[v.sysid]
@@ -242,6 +250,7 @@ async def run_sharded(
         bus = await stack.enter_async_context(Bus(listen=[endpoint]))
         run = ShardedRun(bus, core, assignment)
         run.endpoint = endpoint
+        run.emulators = emulators
         run.listen()
         beating = asyncio.ensure_future(run.beat())
         stack.callback(beating.cancel)

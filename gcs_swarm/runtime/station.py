@@ -98,6 +98,12 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._froze = False
+        self.hold_when_ready = False
+        """Hold the inbound messages once every vehicle is READY, until
+        ``release`` (a lockstep link shard waiting for its controller's
+        start: the emulator's clock then waits too, so the formation starts
+        at the vehicle time an unsharded station starts it)."""
+        self._held: list[tuple[Any, Link, float]] | None = None
 
     # The core's figures, as the station's (run summary, tests, benchmarks).
     @property
@@ -297,8 +303,19 @@ class Station:
 
     # ----------------------------------------------------------- messages
     def _on_message(self, msg: Any, link: Link) -> None:
+        if self._held is not None:
+            self._held.append((msg, link, link.rx_time_s))
+            return
         self.core.receive(msg, link.connection, self.now(), link.rx_time_s)
         self._after()
+
+    def release(self) -> None:
+        """Hand the core what ``hold_when_ready`` held, in arrival order."""
+        held, self._held = self._held, None
+        self.hold_when_ready = False
+        for msg, link, rx_s in held or ():
+            self.core.receive(msg, link.connection, self.now(), rx_s)
+            self._after()
 
     def _on_telemetry(self, link: Link) -> None:
         core = self.core
@@ -323,6 +340,9 @@ class Station:
         if core.changed:
             core.changed = False
             self._changed.set()
+            if self.hold_when_ready and self._held is None:
+                if all(vp.phase is Phase.READY for vp in self.vehicles.values()):
+                    self._held = []
         if core.finished:
             self._finished.set()
 

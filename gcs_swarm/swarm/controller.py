@@ -92,6 +92,8 @@ class ControllerCore:
         self.log: deque[str] = deque(maxlen=2000)
         self.flying: list[int] = []
         """The vehicles the law flew at the last step (keys, sorted)."""
+        self.fallbacks = 0
+        """Steps taken on the fallback delay, without every shard's states."""
         self._fallback_at: float | None = None
 
     # ------------------------------------------------------------ inbound
@@ -141,6 +143,7 @@ class ControllerCore:
         if self._fallback_at is not None and self._fallback_at <= now:
             self._fallback_at = None
             self.step_wanted = True
+            self.fallbacks += 1
         if not self.started or self.finished:
             return
         for view in self.shards.values():
@@ -157,7 +160,7 @@ class ControllerCore:
         view.alive = False
         view.died_at = now
         gone = [] if view.batch is None else view.batch.keys.tolist()
-        silent = now - (view.heard_at or now)
+        silent = 0.0 if view.heard_at is None else now - view.heard_at
         self.note(f"t={self.control.t_s:.2f} s: shard {view.index} silent for {silent:.2f} s: "
                   f"dead; its {len(gone)} vehicles leave the formation",
                   level=logging.WARNING)  # fmt: skip

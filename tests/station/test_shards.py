@@ -1,0 +1,157 @@
+"""Link shards as separate processes over Zenoh on 127.0.0.1 (issue 19 item 2).
+
+``run_sharded`` runs the controller (the law) in this process and starts two
+``gcs-swarm shard --connect tcp/127.0.0.1:<free port>`` processes; each owns
+one network of Example 1's six vehicles (``blue`` 1-3, ``red`` 1-3, as
+tests/station/test_networks.py), talks MAVLink over real UDP to its
+network's emulator, and exchanges each step's states and setpoints with the
+controller over a real Zenoh session.
+
+- lockstep: the sharded flight gives the radii and positions of the same
+  mission flown by one station process to 1e-9 m (the shards send float64
+  bit patterns, the controller sums in key order: the same numbers);
+- a shard killed with SIGKILL in flight (real time): the controller declares
+  it dead within the stale timeout (1 s) plus the heartbeat period, its
+  vehicles leave the formation and brake on their own (GUID_TIMEOUT), the
+  other shard's fly on to the mission's end.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_swarm.mission import Mission, parse_mission
+from gcs_swarm.runtime import RunSummary, run_mission
+from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
+
+_STARTS = ["[2, 1, 2]", "[-1, -1, -1]", "[3, 4, 2]", "[4, 2, 2]", "[3, 3, 3]", "[-2, -2, -2]"]
+
+
+def _two_networks(duration: float, emulator: str, extra: str = "") -> Mission:
+    text = (
+        f"mission: {{name: shards, duration: {duration}, rate: 50, end: hold{extra}}}\n"
+        f"emulator: {{{emulator}}}\n"
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
+    )
+    for name, starts in (("blue", _STARTS[:3]), ("red", _STARTS[3:])):
+        text += f"  - name: {name}\n    vehicles:\n"
+        text += "".join(f"      - {{sysid: {i + 1}, start: {s}}}\n" for i, s in enumerate(starts))
+    return parse_mission(text)
+
+
+LOCKSTEP_S = 8.0
+"""Formation flight of the lockstep comparison [s] (400 steps: the two
+flights are compared with each other, not with the equilibrium)."""
+
+
+def test_two_shards_in_lockstep_fly_the_radii_of_one_station(tmp_path: Path) -> None:
+    mission = _two_networks(LOCKSTEP_S, "dynamics: ideal, mode: lockstep, spawn: air")
+
+    async def fly() -> tuple[RunSummary, RunSummary, ShardedRun]:
+        runs: list[ShardedRun] = []
+        async with asyncio.timeout(180):  # two flights of ~2-6 s wall each, on a loaded machine
+            one = await run_mission(mission, log_dir=None, end_timeout_s=5.0)
+            two = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=runs.append)
+        return one, two, runs[0]
+
+    one, two, run = asyncio.run(fly())
+    assert one.outcome == two.outcome == "completed"
+    assert [v.label for v in two.vehicles] == ["blue:1", "blue:2", "blue:3",
+                                               "red:1", "red:2", "red:3"]  # fmt: skip
+    assert [v.phase for v in two.vehicles] == ["ended"] * 6
+    # Lockstep and float64 on the wire: the same numbers in the same order
+    # (measured: equal bit for bit; 1e-9 m leaves room for rounding only).
+    r1 = np.array([v.radius_m for v in one.vehicles], dtype=float)
+    r2 = np.array([v.radius_m for v in two.vehicles], dtype=float)
+    np.testing.assert_allclose(r2, r1, rtol=0, atol=1e-9)
+    p1 = np.array([v.position_m for v in one.vehicles], dtype=float)
+    p2 = np.array([v.position_m for v in two.vehicles], dtype=float)
+    np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-9)
+    assert two.mission_time_s == pytest.approx(one.mission_time_s, abs=1e-9)
+    assert two.steps == one.steps
+    assert (two.setpoints_dropped, two.bad_packets, two.unknown_sysid_messages) == (0, 0, 0)
+    # Each step crossed Zenoh as 24 + 60 bytes per vehicle up, 24 + 28 down, per shard.
+    steps = run.bytes_per_step["steps"]
+    assert run.bytes_per_step["state"] <= steps * 2 * (24 + 3 * 60) + 2 * (24 + 3 * 60)
+    assert sorted(run.pids) == [0, 1] and all(p > 0 for p in run.pids.values())
+
+
+TRIANGLE_RADIUS_M = 2.24167
+"""The law's equilibrium radius of three vehicles (Example 1's gains) [m]."""
+KILL_AT_S = 3.0
+"""Mission time [s] at which shard 1 is killed."""
+REALTIME_S = 9.0
+"""The killed-shard flight [s of mission time, 2 x real time]."""
+
+
+def test_a_killed_shard_is_detected_its_vehicles_brake_and_the_rest_fly_on() -> None:
+    mission = _two_networks(
+        REALTIME_S,
+        "dynamics: ideal, mode: realtime, speedup: 2, spawn: air",
+        ", startup: {guid_timeout: 0.5}",
+    )
+    killed: dict[str, float] = {}
+    braked: dict[int, float] = {}
+
+    async def watch(run: ShardedRun) -> None:
+        core = run.core
+        assert await run.wait_for(lambda: core.control.t_s >= KILL_AT_S, 60.0)
+        pid = run.pids[1]
+        assert pid in {p.pid for p in run.processes}  # one this run started
+        os.kill(pid, signal.SIGKILL)
+        killed["wall"] = time.monotonic()
+        killed["loop"] = run.now()
+        killed["t"] = core.control.t_s
+        assert await run.wait_for(lambda: not core.shards[1].alive, 10.0)
+        # Its vehicles on their own: GUID_TIMEOUT (0.5 s emulator time), then braking.
+        emu = run.emulators[1]
+        await asyncio.sleep(2.5)
+        for sysid in (1, 2, 3):
+            braked[sysid] = float(np.linalg.norm(emu.vehicle_state(sysid).vel_ned_m_s))
+
+    async def fly() -> tuple[RunSummary, ShardedRun]:
+        runs: list[ShardedRun] = []
+        tasks: list[asyncio.Task[None]] = []
+
+        def started(run: ShardedRun) -> None:
+            runs.append(run)
+            tasks.append(asyncio.ensure_future(watch(run)))
+
+        async with asyncio.timeout(180):
+            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
+            await tasks[0]
+        return summary, runs[0]
+
+    summary, run = asyncio.run(fly())
+    core = run.core
+    died = core.shards[1].died_at
+    assert died is not None and core.shards[0].alive
+    detect_s = died - killed["loop"]
+    # Declared dead within the stale timeout (1 s) of its last message, which was
+    # at most one heartbeat (0.1 s) before the kill; 0.5 s more for a loaded machine.
+    assert 0.0 < detect_s <= 1.0 + 0.1 + 0.5, detect_s
+    print(f"killed shard detected after {detect_s:.3f} s")
+    # The rest flew on to the end: the law's last step had the three blue vehicles.
+    assert summary.mission_time_s >= REALTIME_S
+    assert list(core.control.last.ids) == [1, 2, 3]
+    assert summary.outcome == "degraded"
+    by_label = {v.label: v for v in summary.vehicles}
+    assert [by_label[f"blue:{i}"].phase for i in (1, 2, 3)] == ["ended"] * 3
+    assert [by_label[f"red:{i}"].phase for i in (1, 2, 3)] == ["lost"] * 3
+    assert any("shard 1 silent" in line and "dead" in line for line in summary.log)
+    # The killed shard's vehicles braked to a stop on their own (< 0.05 m/s).
+    assert braked and max(braked.values()) < 0.05, braked
+    # The rest re-form, from the octahedron's 2.484 m towards the triangle's
+    # 2.24167 m (gcs-swarm simulate of the three alone, 60 s); measured within
+    # 0.012 m of it 6 s after the kill, 0.03 m allows for the detection's spread.
+    radii = [v.radius_m for v in summary.vehicles if v.radius_m is not None]
+    assert len(radii) == 3
+    np.testing.assert_allclose(radii, TRIANGLE_RADIUS_M, atol=0.03)
+    print(f"re-formed radii {radii}")
