@@ -13,7 +13,10 @@ controller over a real Zenoh session.
 - a shard killed with SIGKILL in flight (real time): the controller declares
   it dead within the stale timeout (1 s) plus the heartbeat period, its
   vehicles leave the formation and brake on their own (GUID_TIMEOUT), the
-  other shard's fly on to the mission's end.
+  other shard's fly on to the mission's end;
+- the controller gone from the wire (its Zenoh session closed, the emulators
+  flying on): every shard sends its vehicles the end action (BRAKE) itself;
+- bad ``--shards`` / ``--connect`` arguments: one line, exit 2.
 """
 
 from __future__ import annotations
@@ -155,3 +158,68 @@ def test_a_killed_shard_is_detected_its_vehicles_brake_and_the_rest_fly_on() -> 
     assert len(radii) == 3
     np.testing.assert_allclose(radii, TRIANGLE_RADIUS_M, atol=0.03)
     print(f"re-formed radii {radii}")
+
+
+def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action() -> None:
+    """The controller's Zenoh session is closed mid-flight (the emulators, in
+    this process, fly on): no end message, no heartbeat. Each shard hears
+    nothing for the stale timeout and ends its vehicles itself: BRAKE, the
+    mission's ``end: hold``, confirmed by each vehicle; then it exits."""
+    mission = _two_networks(60.0, "dynamics: ideal, mode: realtime, speedup: 2, spawn: air")
+    modes: dict[str, str] = {}
+    exits: list[int | None] = []
+
+    async def watch(run: ShardedRun) -> None:
+        assert await run.wait_for(lambda: run.core.control.t_s >= 2.0, 60.0)
+        await run.bus.__aexit__(None, None, None)  # the controller is gone from the wire
+        for _ in range(400):  # up to 20 s: 1 s of silence, then the end action confirmed
+            states = {f"{j}:{s}": emu.vehicle_state(s).mode_name
+                      for j, emu in run.emulators.items() for s in (1, 2, 3)}  # fmt: skip
+            modes.update(states)
+            if all(p.returncode is not None for p in run.processes):
+                break
+            await asyncio.sleep(0.05)
+        exits.extend(p.returncode for p in run.processes)
+
+    async def fly() -> RunSummary:
+        tasks: list[asyncio.Task[None]] = []
+
+        def started(run: ShardedRun) -> None:
+            tasks.append(asyncio.ensure_future(watch(run)))
+
+        async with asyncio.timeout(180):
+            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
+            await tasks[0]
+        return summary
+
+    summary = asyncio.run(fly())
+    assert sorted(modes) == ["0:1", "0:2", "0:3", "1:1", "1:2", "1:3"]
+    assert set(modes.values()) == {"BRAKE"}, modes
+    assert exits == [0, 0]  # each shard: every vehicle that flew ended
+    assert summary.mission_time_s < 10.0  # the controller saw both shards go silent
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["run", "{two}", "--shards", "0"], "--shards: expected a whole number >= 1, got 0"),
+        (["run", "{two}", "--shards", "3"], "a shard owns whole networks and the mission has 2"),
+        (["run", "{one}", "--shards", "2"], "a shard owns whole networks and the mission has 1"),
+        (["shard", "--connect", "127.0.0.1:7447"], "expected a Zenoh endpoint tcp/HOST:PORT"),
+        (["shard", "--connect", "tcp/127.0.0.1:99999"], "expected a Zenoh endpoint"),
+    ],
+)
+def test_bad_shard_arguments_are_one_line_errors(
+    argv: list[str], expected: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gcs_swarm.cli import EXIT_REFUSED, main
+
+    two = tmp_path / "two.yaml"
+    two.write_text(_two_networks(5.0, "mode: lockstep").text)
+    one = tmp_path / "one.yaml"
+    one.write_text("mission: {name: one, duration: 5}\nleader: {start: [0, 0, 0]}\n"
+                   "vehicles:\n  - {sysid: 1, start: [1, 0, 0]}\n")  # fmt: skip
+    code = main([a.format(two=two, one=one) for a in argv])
+    err = capsys.readouterr().err
+    assert code == EXIT_REFUSED
+    assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and expected in err, err
