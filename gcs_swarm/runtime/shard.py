@@ -119,6 +119,7 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
     side = ShardSide(station.core, index, cfg.stale_timeout_s)
     bus.subscribe(f"down/{index}/reply", on_reply)
     bus.subscribe("down/all", on_down)
+    bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
     outcome_ok = True
     async with station:
         side.heard(station.now())

@@ -94,6 +94,9 @@ class ShardedRun:
         self.failed: dict[int, str] = {}
         self.done: dict[int, dict[str, Any]] = {}
         self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
+        """Bytes of state batches in, replies out, and the steps they made."""
+        self.flight_s: tuple[float, float] | None = None
+        """Loop times [s] of the formation's start and of the mission's end."""
         self.changed = asyncio.Event()
         self.finished = asyncio.Event()
         self._loop = asyncio.get_running_loop()
@@ -125,13 +128,30 @@ class ShardedRun:
     def _on_state(self, key: str, data: bytes) -> None:
         batch = decode_state(data)
         self.bytes_per_step["state"] += len(data)
+        if self._declared_dead(batch.shard):
+            return
         self.core.receive_state(batch, self.now())
         self._after()
+
+    def _declared_dead(self, index: int) -> bool:
+        """A shard declared dead that speaks again (a Zenoh link back after
+        the stale timeout) is told to end its vehicles: it never rejoins."""
+        view = self.core.shards.get(index)
+        if view is None or view.alive:
+            return False
+        self.bus.put_json(f"down/{index}/ctl", {"kind": "end", "mode": None})
+        return True
 
     def _on_msg(self, key: str, data: bytes) -> None:
         index = int(key.split("/")[1])
         msg = json.loads(data)
         kind = msg["kind"]
+        if kind == "done":
+            self.done[index] = msg
+            self.changed.set()
+            return
+        if self.core.started and self._declared_dead(index):
+            return
         now = self.now()
         if kind == "beat":
             self.core.heard(index, now, msg.get("flying"))
@@ -140,8 +160,6 @@ class ShardedRun:
             self.core.heard(index, now)
         elif kind == "failed":
             self.failed[index] = str(msg["text"])
-        elif kind == "done":
-            self.done[index] = msg
         self.changed.set()
         self._after()
 
@@ -281,7 +299,9 @@ async def run_sharded(
             core.start(run.now(), {i: int(m["members"]) for i, m in run.ready.items()})
             bus.put_json("down/all", {"kind": "start"})
             run._after()
+            t_start = run.now()
             await run.finished.wait()
+            run.flight_s = (t_start, run.now())
             if core.failure is not None:
                 end_mode = END_MODES["hold"]
             outcome = "flown"
