@@ -71,10 +71,11 @@ def main() -> None:
             flights.append(run.flight_s[1] - run.flight_s[0])
         n = len(mission.vehicles)
         steps = max(b["steps"], 1)
+        up, down = b["state"] / steps, b["reply"] / steps
         print(f"steps {one.steps} vs {two.steps}; max |radius difference| {diff:.3g} m; "
-              f"fallback steps {run.core.fallbacks}; Zenoh per step: states {b['state'] / steps:.0f} B "
-              f"({b['state'] / steps / n:.1f} B/vehicle), replies {b['reply'] / steps:.0f} B "
-              f"({b['reply'] / steps / n:.1f} B/vehicle)")  # fmt: skip
+              f"fallback steps {run.core.fallbacks}; Zenoh per step: states {up:.0f} B "
+              f"({up / n:.1f} B/vehicle), replies {down:.0f} B "
+              f"({down / n:.1f} B/vehicle)")  # fmt: skip
     for name, w in walls.items():
         print(f"{name}: wall {statistics.median(w):.2f} s median of {len(w)} "
               f"({', '.join(f'{x:.2f}' for x in w)}) for {args.duration:g} s of mission time "

@@ -1,17 +1,21 @@
 """The link-shard split without I/O (issue 19 item 2): the wire's bytes, the
 controller's step rule and dead-shard rule, the shard's watch on its
-controller, all on a hand-advanced clock (no Zenoh, no sockets, no sleeps).
+controller, and whole flights of the split on the in-process harness
+(bit-equal to the station's own step; a silent controller ends every
+vehicle), all on a hand-advanced clock (no Zenoh, no sockets, no sleeps).
 The processes over Zenoh are tests/station/test_shards.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from swarm_harness import Sky, mission_from
 
 from gcs_swarm.control.params import LawConfig
 from gcs_swarm.errors import LinkError
-from gcs_swarm.mission import parse_mission
+from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.swarm.controller import ControllerCore
+from gcs_swarm.swarm.shard import ShardSide
 from gcs_swarm.swarm.shard_wire import (
     HEADER_BYTES,
     REPLY_BYTES_PER_VEHICLE,
@@ -23,6 +27,7 @@ from gcs_swarm.swarm.shard_wire import (
     encode_reply,
     encode_state,
 )
+from gcs_swarm.swarm.step import Write
 
 STALE_S = 1.0
 
@@ -178,11 +183,87 @@ def test_a_vehicle_its_shard_stops_reporting_leaves_the_law() -> None:
 
 
 def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
-    from gcs_swarm.swarm.shard import ShardSide
-
     side = ShardSide(core=None, index=0, stale_timeout_s=STALE_S)  # type: ignore[arg-type]
     assert side.get_timer() is None and not side.controller_silent(100.0)
     side.heard(5.0)
     assert side.get_timer() == 6.0
     assert not side.controller_silent(5.99)
     assert side.controller_silent(6.0)
+
+
+# ---------------------------------------------------------------- in process
+# The split flown whole on the in-process harness (tests/swarm/swarm_harness.py:
+# the station's core against the emulator's core, one hand-advanced clock): the
+# core's step goes through ShardSide, the wire's bytes and a ControllerCore
+# instead of run_step, as in a shard process, without Zenoh or sockets.
+
+
+def _sharded(sky: Sky, mission: Mission) -> tuple[ShardSide, ControllerCore]:
+    s = mission.settings
+    side = ShardSide(sky.core, 0, s.stale_timeout)
+    ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=1,
+                         duration_s=s.duration, stale_timeout_s=s.stale_timeout,
+                         lockstep=False)  # fmt: skip
+
+    def step(now: float, write: Write) -> None:
+        batch = side.take_state(now)
+        if batch is None:
+            return
+        ctl.receive_state(decode_state(encode_state(batch)), now)
+        if ctl.step_wanted:
+            for reply in ctl.control_step(now):
+                side.apply(decode_reply(encode_reply(reply)), now, write)
+        if ctl.finished:
+            sky.core.finished = True
+
+    sky.control_step = step
+    return side, ctl
+
+
+def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
+    mission = mission_from("example1_octahedron.yaml", duration=6.0)
+    one = Sky(mission)
+    one.ready()
+    one.start()
+    one.run_until(lambda: one.core.finished, 30.0)
+    split = Sky(mission)
+    side, ctl = _sharded(split, mission)
+    split.ready()
+    ctl.set_envelope(split.core.apply_envelope())
+    split.start()
+    ctl.start(split.now, {0: len(split.core.flying)})
+    split.run_until(lambda: split.core.finished, 30.0)
+    a, b = one.core.control.last, ctl.control.last
+    assert a is not None and b is not None
+    assert (a.t_s, a.ids) == (b.t_s, b.ids) == (6.0, (1, 2, 3, 4, 5, 6))
+    # The same floats: bit for bit.
+    assert a.pos_m.tobytes() == b.pos_m.tobytes()
+    assert a.accel_mps2.tobytes() == b.accel_mps2.tobytes()
+    assert one.core.control.steps == ctl.control.steps
+    assert one.answered == split.answered and side.replies == ctl.control.steps
+
+
+def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clock() -> None:
+    mission = mission_from("example1_octahedron.yaml", duration=60.0)
+    sky = Sky(mission)
+    side, ctl = _sharded(sky, mission)
+    sky.ready()
+    ctl.set_envelope(sky.core.apply_envelope())
+    sky.start()
+    ctl.start(sky.now, {0: len(sky.core.flying)})
+    side.heard(sky.now)
+    sky.advance(2.0)
+    assert not side.controller_silent(sky.now)
+    heard = side.heard_at
+    assert heard is not None and sky.now - heard < 0.05
+
+    def dead(now: float, write: Write) -> None:  # the controller is gone: nothing comes back
+        side.take_state(now)
+
+    sky.control_step = dead
+    while not side.controller_silent(sky.now):  # the shard shell's watch (runtime/shard.py)
+        sky.advance(sky.dt)
+    assert sky.now - heard == pytest.approx(mission.settings.stale_timeout, abs=sky.dt + 1e-9)
+    sky.end()  # Station.end: zero acceleration, then the mission's end action (hold)
+    assert {vp.phase.value for vp in sky.core.vehicles.values()} == {"ended"}
+    assert {v.ap.mode_name for v in sky.vehicles.values()} == {"BRAKE"}
