@@ -121,6 +121,8 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
     bus.subscribe("down/all", on_down)
     bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
     outcome_ok = True
+    flying_drops = [0]
+    """Setpoints dropped (a newer one queued first) before the ending began."""
     async with station:
         side.heard(station.now())
 
@@ -156,13 +158,16 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
                         side.heard(station.now())
                         await ended.wait()
         finally:
+            flying_drops[0] = sum(lk.stats.setpoints_dropped for lk in station.links.values())
             station.release()  # what a lockstep shard held before the start
             with contextlib.suppress(asyncio.CancelledError):
                 await station.end(end_mode[0])
             beating.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await beating
-            bus.put_json(f"{up}/msg", _done(station, side))
+            done = _done(station, side)
+            done["setpoints_dropped_before_end"] = flying_drops[0]
+            bus.put_json(f"{up}/msg", done)
         outcome_ok = outcome_ok and station.outcome() == "completed"
     await asyncio.sleep(0.3)  # the report's way out before the session closes
     return 0 if outcome_ok else 1

@@ -28,6 +28,7 @@ import socket
 import sys
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 from gcs_swarm.control.params import Envelope
@@ -42,9 +43,18 @@ from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
 from sim_vehicle import Emulator
 
-__all__ = ["ShardedRun", "check_shards", "run_sharded"]
+__all__ = ["LOCKSTEP_BARRIER_S", "ShardedRun", "check_shards", "run_sharded"]
 
 _log = logging.getLogger("gcs_swarm.run")
+
+LOCKSTEP_BARRIER_S = 10.0
+"""A bundled lockstep emulator's wait for an answer in a sharded run [s]
+(0.5 s in one process): a shard holds its READY vehicles' reports until
+every shard is ready and the formation starts (``Station.hold_when_ready``),
+and the emulator must wait as long, or its clock moves on unanswered and the
+flight is no longer the one-process flight (measured: shards ready up to
+0.6 s apart on a loaded 2-core machine). Lockstep semantics otherwise:
+a dead shard's emulator then steps once per this wait."""
 
 _HANDSHAKE_S = 30.0
 """Wall time [s] for every shard to say hello (a process start and a Zenoh
@@ -91,6 +101,8 @@ class ShardedRun:
         self.emulators: dict[int, Emulator] = {}
         """The bundled emulators, by network index (the vehicles' side of a test)."""
         self.ready: dict[int, dict[str, Any]] = {}
+        self.ready_at: dict[int, float] = {}
+        """Loop time [s] each shard reported its vehicles READY."""
         self.failed: dict[int, str] = {}
         self.done: dict[int, dict[str, Any]] = {}
         self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
@@ -157,6 +169,7 @@ class ShardedRun:
             self.core.heard(index, now, msg.get("flying"))
         elif kind == "ready":
             self.ready[index] = msg
+            self.ready_at[index] = now
             self.core.heard(index, now)
         elif kind == "failed":
             self.failed[index] = str(msg["text"])
@@ -246,6 +259,8 @@ async def run_sharded(
     async with contextlib.AsyncExitStack() as stack:
         for j in sorted({v.net_index for v in sims}):
             cfg = emulator_config(mission, network=j)
+            if cfg.clock == "lockstep":
+                cfg = replace(cfg, lockstep_timeout_s=LOCKSTEP_BARRIER_S)
             try:
                 emu = await stack.enter_async_context(Emulator(cfg))
             except OSError as err:

@@ -11,8 +11,9 @@ and ``heard(shard, now)`` as messages arrive, ``handle_timer(now)`` at
 
 - a step is wanted when every live shard with flying vehicles has delivered
   a state batch since the last step, or a fallback delay after the first one
-  (0.2 s in lockstep, half a period in real time): ``SwarmCore``'s rule, one
-  level up. The law gets every live shard's latest states (a shard that has
+  (0.5 s in lockstep, a period in real time: longer than a shard's own 0.2 s
+  and half period): ``SwarmCore``'s rule, one level up. The law gets every
+  live shard's latest states (a shard that has
   not delivered this step counts with its last ones, as a vehicle's stale
   table row does), the mission clock advances on the union of the fresh
   reports (``ControlLoop.advance_clock``), and each shard is answered for
@@ -176,7 +177,10 @@ class ControllerCore:
         if all(v.delivered or v.flying == 0 for v in live):
             self.step_wanted = True
         elif self._fallback_at is None:
-            wait = 0.2 if self.lockstep else 0.5 / self.rate_hz  # SwarmCore._maybe_step's
+            # Longer than a shard's own fallback (SwarmCore._maybe_step: 0.2 s in
+            # lockstep, half a period in real time), so that a shard missing a
+            # report still delivers its partial batch before the controller moves on.
+            wait = 0.5 if self.lockstep else 1.0 / self.rate_hz
             self._fallback_at = now + wait
             self.timer_moved = True
 

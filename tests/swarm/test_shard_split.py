@@ -104,7 +104,7 @@ def test_the_controller_steps_once_every_flying_shard_has_delivered() -> None:
     core = _controller()
     core.receive_state(_state(0, 1, [1, 2], 1000), 0.01)
     assert not core.step_wanted
-    assert core.get_timer() == pytest.approx(0.21)  # lockstep fallback 0.2 s
+    assert core.get_timer() == pytest.approx(0.51)  # lockstep fallback 0.5 s
     core.receive_state(_state(1, 1, [257, 258], 5000), 0.02)
     assert core.step_wanted
     replies = core.control_step(0.02)
@@ -126,11 +126,11 @@ def test_the_fallback_steps_without_a_late_shard_and_answers_only_the_fresh() ->
     core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
     core.control_step(0.0)
     core.receive_state(_state(0, 2, [1, 2], 1020), 0.02)
-    core.handle_timer(0.21)
-    assert not core.step_wanted  # not yet: 0.2 s after the first report
-    core.handle_timer(0.22)
+    core.handle_timer(0.51)
+    assert not core.step_wanted  # not yet: 0.5 s after the first report
+    core.handle_timer(0.52)
     assert core.step_wanted and core.fallbacks == 1
-    replies = core.control_step(0.22)
+    replies = core.control_step(0.52)
     # The law flew all four (shard 1 with its last states); shard 0 is answered.
     assert core.flying == [1, 2, 257, 258]
     assert [(r.shard, r.keys.tolist()) for r in replies] == [(0, [1, 2])]
