@@ -209,7 +209,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise UsageError(f"--shards: expected a whole number >= 1, got {args.shards}")
         if view is not None:
             raise UsageError("--shards: the operator view (--view) is not sharded yet")
-        return sharded_run_command(args.mission, args.shards)
+        listen = None
+        if args.listen is not None:
+            from gcs_swarm.runtime.zbus import check_endpoint
+
+            listen = check_endpoint(args.listen, option="--listen")
+        return sharded_run_command(args.mission, args.shards, listen=listen)
+    if args.listen is not None:
+        raise UsageError("--listen: only with --shards N")
     return run_command(
         args.mission,
         status=not args.no_status,
@@ -223,7 +230,7 @@ def _cmd_shard(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import shard_command
     from gcs_swarm.runtime.zbus import check_endpoint
 
-    return shard_command(check_endpoint(args.connect))
+    return shard_command(check_endpoint(args.connect, option="--connect"))
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -265,6 +272,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="split the station: N link shard processes on this machine own whole networks,"
         " this process runs the law (docs/architecture.md, 'Scaled out: shards')",
+    )
+    p.add_argument(
+        "--listen",
+        metavar="ENDPOINT",
+        default=None,
+        help="with --shards N: listen there (e.g. tcp/0.0.0.0:7447) and wait for N shards"
+        " started elsewhere with `gcs-swarm shard --connect`, instead of starting them here",
     )
     _log_options(p)
     p.set_defaults(handler=_cmd_run)

@@ -150,11 +150,13 @@ async def _main(
     return EXIT_CODES.get(summary.outcome, 1)
 
 
-def sharded_run_command(path: str, shards: int) -> int:
-    """``gcs-swarm run PATH --shards N``: the mission flown by N link shards
-    on this machine (``gcs_swarm.runtime.sharded``; no run folder yet), its
-    summary printed; exit codes as ``run_command``'s. Ctrl-C or SIGTERM ends
-    every vehicle (the end action) through its shard."""
+def sharded_run_command(path: str, shards: int, *, listen: str | None = None) -> int:
+    """``gcs-swarm run PATH --shards N [--listen ENDPOINT]``: the mission
+    flown by N link shards (``gcs_swarm.runtime.sharded``; no run folder
+    yet): started on this machine, or with ``listen`` awaited there from
+    ``gcs-swarm shard --connect ENDPOINT`` elsewhere; its summary printed;
+    exit codes as ``run_command``'s. Ctrl-C or SIGTERM ends every vehicle
+    (the end action) through its shard."""
     from gcs_swarm.runtime.run import EXIT_CODES
     from gcs_swarm.runtime.sharded import check_shards, run_sharded
 
@@ -173,8 +175,11 @@ def sharded_run_command(path: str, shards: int) -> int:
 
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, interrupt)
+        if listen is not None:
+            print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
+                  file=sys.stderr, flush=True)  # fmt: skip
         try:
-            summary = await run_sharded(mission, shards)
+            summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None)
         except asyncio.CancelledError:
             return 130
         finally:

@@ -53,7 +53,7 @@ LOCKSTEP_BARRIER_S = 10.0
 every shard is ready and the formation starts (``Station.hold_when_ready``),
 and the emulator must wait as long, or its clock moves on unanswered and the
 flight is no longer the one-process flight (measured: shards ready up to
-0.6 s apart on a loaded 2-core machine). Lockstep semantics otherwise:
+0.9 s apart on a loaded 2-core machine). Lockstep semantics otherwise:
 a dead shard's emulator then steps once per this wait."""
 
 _HANDSHAKE_S = 30.0
@@ -297,9 +297,11 @@ async def run_sharded(
             on_run(run)
         end_mode: int | None = None
         try:
-            if not await run.wait_for(lambda: len(run.tokens) == shards, _HANDSHAKE_S):
+            # Shards started elsewhere (by hand) get as long as a start-up does.
+            hello_s = _HANDSHAKE_S if spawn else max(_HANDSHAKE_S, s.startup.ready_timeout)
+            if not await run.wait_for(lambda: len(run.tokens) == shards, hello_s):
                 raise StartupError(f"{len(run.tokens)} of {shards} shards said hello at "
-                                   f"{endpoint} in {_HANDSHAKE_S:g} s")  # fmt: skip
+                                   f"{endpoint} in {hello_s:g} s")  # fmt: skip
             ready_s = s.startup.ready_timeout + 10.0
             if not await run.wait_for(lambda: len(run.ready) + len(run.failed) == shards,
                                       ready_s):  # fmt: skip

@@ -35,12 +35,13 @@ ENDPOINT_RE = re.compile(r"^(tcp|quic|udp)/(\[[0-9A-Fa-f:]+\]|[A-Za-z0-9._-]+):(
 Handler = Callable[[str, bytes], None]
 
 
-def check_endpoint(text: str) -> str:
-    """``text`` if it is a locator ``ENDPOINT_RE`` accepts; ``UsageError`` otherwise."""
+def check_endpoint(text: str, option: str = "--connect") -> str:
+    """``text`` if it is a locator ``ENDPOINT_RE`` accepts; ``UsageError``
+    naming ``option`` otherwise."""
     m = ENDPOINT_RE.match(text)
     if m is None or not 0 < int(m.group(3)) < 65536:
         raise UsageError(
-            f"--connect {text!r}: expected a Zenoh endpoint tcp/HOST:PORT (or quic/, udp/),"
+            f"{option} {text!r}: expected a Zenoh endpoint tcp/HOST:PORT (or quic/, udp/),"
             " e.g. tcp/127.0.0.1:7447"
         )
     return text

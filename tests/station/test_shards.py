@@ -220,6 +220,8 @@ def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action(
         (["run", "{one}", "--shards", "2"], "a shard owns whole networks and the mission has 1"),
         (["shard", "--connect", "127.0.0.1:7447"], "expected a Zenoh endpoint tcp/HOST:PORT"),
         (["shard", "--connect", "tcp/127.0.0.1:99999"], "expected a Zenoh endpoint"),
+        (["run", "{two}", "--listen", "tcp/127.0.0.1:7447"], "--listen: only with --shards N"),
+        (["run", "{two}", "--shards", "2", "--listen", "7447"], "--listen '7447': expected a"),
     ],
 )
 def test_bad_shard_arguments_are_one_line_errors(
@@ -236,3 +238,37 @@ def test_bad_shard_arguments_are_one_line_errors(
     err = capsys.readouterr().err
     assert code == EXIT_REFUSED
     assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and expected in err, err
+
+
+def test_shards_started_elsewhere_join_a_controller_that_listens() -> None:
+    """``gcs-swarm run --shards 2 --listen ENDPOINT`` and two ``gcs-swarm shard
+    --connect ENDPOINT`` started on their own (here: before the controller
+    listens, as separate processes over 127.0.0.1): they keep saying hello
+    until it answers, then fly the mission with it."""
+    import subprocess
+    import sys
+
+    from gcs_swarm.runtime.sharded import free_endpoint
+
+    mission = _two_networks(3.0, "dynamics: ideal, mode: lockstep, spawn: air")
+    endpoint = free_endpoint()
+    argv = [sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint]
+    shards = [subprocess.Popen(argv, stdin=subprocess.DEVNULL) for _ in range(2)]
+    try:
+        time.sleep(1.0)  # the shards are up first, and wait
+
+        async def fly() -> RunSummary:
+            async with asyncio.timeout(120):
+                return await run_sharded(mission, 2, endpoint=endpoint, spawn=False,
+                                         end_timeout_s=5.0)  # fmt: skip
+
+        summary = asyncio.run(fly())
+        codes = [p.wait(timeout=30) for p in shards]
+    finally:
+        for p in shards:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert summary.outcome == "completed" and summary.mission_time_s == pytest.approx(3.0)
+    assert [v.phase for v in summary.vehicles] == ["ended"] * 6
+    assert codes == [0, 0]
