@@ -178,13 +178,22 @@ def sharded_run_command(path: str, shards: int, *, listen: str | None = None) ->
         if listen is not None:
             print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
                   file=sys.stderr, flush=True)  # fmt: skip
+        tty = sys.stderr.isatty()
+
+        def show(line: str) -> None:  # as run_command's: in place on a terminal
+            if tty:
+                print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
+
         try:
-            summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None)
+            summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None,
+                                        on_status=show)  # fmt: skip
         except asyncio.CancelledError:
             return 130
         finally:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 loop.remove_signal_handler(sig)
+        if tty:
+            print(file=sys.stderr)
         print(summary.format())
         return EXIT_CODES.get(summary.outcome, 1)
 

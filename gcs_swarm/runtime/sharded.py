@@ -208,6 +208,20 @@ class ShardedRun:
         self.core.timer_moved = True
         self._after()
 
+    def status_line(self) -> str:
+        """One line of the run's state (the command line's status)."""
+        core = self.core
+        alive = sum(v.alive for v in core.shards.values())
+        return (f"t={core.control.t_s:6.2f} s  {len(core.flying)} flying on {alive}/"
+                f"{len(core.shards)} shards  {core.control.steps} steps  "
+                f"{core.fallbacks} fallback")  # fmt: skip
+
+    async def status(self, on_status: Callable[[str], None], every_s: float = 1.0) -> None:
+        while True:
+            await asyncio.sleep(every_s)
+            if self.core.started:
+                on_status(self.status_line())
+
     async def beat(self) -> None:
         while True:
             self.bus.put_json("down/all", {"kind": "beat"})
@@ -235,14 +249,16 @@ async def run_sharded(
     spawn: bool = True,
     end_timeout_s: float = 15.0,
     on_run: Callable[[ShardedRun], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
 ) -> RunSummary:
     """Fly ``mission`` with ``shards`` link shards (module docstring) and
     return its summary. ``links`` and ``lockstep`` as ``run_mission``'s;
     ``endpoint`` where the controller listens (default: a free TCP port on
     127.0.0.1); ``on_run`` gets the live run (its core, its processes) once
-    the shards are started. Raises ``UsageError`` when the mission cannot be
-    sharded so, ``StartupError`` when a shard cannot ready its vehicles
-    (every shard then lands its airborne ones)."""
+    the shards are started; ``on_status`` a status line every second in
+    flight. Raises ``UsageError`` when the mission cannot be sharded so,
+    ``StartupError`` when a shard cannot ready its vehicles (every shard
+    then lands its airborne ones)."""
     check_shards(mission, shards)
     endpoint = check_endpoint(endpoint) if endpoint else free_endpoint()
     wall0 = time.monotonic()
@@ -287,6 +303,9 @@ async def run_sharded(
         run.listen()
         beating = asyncio.ensure_future(run.beat())
         stack.callback(beating.cancel)
+        if on_status is not None:
+            showing = asyncio.ensure_future(run.status(on_status))
+            stack.callback(showing.cancel)
         if spawn:
             stack.push_async_callback(_reap, run.processes, end_timeout_s + 10.0)
             for _ in range(shards):
