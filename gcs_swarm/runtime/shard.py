@@ -123,7 +123,15 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
     outcome_ok = True
     flying_drops = [0]
     """Setpoints dropped (a newer one queued first) before the ending began."""
-    async with station:
+    stack = contextlib.AsyncExitStack()
+    try:
+        await stack.enter_async_context(station)
+    except LinkError as err:  # a link that does not open: the controller is told why
+        bus.put_json(f"{up}/msg", {"kind": "failed", "text": str(err)})
+        bus.put_json(f"{up}/msg", {**_done(station, side), "setpoints_dropped_before_end": 0})
+        await asyncio.sleep(0.3)  # the report's way out before the session closes
+        return 1
+    async with stack:
         side.heard(station.now())
 
         async def beat() -> None:  # heartbeats out; the controller's silence watched

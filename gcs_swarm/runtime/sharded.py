@@ -208,6 +208,19 @@ class ShardedRun:
         self.core.timer_moved = True
         self._after()
 
+    async def watch(self, proc: asyncio.subprocess.Process) -> None:
+        """Wake ``wait_for`` when a shard process this run started exits."""
+        await proc.wait()
+        self.changed.set()
+
+    def exited(self) -> str:
+        """The shard processes of this run that have exited, with their codes
+        ("" while none has): a start-up then fails at once, not after its
+        timeout."""
+        gone = [f"pid {p.pid} exit code {p.returncode}" for p in self.processes
+                if p.returncode is not None]  # fmt: skip
+        return ", ".join(gone)
+
     def status_line(self) -> str:
         """One line of the run's state (the command line's status)."""
         core = self.core
@@ -307,24 +320,31 @@ async def run_sharded(
             showing = asyncio.ensure_future(run.status(on_status))
             stack.callback(showing.cancel)
         if spawn:
-            stack.push_async_callback(_reap, run.processes, end_timeout_s + 10.0)
+            stack.push_async_callback(_reap, run.processes, end_timeout_s + 5.0)
             for _ in range(shards):
-                run.processes.append(await asyncio.create_subprocess_exec(
+                proc = await asyncio.create_subprocess_exec(
                     sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint,
-                    stdin=asyncio.subprocess.DEVNULL))  # fmt: skip
+                    stdin=asyncio.subprocess.DEVNULL)  # fmt: skip
+                run.processes.append(proc)
+                watching = asyncio.ensure_future(run.watch(proc))
+                stack.callback(watching.cancel)
         if on_run is not None:
             on_run(run)
         end_mode: int | None = None
         try:
             # Shards started elsewhere (by hand) get as long as a start-up does.
             hello_s = _HANDSHAKE_S if spawn else max(_HANDSHAKE_S, s.startup.ready_timeout)
-            if not await run.wait_for(lambda: len(run.tokens) == shards, hello_s):
+            if not await run.wait_for(lambda: len(run.tokens) == shards or bool(run.exited()),
+                                      hello_s):  # fmt: skip
                 raise StartupError(f"{len(run.tokens)} of {shards} shards said hello at "
                                    f"{endpoint} in {hello_s:g} s")  # fmt: skip
             ready_s = s.startup.ready_timeout + 10.0
-            if not await run.wait_for(lambda: len(run.ready) + len(run.failed) == shards,
-                                      ready_s):  # fmt: skip
+            if not await run.wait_for(
+                lambda: len(run.ready) + len(run.failed) == shards or bool(run.exited()), ready_s
+            ):
                 raise StartupError(f"{len(run.ready)} of {shards} shards ready in {ready_s:g} s")
+            if run.exited() and not run.failed:
+                raise StartupError(f"shard process exited during start-up: {run.exited()}")
             if run.failed:
                 raise StartupError("; ".join(f"shard {i}: {t}" for i, t in
                                              sorted(run.failed.items())))  # fmt: skip
@@ -346,22 +366,34 @@ async def run_sharded(
             raise
         finally:
             bus.put_json("down/all", {"kind": "end", "mode": end_mode})
-            alive = {i for i, v in core.shards.items() if v.alive and i in run.ready}
-            alive |= set(run.failed)
-            await run.wait_for(lambda: alive <= set(run.done), end_timeout_s + 5.0)
+            # Every shard that joined and is neither dead nor exited reports once ended.
+            expect = {i for i, v in core.shards.items() if v.alive and i in run.pids}
+
+            def reported() -> bool:
+                gone = {p.pid for p in run.processes if p.returncode is not None}
+                return all(i in run.done or run.pids[i] in gone for i in expect)
+
+            await run.wait_for(reported, end_timeout_s + 5.0)
     summary = _summary(run, core, mission, outcome, time.monotonic() - wall0)
     return summary
 
 
 async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> None:
-    """Wait for the shard processes this run started; kill one still there."""
-    for proc in processes:
+    """Wait for the shard processes this run started (they exit once they
+    sent their report); one still there after 2 s gets SIGTERM (it ends its
+    vehicles, then exits: ``runtime.shard``), after ``wait_s`` more SIGKILL."""
+    for grace, stop in ((2.0, "terminate"), (wait_s, "kill"), (None, "")):
+        live = [p for p in processes if p.returncode is None]
+        if not live:
+            return
         try:
-            async with asyncio.timeout(wait_s):
-                await proc.wait()
+            async with asyncio.timeout(grace):
+                for proc in live:
+                    await proc.wait()
         except TimeoutError:
-            proc.kill()
-            await proc.wait()
+            for proc in live:
+                if proc.returncode is None:
+                    getattr(proc, stop)()
 
 
 def _summary(

@@ -272,3 +272,29 @@ def test_shards_started_elsewhere_join_a_controller_that_listens() -> None:
     assert summary.outcome == "completed" and summary.mission_time_s == pytest.approx(3.0)
     assert [v.phase for v in summary.vehicles] == ["ended"] * 6
     assert codes == [0, 0]
+
+
+def test_a_shard_that_cannot_open_its_links_fails_the_start_up_at_once() -> None:
+    """Shard 1's links do not parse: it tells the controller why and exits;
+    the run fails its start-up with that reason (a ``StartupError``, one line
+    on the command line), not after the ready timeout, and the other shard
+    lands its vehicles and reports before the run returns."""
+    from gcs_swarm.errors import StartupError
+
+    mission = _two_networks(5.0, "dynamics: ideal, mode: lockstep, spawn: air")
+    runs: list[ShardedRun] = []
+
+    async def fly() -> None:
+        async with asyncio.timeout(60):  # the ready timeout is 90 s: this must not wait for it
+            await run_sharded(mission, 2, links={257: "nonsense", 258: "nonsense",
+                                                 259: "nonsense"},
+                              end_timeout_s=5.0, on_run=runs.append)  # fmt: skip
+
+    t0 = time.monotonic()
+    with pytest.raises(StartupError, match=r"shard 1: .*nonsense"):
+        asyncio.run(fly())
+    took = time.monotonic() - t0
+    print(f"start-up failure reported after {took:.1f} s")
+    assert took < 30.0
+    assert sorted(runs[0].done) == [0, 1]  # both reported (shard 0 after its ending)
+    assert all(p.returncode is not None for p in runs[0].processes)
