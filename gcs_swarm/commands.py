@@ -180,21 +180,29 @@ def sharded_run_command(path: str, shards: int, *, listen: str | None = None) ->
                   file=sys.stderr, flush=True)  # fmt: skip
         tty = sys.stderr.isatty()
 
+        lines = 0
+
         def show(line: str) -> None:  # as run_command's: in place on a terminal
+            nonlocal lines
+            lines += 1
             if tty:
                 print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
+            elif lines % 5 == 1:  # a log file gets one line every 5 s
+                print(line, file=sys.stderr, flush=True)
+
+        def report(summary: RunSummary) -> None:
+            if tty:
+                print(file=sys.stderr)
+            print(summary.format(), flush=True)
 
         try:
             summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None,
-                                        on_status=show)  # fmt: skip
+                                        on_status=show, on_summary=report)  # fmt: skip
         except asyncio.CancelledError:
             return 130
         finally:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 loop.remove_signal_handler(sig)
-        if tty:
-            print(file=sys.stderr)
-        print(summary.format())
         return EXIT_CODES.get(summary.outcome, 1)
 
     return asyncio.run(main())

@@ -263,15 +263,18 @@ async def run_sharded(
     end_timeout_s: float = 15.0,
     on_run: Callable[[ShardedRun], None] | None = None,
     on_status: Callable[[str], None] | None = None,
+    on_summary: Callable[[RunSummary], None] | None = None,
 ) -> RunSummary:
     """Fly ``mission`` with ``shards`` link shards (module docstring) and
     return its summary. ``links`` and ``lockstep`` as ``run_mission``'s;
     ``endpoint`` where the controller listens (default: a free TCP port on
     127.0.0.1); ``on_run`` gets the live run (its core, its processes) once
     the shards are started; ``on_status`` a status line every second in
-    flight. Raises ``UsageError`` when the mission cannot be sharded so,
-    ``StartupError`` when a shard cannot ready its vehicles (every shard
-    then lands its airborne ones)."""
+    flight; ``on_summary`` the summary, also when the run is cancelled or
+    its start-up fails (the exception then propagates). Raises
+    ``UsageError`` when the mission cannot be sharded so, ``StartupError``
+    when a shard cannot ready its vehicles (every shard then lands its
+    airborne ones)."""
     check_shards(mission, shards)
     endpoint = check_endpoint(endpoint) if endpoint else free_endpoint()
     wall0 = time.monotonic()
@@ -374,8 +377,9 @@ async def run_sharded(
                 return all(i in run.done or run.pids[i] in gone for i in expect)
 
             await run.wait_for(reported, end_timeout_s + 5.0)
-    summary = _summary(run, core, mission, outcome, time.monotonic() - wall0)
-    return summary
+            if on_summary is not None:  # also when cancelled or the start-up failed
+                on_summary(_summary(run, core, mission, outcome, time.monotonic() - wall0))
+    return _summary(run, core, mission, outcome, time.monotonic() - wall0)
 
 
 async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> None:
