@@ -102,7 +102,8 @@ class Station:
         """Hold the inbound messages once every vehicle is READY, until
         ``release`` (a lockstep link shard waiting for its controller's
         start: the emulator's clock then waits too, so the formation starts
-        at the vehicle time an unsharded station starts it)."""
+        at the vehicle time an unsharded station starts it). The core's
+        timers wait as well: the vehicles are silent because they are held."""
         self._held: list[tuple[Any, Link, float]] | None = None
 
     # The core's figures, as the station's (run summary, tests, benchmarks).
@@ -310,11 +311,16 @@ class Station:
         self._after()
 
     def release(self) -> None:
-        """Hand the core what ``hold_when_ready`` held, in arrival order."""
+        """Hand the core what ``hold_when_ready`` held, in arrival order, then
+        the timers it deferred (after the messages: a vehicle held longer than
+        its stale timeout is not LOST for the station's own wait)."""
         held, self._held = self._held, None
         self.hold_when_ready = False
         for msg, link, rx_s in held or ():
             self.core.receive(msg, link.connection, self.now(), rx_s)
+            self._after()
+        if held is not None:
+            self.core.timer_moved = True
             self._after()
 
     def _on_telemetry(self, link: Link) -> None:
@@ -370,6 +376,10 @@ class Station:
             self._timer = (due, self._loop.call_soon(self._on_timer, due, turns + 1))
             return
         self._timer = None
+        if self._held is not None:
+            # Holding (``hold_when_ready``): the vehicles' clock waits with their
+            # reports, so their protocols' watchdogs wait too; ``release`` re-arms.
+            return
         # call_at may fire up to one clock resolution early: never hand the
         # core a time before the deadline it asked for.
         self.core.handle_timer(max(self.now(), due))

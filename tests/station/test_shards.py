@@ -337,3 +337,48 @@ def test_ctrl_c_on_run_shards_ends_every_vehicle_through_its_shard(tmp_path: Pat
     assert proc.returncode == 130
     assert "outcome: cancelled" in out
     assert out.count("ended    BRAKE") == 6, out
+
+
+def test_a_lockstep_station_holding_at_ready_loses_nobody_and_its_emulator_waits() -> None:
+    """``Station.hold_when_ready`` as a lockstep shard uses it while the other
+    shards get ready: held 3.5 s (longer than the stale timeout, 1 s, and the
+    heartbeat timeout, 3 s), the emulator's clock does not move, no vehicle
+    is LOST, and after ``release`` the formation flies."""
+    from dataclasses import replace
+
+    from gcs_swarm.mavlink.states import Phase
+    from gcs_swarm.runtime import Station, emulator_config, station_config
+    from gcs_swarm.runtime.sharded import LOCKSTEP_BARRIER_S
+    from sim_vehicle import Emulator
+
+    mission = parse_mission(
+        "mission: {name: hold, duration: 60, rate: 50, end: hold}\n"
+        "emulator: {dynamics: ideal, mode: lockstep, spawn: air}\n"
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nvehicles:\n"
+        + "".join(f"  - {{sysid: {i + 1}, start: {s}}}\n" for i, s in enumerate(_STARTS[:3]))
+    )
+    cfg = replace(emulator_config(mission), lockstep_timeout_s=LOCKSTEP_BARRIER_S)
+
+    async def fly() -> tuple[float, float, list[Phase], int]:
+        async with asyncio.timeout(60), Emulator(cfg) as emu:
+            links = {s: f"udpout:{h}:{p}" for s, (h, p) in emu.endpoints.items()}
+            async with Station(station_config(mission, links, lockstep=True)) as station:
+                station.hold_when_ready = True
+                await station.ready()
+                held_at = emu.sim_time_s
+                await asyncio.sleep(3.5)  # the other shards' start-up, made long
+                waited = emu.sim_time_s - held_at
+                station.begin()
+                station.release()
+                for _ in range(600):  # 50 steps: 1 s of flight
+                    if station.control.steps >= 50:
+                        break
+                    await asyncio.sleep(0.01)
+                phases = [vp.phase for vp in station.vehicles.values()]
+                steps = station.control.steps
+                await station.end()
+            return held_at, waited, phases, steps
+
+    _, waited, phases, steps = asyncio.run(fly())
+    assert waited <= 0.02 + 1e-9, waited  # at most the step already under way
+    assert phases == [Phase.FLYING] * 3 and steps >= 50
