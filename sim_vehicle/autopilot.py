@@ -124,7 +124,7 @@ class Autopilot:
         self.last_gcs_hb_wall: float | None = None
         self.fs_active = False
         self._next_hb = now  # the first HEARTBEAT at boot
-        self._hb_phase_s = heartbeat_phase_s(sysid)
+        self._hb_phase_s: float | None = heartbeat_phase_s(sysid)  # until the second
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
