@@ -37,7 +37,7 @@ from sim_vehicle.params import ParamStore
 from sim_vehicle.targets import ZERO, ControlTarget, TargetBuilder
 from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["MODE_NAMES", "Autopilot", "ControlTarget", "heartbeat_phase_s"]
+__all__ = ["MODE_NAMES", "Autopilot", "ControlTarget"]
 
 STABILIZE, GUIDED, LOITER, RTL, LAND, BRAKE = 0, 4, 5, 6, 9, 17
 MODE_NAMES = {
@@ -55,22 +55,6 @@ ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
 """MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
-
-
-def heartbeat_phase_s(sysid: int) -> float:
-    """When [s after boot] vehicle ``sysid`` sends its second HEARTBEAT, in (0, 1].
-
-    Real autopilots send one a second from their own boot, so a swarm's
-    HEARTBEATs spread over the second (SITL instances started one after the
-    other, vehicles switched on by hand). The emulator boots all its vehicles
-    in the same step; sent on a common phase, the fleet's HEARTBEATs would all
-    arrive in one control period (250 of them at N = 250), a burst no real
-    swarm sends. Each vehicle keeps the first at boot (the station hears it at
-    once, as from a real autopilot) and then its own phase: the fractional
-    part of ``sysid`` times the golden ratio, which spreads any run of ids
-    evenly over the second and is the same in every run (lockstep is exact).
-    """
-    return 1.0 - math.modf(sysid * 0.6180339887498949)[0]
 
 
 class Autopilot:
@@ -123,8 +107,7 @@ class Autopilot:
         a sped-up SITL counts it)."""
         self.last_gcs_hb_wall: float | None = None
         self.fs_active = False
-        self._next_hb = now  # the first HEARTBEAT at boot
-        self._hb_phase_s: float | None = heartbeat_phase_s(sysid)  # until the second
+        self._next_hb = now
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
@@ -368,11 +351,7 @@ class Autopilot:
         out.extend(guards.land_detector(self, now, kin))
         if now >= self._next_hb - 1e-6:
             out.append(self.heartbeat())
-            if self._hb_phase_s is not None:  # the second: this vehicle's own phase
-                self._next_hb = max(self.boot + self._hb_phase_s, now + 0.02)
-                self._hb_phase_s = None
-            else:
-                self._next_hb = max(self._next_hb + 1.0, now + 0.5)
+            self._next_hb = max(self._next_hb + 1.0, now + 0.5)
         if self._boot_end is not None and not self.booted and now >= self._boot_end - 1e-9:
             # SITL measured: GUIDED accepted at once, then ~1 s later boot ends and the
             # vehicle is back in STABILIZE (HEARTBEAT custom_mode 0).

@@ -6,7 +6,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sim_vehicle.autopilot import Autopilot, heartbeat_phase_s
+from sim_vehicle.autopilot import Autopilot
 from sim_vehicle.config import DEFAULT_ORIGIN
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin
@@ -116,31 +116,3 @@ def test_unknown_command_is_unsupported() -> None:
     ap = _airborne()
     (ack,) = ap.handle(_cmd(mav.MAV_CMD_DO_SET_SERVO, 1, 1500), 0.0, HOVER)
     assert ack.result == mav.MAV_RESULT_UNSUPPORTED and ack.command == mav.MAV_CMD_DO_SET_SERVO
-
-
-def test_heartbeats_of_a_fleet_booted_together_spread_over_the_second() -> None:
-    """250 vehicles booted in one step: the first HEARTBEATs go out at boot,
-    then each vehicle keeps its own phase (``heartbeat_phase_s``), one a
-    second, so no 20 ms period carries more than a few. Golden-ratio phases
-    of ids 1..250 put 4 to 6 into each of the 50 periods (three-distance
-    theorem: the gaps take at most three sizes); 8 is the bound asserted,
-    against 250 in one period with a common phase."""
-    aps = [Autopilot(s, DEFAULT_ORIGIN, ParamStore({}), 0.0, airborne_at=HOVER.pos)
-           for s in range(1, 251)]  # fmt: skip
-    dt = 0.02
-    per_step: list[int] = []
-    per_vehicle = [0] * len(aps)
-    for k in range(201):  # 0..4 s
-        now = k * dt
-        n = 0
-        for i, ap in enumerate(aps):
-            hb = sum(m.get_type() == "HEARTBEAT" for m in ap.poll(now, HOVER))
-            n += hb
-            if now > 1.0 + 1e-9:
-                per_vehicle[i] += hb
-        per_step.append(n)
-    assert per_step[0] == 250  # every vehicle's first HEARTBEAT, at boot
-    assert 0 < max(per_step[1:]) <= 8
-    assert per_vehicle == [3] * 250  # (1, 4] s: one a second each, whatever its phase
-    phases = [heartbeat_phase_s(s) for s in range(1, 255)]
-    assert all(0.0 < p <= 1.0 for p in phases)
