@@ -9,7 +9,10 @@ Run from the repository root:
 markdown tables; the figures in benchmarks/README.md come from it.
 ``--cutoff`` prints only the cost of the law against N with and without the
 repulsion's cut-off (Eq. 9c, docs/formation-law.md section 3a);
-``--counts 100,500,1000,2000`` chooses the N of that table.
+``--counts 100,500,1000,2000`` chooses the N of that table. Both print the
+whole controller step against N as well (``ControlLoop.command`` and
+``account``: the leader, the supervisor, the law, the shaper, the step's
+figures with the minimum separation), exact and with the cut-off.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -159,6 +163,34 @@ def bench_cutoff(counts: list[int]) -> list[str]:
     return rows
 
 
+def _controller_step(loop: Any, ids: list[int], p: np.ndarray, v: np.ndarray) -> None:
+    out, accel, report = loop.command(ids, p, v)
+    loop.account(ids, p, out, accel, report)
+
+
+def bench_controller_step(counts: list[int]) -> list[str]:
+    """What the station's controller spends per control step against N:
+    ``ControlLoop.command`` then ``account``, vehicles on their equilibrium
+    sphere, exact and with the cut-off at 2 d_nn (issue 19 item 4)."""
+    from gcs_swarm.control.loop import ControlLoop
+
+    rng = np.random.default_rng(3)
+    rows = ["| N | controller step, exact (ms) | with r_c = 2 d_nn (ms) |", "|---|---|---|"]
+    base = LawConfig()
+    for n in counts:
+        p, d_nn = sphere_swarm(n, base.gains)
+        v = rng.normal(size=(n, 3)) * 0.1
+        ids = list(range(1, n + 1))
+        cells = [f"| {n}"]
+        for cutoff in (None, 2.0 * d_nn):
+            loop = ControlLoop(LawConfig(gains=Gains(repulsion_cutoff=cutoff)),
+                               dict.fromkeys(ids, base.gains.q_default), 50.0)  # fmt: skip
+            step = partial(_controller_step, loop, ids, p, v)
+            cells.append(f"{_median_ms(step, 30 if n <= 1000 else 10):.3f}")
+        rows.append(" | ".join(cells) + " |")
+    return rows
+
+
 def _episode_config() -> LawConfig:
     return LawConfig(
         leader=Leader(force=ConstantForce((10.0, 0.0, 0.0))),
@@ -224,6 +256,8 @@ def main() -> None:
     print()
     counts = [int(x) for x in args.counts.split(",")]
     print("\n".join(bench_cutoff(counts)))
+    print()
+    print("\n".join(bench_controller_step(counts)))
     if args.cutoff:
         return
     print()

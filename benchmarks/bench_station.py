@@ -4,7 +4,14 @@ Run from the repository root: ``python benchmarks/bench_station.py`` (about
 90 s for N = 50, 100, 250, 500; ``--counts`` and ``--seconds`` to change;
 ``--view HZ`` opens the operator view on each station, read by a page in
 its own process, to compare the figures with and without it; ``--record``
-gives each station the flight recorder of a logged run).
+gives each station the flight recorder of a logged run; ``--rate HZ`` flies
+at another control rate; ``--networks`` flies N > 250 as one mission of
+several networks on one ``Station``, as ``gcs-swarm run`` does, instead of
+one station per group). With ``--networks`` the station's step waits for
+every network's reports: each network's emulator keeps its own clock, so
+the first network's reports wait for the others' (their phase offset, a
+few ms here, as unsynchronised real vehicles would make them wait), and the
+latency includes that wait; the CPU per vehicle-cycle does not.
 
 The emulator runs in a child process (this file with ``--emulator``) pinned
 to core 0, the station in this process pinned to core 1 (when the machine has
@@ -48,31 +55,41 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import pin
 
 GROUP = 250
-RATE_HZ = 50
+RATE_HZ = 50.0
+"""The control rate [Hz] (``--rate``; the emulator child is told it too)."""
 
 
-def mission_yaml(n: int) -> str:
+def mission_yaml(n: int, networks: bool = False) -> str:
+    """N vehicles on a 3 m grid; with ``networks``, one mission whose
+    networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
+    shared by all (one formation)."""
     side = math.ceil(n ** (1 / 3))
     lines = [
-        "mission: {name: bench, duration: 14400, rate: 50, end: hold}",
+        f"mission: {{name: bench, duration: 14400, rate: {RATE_HZ:g}, end: hold}}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
-        "vehicles:",
     ]
+    lines.append("networks:" if networks else "vehicles:")
+    indent = "  "
     for i in range(n):
+        if networks and i % GROUP == 0:
+            lines.append(f"  - name: n{i // GROUP}")
+            lines.append("    vehicles:")
+            indent = "      "
         x, y, z = i % side, (i // side) % side, i // (side * side)
         c = (side - 1) / 2
         pos = f"[{3 * (x - c)}, {3 * (y - c)}, {3 * (z - c)}]"
-        lines.append(f"  - {{sysid: {i + 1}, start: {pos}}}")
+        sysid = i % GROUP + 1 if networks else i + 1
+        lines.append(f"{indent}- {{sysid: {sysid}, start: {pos}}}")
     return "\n".join(lines) + "\n"
 
 
-def load(n: int):  # type: ignore[no-untyped-def]
+def load(n: int, networks: bool = False):  # type: ignore[no-untyped-def]
     from gcs_swarm.mission import load_mission
 
     with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as f:
-        f.write(mission_yaml(n))
+        f.write(mission_yaml(n, networks))
     try:
         return load_mission(f.name)
     finally:
@@ -83,8 +100,9 @@ def groups(n: int) -> list[int]:
     return [min(GROUP, n - k) for k in range(0, n, GROUP)]
 
 
-async def emulator_main(n: int) -> None:
-    """Child: one realtime emulator per group, shared endpoint each; ports on stdout."""
+async def emulator_main(n: int, networks: bool) -> None:
+    """Child: one realtime emulator per group (with ``networks``: per network of
+    the one mission), shared endpoint each; ports on stdout."""
     from dataclasses import replace
 
     from gcs_swarm.runtime.run import emulator_config
@@ -93,8 +111,13 @@ async def emulator_main(n: int) -> None:
     pin(0)
     async with contextlib_stack() as stack:
         emus = []
-        for size in groups(n):
-            cfg = replace(emulator_config(load(size), airborne=True), shared_port=0)
+        whole = load(n, networks=True) if networks else None
+        for j, size in enumerate(groups(n)):
+            if whole is not None:
+                cfg = emulator_config(whole, airborne=True, network=j)
+            else:
+                cfg = emulator_config(load(size), airborne=True)
+            cfg = replace(cfg, shared_port=0)
             emus.append(await stack.enter_async_context(Emulator(cfg)))
         print(" ".join(str(e.endpoints[1][1]) for e in emus), flush=True)
         loop = asyncio.get_running_loop()
@@ -157,7 +180,11 @@ async def _open_views(stations, stack, view_rate_hz: float):  # type: ignore[no-
 
 
 async def station_run(
-    n: int, seconds: float, view_rate_hz: float | None = None, record: bool = False
+    n: int,
+    seconds: float,
+    view_rate_hz: float | None = None,
+    record: bool = False,
+    networks: bool = False,
 ) -> dict[str, float]:
     import logging
 
@@ -167,18 +194,26 @@ async def station_run(
     from gcs_swarm.runtime.station import Station
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
+    child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}"] + (["--networks"] if networks else [])
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, __file__, "--emulator", str(n),
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdout is not None and proc.stdin is not None
     ports = [int(p) for p in (await proc.stdout.readline()).split()]
     try:
         stations = []
         async with contextlib_stack() as stack:
-            for size, port in zip(groups(n), ports, strict=True):
-                mission = load(size)
-                links = {v.sysid: f"udpout:127.0.0.1:{port}" for v in mission.vehicles}
+            plans = []
+            if networks:  # one mission, one station: each network on its emulator's port
+                whole = load(n, networks=True)
+                plans.append((whole, {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}"
+                                      for v in whole.vehicles}))  # fmt: skip
+            else:
+                for size, port in zip(groups(n), ports, strict=True):
+                    mission = load(size)
+                    plans.append((mission, {v.sysid: f"udpout:127.0.0.1:{port}"
+                                            for v in mission.vehicles}))  # fmt: skip
+            for mission, links in plans:
                 cfg = station_config(mission, links)
                 # --record: the flight recorder of a logged run (the view then
                 # reads its loss counts and builds its frames after its steps).
@@ -196,7 +231,7 @@ async def station_run(
             await asyncio.sleep(1.0)
             links = [lk for s in stations for lk in s.links.values()]
             for lk in links:
-                lk.latency = LatencyRing(size=RATE_HZ * GROUP * int(seconds + 2))
+                lk.latency = LatencyRing(size=int(RATE_HZ * GROUP * (seconds + 2)))
             rx0 = sum(lk.stats.received for lk in links)
             reports0 = sum(s.reports_in - s.reports_waiting for s in stations)
             steps0 = sum(s.control.steps for s in stations)
@@ -277,9 +312,14 @@ def main() -> None:
                     " page in its own process")  # fmt: skip
     ap.add_argument("--record", action="store_true",
                     help="give each station a flight recorder, as a logged run has")  # fmt: skip
+    ap.add_argument("--rate", type=float, default=50.0, help="control rate [Hz] (default 50)")
+    ap.add_argument("--networks", action="store_true",
+                    help="N > 250 as one mission of several networks on one station")  # fmt: skip
     args = ap.parse_args()
+    global RATE_HZ
+    RATE_HZ = args.rate
     if args.emulator:
-        asyncio.run(emulator_main(args.emulator))
+        asyncio.run(emulator_main(args.emulator, args.networks))
         return
     import bench_codec
 
@@ -287,8 +327,9 @@ def main() -> None:
 
     floor_us = bench_codec.main()
     where = pin(1)
-    print(f"\nstation capacity, {RATE_HZ} Hz real time, station on {where}, emulator on core 0,"
-          f" {args.seconds:g} s window")  # fmt: skip
+    how = "one station, one mission of networks" if args.networks else "one station per group"
+    print(f"\nstation capacity, {RATE_HZ:g} Hz real time, station on {where}, emulator on core 0,"
+          f" {args.seconds:g} s window, {how}")  # fmt: skip
     print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'missed':>7} {'miss st':>7} {'cpu':>5} {'us/veh':>6} {'x floor':>7} "
           f"{'emu late':>8} {'emu cpu':>7} {'emu rt':>6}")  # fmt: skip
@@ -296,7 +337,9 @@ def main() -> None:
         runs, failed = [], 0
         while len(runs) < args.repeat and failed < 3:
             try:
-                runs.append(asyncio.run(station_run(n, args.seconds, args.view, args.record)))
+                runs.append(asyncio.run(
+                    station_run(n, args.seconds, args.view, args.record, args.networks)
+                ))  # fmt: skip
             except StartupError as err:  # reported, not hidden: see the README
                 failed += 1
                 print(f"{n:4d} start-up failed ({str(err)[:90]}...); retrying", flush=True)

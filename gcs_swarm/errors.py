@@ -72,12 +72,15 @@ class LinkError(SwarmError, OSError):
 class VehicleError(SwarmError):
     """A vehicle refused a command or stopped answering.
 
-    ``reasons`` maps each vehicle it is about (system id) to what happened to
-    it, in the vehicle's own words where it gave any (its STATUSTEXT or PX4
-    EVENT); ``sysids`` lists them.
+    ``reasons`` maps each vehicle it is about to what happened to it, in the
+    vehicle's own words where it gave any (its STATUSTEXT or PX4 EVENT);
+    ``sysids`` lists them. A vehicle is named by its key: its system id, plus
+    network index * 256 on a mission's later network (``mission.model.vehicle_key``;
+    ``mission.model.key_label`` turns it back into ``network:sysid``).
 
-    The message names the vehicle (system id) and, where there is one, quotes
-    the vehicle's own STATUSTEXT.
+    The message names the vehicle (its system id, or ``network:sysid`` on a
+    named network) and, where there is one, quotes the vehicle's own
+    STATUSTEXT.
     """
 
     def __init__(self, message: str, reasons: Mapping[int, str] | None = None) -> None:

@@ -447,7 +447,8 @@ class Station:
 
     def rebinds_refused(self) -> dict[int, int]:
         """Frames refused per vehicle because they came from another address
-        than the one it is bound to (``Link.rebinds_refused``), by system id."""
+        than the one it is bound to (``Link.rebinds_refused``), by vehicle key
+        (network index * 256 + system id, ``mission.vehicle_key``)."""
         total: Counter[int] = Counter()
         for link in self._links.values():
             base = link.state.base

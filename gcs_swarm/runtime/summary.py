@@ -81,7 +81,8 @@ class RunSummary:
     clipped_setpoints: int = 0
     """Setpoints scaled down to the ceiling, or zeroed (non-finite)."""
     rebinds_refused: dict[int, int] | None = None
-    """Frames refused per vehicle: from another address than its bound one."""
+    """Frames refused per vehicle (by key, as ``VehicleAtEnd.sysid``): from
+    another address than its bound one."""
     failure: str | None = None
     """Why the mission ended as failed in flight (the law failed), if it did."""
     logging_error: str | None = None
@@ -162,7 +163,8 @@ class RunSummary:
         )
 
     def positions(self) -> dict[int, npt.NDArray[np.float64]]:
-        """Mission-frame positions [m] at the last step, by system id."""
+        """Mission-frame positions [m] at the last step, by vehicle key
+        (``VehicleAtEnd.sysid``: the system id on a one-network mission)."""
         return {v.sysid: np.array(v.position_m) for v in self.vehicles if v.position_m is not None}
 
     def format(self) -> str:
@@ -207,7 +209,10 @@ class RunSummary:
             f"{self.signature_rejected} with bad signatures"
         )
         if self.rebinds_refused:
-            who = ", ".join(f"vehicle {s}: {n}" for s, n in self.rebinds_refused.items())
+            names = {v.sysid: v.label or str(v.sysid) for v in self.vehicles}
+            who = ", ".join(
+                f"vehicle {names.get(s, s)}: {n}" for s, n in self.rebinds_refused.items()
+            )
             lines.append(f"frames refused from another address than the vehicle's: {who}")
         if self.clipped_setpoints:
             lines.append(

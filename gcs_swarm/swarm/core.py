@@ -137,7 +137,8 @@ class SwarmCore:
         self.changed = False
         """A vehicle's phase moved (``ready``/``end`` look again); the shell clears it."""
         self.finished = False
-        """The mission is over (duration, nobody left, or ``failure``)."""
+        """The mission is over (duration, nobody left, or ``failure``): no
+        step runs after it, whenever the shell gets round to ending."""
         self.lookahead: list[LookaheadJob] = []
         """Plane look-aheads to run off the step (``resolve_lookahead``); the shell empties it."""
         self._events = sorted(config.events)
@@ -373,7 +374,7 @@ class SwarmCore:
     # --------------------------------------------------------- control step
     def _maybe_step(self, now: float) -> None:
         fresh = self.table.fresh_count
-        if not self.started or self.ending or not fresh or self.failure is not None:
+        if not self.started or self.ending or self.finished or not fresh:
             return
         # Only flying vehicles' rows take reports (a vehicle leaving is detached),
         # so the fresh count is enough.
@@ -388,8 +389,8 @@ class SwarmCore:
     def control_step(self, now: float, write: Write) -> None:
         """One step of the law at ``now`` over the fresh reports: events,
         the law, each link's setpoints handed to ``write`` (one answer per
-        fresh report), then the bookkeeping (``swarm.step``). Nothing while
-        ending."""
+        fresh report), then the bookkeeping (``swarm.step``). Nothing once
+        the mission is finished or ending."""
         fresh = self.take_step()
         if fresh is None:
             return
@@ -399,12 +400,13 @@ class SwarmCore:
 
     def take_step(self) -> dict[int, int] | None:
         """The wanted step begins: the fresh reports (key -> ``time_boot_ms``)
-        taken from the table, or None while ending. ``control_step`` runs the
+        taken from the table, or None once finished or ending (steps past the
+        mission's end are not part of it). ``control_step`` runs the
         law on them here; a link shard sends them to its controller
         (``swarm.shard``)."""
         self.step_wanted = False
         self._fallback_at = None
-        if self.ending:
+        if self.ending or self.finished:
             return None
         return self.table.take_fresh()
 

@@ -1,8 +1,8 @@
 """``ControlLoop``'s minimum separation (``loop._min_separation``): from
 ``_GRAM_FROM_N`` vehicles it searches candidates with an augmented Gram
-product, and must still give exactly the float of the direct all-pairs
-minimum, on spread, jittered, tied (exact grids), clustered and far-off
-swarms."""
+product, from ``_CELLS_FROM_N`` on a cell list, and must still give exactly
+the float of the direct all-pairs minimum, on spread, jittered, tied (exact
+grids), clustered, coincident and far-off swarms."""
 
 from __future__ import annotations
 
@@ -10,7 +10,12 @@ import math
 
 import numpy as np
 
-from gcs_swarm.control.loop import _GRAM_FROM_N, _min_separation
+from gcs_swarm.control.loop import (
+    _CELLS_FROM_N,
+    _GRAM_FROM_N,
+    _min_separation,
+    _min_separation_cells,
+)
 
 
 def _direct(pos: np.ndarray) -> float:
@@ -29,7 +34,7 @@ def _grid(n: int, step: float) -> np.ndarray:
 def test_the_gram_search_gives_the_direct_minimum_bit_for_bit() -> None:
     rng = np.random.default_rng(16)
     cases = []
-    for n in (_GRAM_FROM_N, 100, 250, 400):
+    for n in (_GRAM_FROM_N, 100, 250, _CELLS_FROM_N, 700):
         cases.append(rng.uniform(-50, 50, (n, 3)))
         cases.append(_grid(n, 3.0))  # every nearest pair tied
         cases.append(_grid(n, 3.0) + rng.normal(0, 0.3, (n, 3)))
@@ -39,4 +44,22 @@ def test_the_gram_search_gives_the_direct_minimum_bit_for_bit() -> None:
         cases.append(pts)
         cases.append(np.repeat(rng.normal(0, 5, (n // 4 + 1, 3)), 4, axis=0)[:n])  # zeros
     for pos in cases:
+        assert _min_separation(pos) == _direct(pos)
+
+
+def test_a_sphere_and_a_clump_on_the_cell_list_give_the_direct_minimum() -> None:
+    """A formation's shape (a sphere shell: the probes' bound is the spacing),
+    and a clump whose probes all fly far apart from it and from each other
+    (their bound, 100 m, takes in every pair of the clump: the cells would
+    test most pairs, and the Gram product takes over)."""
+    rng = np.random.default_rng(19)
+    n = _CELLS_FROM_N + 50
+    shell = rng.normal(size=(n, 3))
+    shell *= 12.0 / np.linalg.norm(shell, axis=1)[:, None]
+    clump = rng.normal(0, 0.5, (n, 3))
+    probes = np.arange(0, n, n // 8)[:8]  # the rows _min_separation_cells probes
+    clump[probes] = 100.0 * np.arange(1, 9)[:, None] * np.array([1.0, 0.0, 0.0])
+    assert _min_separation_cells(shell) is not None  # the cells answered
+    assert _min_separation_cells(clump) is None  # the Gram product did
+    for pos in (shell, clump):
         assert _min_separation(pos) == _direct(pos)

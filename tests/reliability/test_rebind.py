@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import math
 import socket
 import time
 from collections.abc import Callable
@@ -33,6 +34,7 @@ from gcs_swarm.mavlink.codec import Codec, MessageSpec
 from gcs_swarm.runtime import emulator_config, run_mission
 from gcs_swarm.runtime.links import REBIND_S, Link
 from gcs_swarm.runtime.run import EXIT_CODES
+from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
 from sim_vehicle import Emulator
 from tests.station.station_harness import mission_from
 
@@ -204,3 +206,22 @@ def test_signed_links_rebind_only_when_the_mission_allows_it() -> None:
     # its state, and its late frame is refused.
     assert from_b == 5 and refused == 1 and peers == 1
     assert "vehicle 7 rebound from" in notices[0]
+
+
+def test_the_summary_names_refused_frames_by_network_and_system_id() -> None:
+    """``rebinds_refused`` is keyed like the vehicles (key = network index * 256
+    + sysid); the summary line names each as the vehicles are named."""
+    at_end = [
+        VehicleAtEnd(sysid=k, phase="ended", mode="BRAKE", position_m=None, radius_m=None,
+                     last_accel_ned_mps2=(0.0, 0.0, 0.0), failure=None, label=label)
+        for k, label in ((2, "blue:2"), (258, "red:2"))
+    ]  # fmt: skip
+    summary = RunSummary(
+        outcome="completed", mission_time_s=1.0, wall_time_s=1.0, steps=1, behaviour="formation",
+        leader_pos_m=(0.0, 0.0, 0.0), vehicles=tuple(at_end), min_separation_m=1.0,
+        min_clearance_m=math.inf, episodes=0, messages_sent=0, setpoints_dropped=0,
+        messages_dropped=0, bad_packets=0, unknown_sysid_messages=0, spoofed=0,
+        signature_rejected=0, safety="", log=(), rebinds_refused={258: 7, 2: 1},
+    )  # fmt: skip
+    line = next(s for s in summary.format().splitlines() if s.startswith("frames refused"))
+    assert line.endswith("vehicle red:2: 7, vehicle blue:2: 1")

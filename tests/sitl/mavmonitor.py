@@ -25,6 +25,24 @@ class Seen:
     texts: list[tuple[float, str]] = field(default_factory=list)
 
 
+CONNECT_WAIT_S = 60.0
+"""How long [s] a SITL instance may take to listen on SERIAL1. It opens its
+serial ports as it starts; a run on a loaded machine (load 3, 2026-12-03)
+found instance 2's still refusing when the station had just been started,
+so the watcher tries again until then."""
+
+
+def _connect(port: int, wait_s: float) -> socket.socket:
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=10)
+        except ConnectionRefusedError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
 class Monitor:
     """Watch SITL instance ``instance`` from a thread until ``close()``."""
 
@@ -32,7 +50,7 @@ class Monitor:
         self.seen = Seen()
         self._port = 5762 + 10 * instance
         self._stop = threading.Event()
-        self._sock = socket.create_connection(("127.0.0.1", self._port), timeout=10)
+        self._sock = _connect(self._port, CONNECT_WAIT_S)
         self._sock.settimeout(0.2)
         self._mav = mav.MAVLink(None, srcSystem=254, srcComponent=191)
         self._mav.robust_parsing = True

@@ -268,8 +268,9 @@ def test_killed_station_leaves_every_vehicle_landing(tmp_path: Path) -> None:
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
             stdin=subprocess.DEVNULL,
         )  # fmt: skip
-        monitors = [Monitor(i) for i in range(4)]
+        monitors: list[Monitor] = []
         try:
+            monitors.extend(Monitor(i) for i in range(4))  # closed below if one fails
             assert proc.stdout is not None
             deadline = time.monotonic() + 300
             for line in proc.stdout:
