@@ -57,6 +57,27 @@ def check_command(path: str) -> int:
     return 0
 
 
+class _StatusLines:
+    """The live status line of ``run``: rewritten in place on a terminal; to
+    a log file (stderr not a terminal) one line in five, every 5 s."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self._count = 0
+
+    def show(self, line: str) -> None:
+        self._count += 1
+        if self.tty:
+            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
+        elif self._count % 5 == 1:
+            print(line, file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        """The status line is over: a terminal gets its line break."""
+        if self.tty:
+            print(file=sys.stderr)
+
+
 def run_command(
     path: str,
     *,
@@ -97,21 +118,10 @@ async def _main(
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, interrupt)
-    tty = sys.stderr.isatty()
-
-    lines = 0
-
-    def show(line: str) -> None:
-        nonlocal lines
-        lines += 1
-        if tty:
-            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
-        elif lines % 5 == 1:  # a log file gets one line every 5 s
-            print(line, file=sys.stderr)
+    lines = _StatusLines()
 
     def report(summary: RunSummary) -> None:
-        if tty:
-            print(file=sys.stderr)
+        lines.done()
         print(summary.format())
         for folder in folders:
             for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
@@ -136,7 +146,7 @@ async def _main(
     try:
         summary = await run_mission(
             mission,
-            on_status=show if status else None,
+            on_status=lines.show if status else None,
             on_summary=report,
             log_dir=log_dir,
             on_folder=announce,
@@ -178,26 +188,15 @@ def sharded_run_command(path: str, shards: int, *, listen: str | None = None) ->
         if listen is not None:
             print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
                   file=sys.stderr, flush=True)  # fmt: skip
-        tty = sys.stderr.isatty()
-
-        lines = 0
-
-        def show(line: str) -> None:  # as run_command's: in place on a terminal
-            nonlocal lines
-            lines += 1
-            if tty:
-                print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
-            elif lines % 5 == 1:  # a log file gets one line every 5 s
-                print(line, file=sys.stderr, flush=True)
+        lines = _StatusLines()
 
         def report(summary: RunSummary) -> None:
-            if tty:
-                print(file=sys.stderr)
+            lines.done()
             print(summary.format(), flush=True)
 
         try:
             summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None,
-                                        on_status=show, on_summary=report)  # fmt: skip
+                                        on_status=lines.show, on_summary=report)  # fmt: skip
         except asyncio.CancelledError:
             return 130
         finally:
