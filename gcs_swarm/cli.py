@@ -4,6 +4,9 @@ print any ``SwarmError`` as one line with a non-zero exit.
 Subcommands (their work lives in the library modules):
 
 - ``run MISSION``: fly the mission over MAVLink (``gcs_swarm.runtime``);
+  ``--shards N`` splits the station in N link shards (``runtime.sharded``);
+- ``shard --connect ENDPOINT``: one link shard of a sharded run
+  (``runtime.shard``);
 - ``simulate MISSION``: the deterministic in-process reference
   (``gcs_swarm.offline``);
 - ``check MISSION...``: validate without flying (``gcs_swarm.mission``);
@@ -199,6 +202,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import run_command
 
     view = _address("--view", args.view)
+    if args.shards is not None:
+        from gcs_swarm.commands import sharded_run_command
+
+        if args.shards < 1:
+            raise UsageError(f"--shards: expected a whole number >= 1, got {args.shards}")
+        if view is not None:
+            raise UsageError("--shards: the operator view (--view) is not sharded yet")
+        listen = None
+        if args.listen is not None:
+            from gcs_swarm.runtime.zbus import check_endpoint
+
+            listen = check_endpoint(args.listen, option="--listen")
+        return sharded_run_command(args.mission, args.shards, listen=listen)
+    if args.listen is not None:
+        raise UsageError("--listen: only with --shards N")
     return run_command(
         args.mission,
         status=not args.no_status,
@@ -206,6 +224,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         record=not args.no_log,
         view=view,
     )
+
+
+def _cmd_shard(args: argparse.Namespace) -> int:
+    from gcs_swarm.commands import shard_command
+    from gcs_swarm.runtime.zbus import check_endpoint
+
+    return shard_command(check_endpoint(args.connect, option="--connect"))
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -240,8 +265,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve the operator view in a browser there (host 127.0.0.1 unless named;"
         " port 0: any free one); the address with its token is printed at start",
     )
+    p.add_argument(
+        "--shards",
+        type=int,
+        default=None,
+        metavar="N",
+        help="split the station: N link shard processes on this machine own whole networks,"
+        " this process runs the law (docs/architecture.md, 'Scaled out: shards')",
+    )
+    p.add_argument(
+        "--listen",
+        metavar="ENDPOINT",
+        default=None,
+        help="with --shards N: listen there (e.g. tcp/0.0.0.0:7447) and wait for N shards"
+        " started elsewhere with `gcs-swarm shard --connect`, instead of starting them here",
+    )
     _log_options(p)
     p.set_defaults(handler=_cmd_run)
+
+    p = sub.add_parser("shard", help="serve as a link shard of a `run --shards` controller")
+    p.add_argument(
+        "--connect",
+        required=True,
+        metavar="ENDPOINT",
+        help="the controller's Zenoh endpoint, e.g. tcp/127.0.0.1:7447",
+    )
+    p.set_defaults(handler=_cmd_shard)
 
     p = sub.add_parser("simulate", help="run a mission in the in-process reference simulator")
     p.add_argument("mission", help="mission YAML file")

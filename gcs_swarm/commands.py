@@ -28,7 +28,15 @@ if TYPE_CHECKING:
     from gcs_swarm.report.record import FlightRecord
     from gcs_swarm.runtime.summary import RunSummary
 
-__all__ = ["check_command", "report_command", "run_command", "serve_replay", "view_command"]
+__all__ = [
+    "check_command",
+    "report_command",
+    "run_command",
+    "serve_replay",
+    "shard_command",
+    "sharded_run_command",
+    "view_command",
+]
 
 
 def check_command(path: str) -> int:
@@ -47,6 +55,27 @@ def check_command(path: str) -> int:
         return 2
     print(f"OK: {path}: {describe(mission)}")
     return 0
+
+
+class _StatusLines:
+    """The live status line of ``run``: rewritten in place on a terminal; to
+    a log file (stderr not a terminal) one line in five, every 5 s."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self._count = 0
+
+    def show(self, line: str) -> None:
+        self._count += 1
+        if self.tty:
+            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
+        elif self._count % 5 == 1:
+            print(line, file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        """The status line is over: a terminal gets its line break."""
+        if self.tty:
+            print(file=sys.stderr)
 
 
 def run_command(
@@ -89,21 +118,10 @@ async def _main(
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, interrupt)
-    tty = sys.stderr.isatty()
-
-    lines = 0
-
-    def show(line: str) -> None:
-        nonlocal lines
-        lines += 1
-        if tty:
-            print("\r" + line[:200].ljust(120), end="", file=sys.stderr, flush=True)
-        elif lines % 5 == 1:  # a log file gets one line every 5 s
-            print(line, file=sys.stderr)
+    lines = _StatusLines()
 
     def report(summary: RunSummary) -> None:
-        if tty:
-            print(file=sys.stderr)
+        lines.done()
         print(summary.format())
         for folder in folders:
             for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
@@ -128,7 +146,7 @@ async def _main(
     try:
         summary = await run_mission(
             mission,
-            on_status=show if status else None,
+            on_status=lines.show if status else None,
             on_summary=report,
             log_dir=log_dir,
             on_folder=announce,
@@ -140,6 +158,60 @@ async def _main(
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
     return EXIT_CODES.get(summary.outcome, 1)
+
+
+def sharded_run_command(path: str, shards: int, *, listen: str | None = None) -> int:
+    """``gcs-swarm run PATH --shards N [--listen ENDPOINT]``: the mission
+    flown by N link shards (``gcs_swarm.runtime.sharded``; no run folder
+    yet): started on this machine, or with ``listen`` awaited there from
+    ``gcs-swarm shard --connect ENDPOINT`` elsewhere; its summary printed;
+    exit codes as ``run_command``'s. Ctrl-C or SIGTERM ends every vehicle
+    (the end action) through its shard."""
+    from gcs_swarm.runtime.run import EXIT_CODES
+    from gcs_swarm.runtime.sharded import check_shards, run_sharded
+
+    mission = load_mission(path)
+    check_shards(mission, shards)
+
+    async def main() -> int:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+
+        def interrupt() -> None:
+            print("\nending: the end action for every vehicle, through its shard",
+                  file=sys.stderr)  # fmt: skip
+            task.cancel()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, interrupt)
+        if listen is not None:
+            print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        lines = _StatusLines()
+
+        def report(summary: RunSummary) -> None:
+            lines.done()
+            print(summary.format(), flush=True)
+
+        try:
+            summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None,
+                                        on_status=lines.show, on_summary=report)  # fmt: skip
+        except asyncio.CancelledError:
+            return 130
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+        return EXIT_CODES.get(summary.outcome, 1)
+
+    return asyncio.run(main())
+
+
+def shard_command(endpoint: str) -> int:
+    """``gcs-swarm shard --connect ENDPOINT`` (``gcs_swarm.runtime.shard``)."""
+    from gcs_swarm.runtime.shard import shard_command as serve
+
+    return serve(endpoint)
 
 
 def report_command(

@@ -38,7 +38,7 @@ from gcs_swarm.runtime.links import Link
 from gcs_swarm.swarm.core import SwarmCore
 from gcs_swarm.swarm.link_state import OnFrame
 from gcs_swarm.swarm.status import StatusLine
-from gcs_swarm.swarm.step import SetpointBatch
+from gcs_swarm.swarm.step import SetpointBatch, Write
 
 __all__ = ["Station", "StationConfig", "VehiclePlan"]
 
@@ -63,12 +63,15 @@ class Station:
         recorder: FlightRecorder | None = None,
         on_frame: OnFrame | None = None,
         on_frame_for: Callable[[str], OnFrame | None] | None = None,
+        control_step: Callable[[float, Write], None] | None = None,
     ) -> None:
         """``recorder`` receives every control step, membership change and
         received message (the run's flight record); ``on_frame`` every raw
         frame in and out on every link (the ``.tlog``), or ``on_frame_for``
         gives each link's own (by connection string: one ``.tlog`` per
-        network)."""
+        network). ``control_step(now, write)`` replaces the core's when a
+        step is wanted (a link shard sends its states to its controller
+        instead: ``runtime.shard``)."""
         self._on_frame_for = on_frame_for
         self.config = config
         self.on_status = on_status
@@ -79,6 +82,7 @@ class Station:
         if config.delay_compensation and not config.lockstep:
             self.delay = DelayCompensator(config.predict_accel_max_mps2)
         self.core = SwarmCore(config, recorder=recorder, delay=self.delay)
+        self._control_step = control_step or self.core.control_step
         self.on_step: Callable[[], None] | None = None
         """Called after each control step, once its setpoints are written (the
         operator view builds its next frame then, while the loop waits for the
@@ -94,6 +98,13 @@ class Station:
         self._finished = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._froze = False
+        self.hold_when_ready = False
+        """Hold the inbound messages once every vehicle is READY, until
+        ``release`` (a lockstep link shard waiting for its controller's
+        start: the emulator's clock then waits too, so the formation starts
+        at the vehicle time an unsharded station starts it). The core's
+        timers wait as well: the vehicles are silent because they are held."""
+        self._held: list[tuple[Any, Link, float]] | None = None
 
     # The core's figures, as the station's (run summary, tests, benchmarks).
     @property
@@ -252,12 +263,22 @@ class Station:
         # Collect once now, while the vehicles hold at their start points, and
         # freeze what is left so that later passes scan only the flight's own
         # objects; ``__aexit__`` unfreezes.
+        self.begin()
+        await self._finished.wait()
+
+    def begin(self) -> None:
+        """Start the formation now (``fly`` without waiting for its end)."""
         gc.collect()
         gc.freeze()
         self._froze = True
         self.core.start(self.now())
         self._after()
-        await self._finished.wait()
+
+    def apply(self, work: Callable[[float, Write], None]) -> None:
+        """``work(now, write)`` on the core from outside (a controller's
+        setpoints arriving at a shard), then what the core asks for."""
+        work(self.now(), self._write)
+        self._after()
 
     async def end(self, mode: int | None = None) -> None:
         """Zero acceleration and the end mode for everyone, confirmed by heartbeat.
@@ -283,8 +304,24 @@ class Station:
 
     # ----------------------------------------------------------- messages
     def _on_message(self, msg: Any, link: Link) -> None:
+        if self._held is not None:
+            self._held.append((msg, link, link.rx_time_s))
+            return
         self.core.receive(msg, link.connection, self.now(), link.rx_time_s)
         self._after()
+
+    def release(self) -> None:
+        """Hand the core what ``hold_when_ready`` held, in arrival order, then
+        the timers it deferred (after the messages: a vehicle held longer than
+        its stale timeout is not LOST for the station's own wait)."""
+        held, self._held = self._held, None
+        self.hold_when_ready = False
+        for msg, link, rx_s in held or ():
+            self.core.receive(msg, link.connection, self.now(), rx_s)
+            self._after()
+        if held is not None:
+            self.core.timer_moved = True
+            self._after()
 
     def _on_telemetry(self, link: Link) -> None:
         core = self.core
@@ -309,6 +346,9 @@ class Station:
         if core.changed:
             core.changed = False
             self._changed.set()
+            if self.hold_when_ready and self._held is None:
+                if all(vp.phase is Phase.READY for vp in self.vehicles.values()):
+                    self._held = []
         if core.finished:
             self._finished.set()
 
@@ -336,6 +376,10 @@ class Station:
             self._timer = (due, self._loop.call_soon(self._on_timer, due, turns + 1))
             return
         self._timer = None
+        if self._held is not None:
+            # Holding (``hold_when_ready``): the vehicles' clock waits with their
+            # reports, so their protocols' watchdogs wait too; ``release`` re-arms.
+            return
         # call_at may fire up to one clock resolution early: never hand the
         # core a time before the deadline it asked for.
         self.core.handle_timer(max(self.now(), due))
@@ -347,7 +391,7 @@ class Station:
         while True:
             await self._step.wait()
             self._step.clear()
-            self.core.control_step(self.now(), self._write)
+            self._control_step(self.now(), self._write)
             if self.on_step is not None:
                 self.on_step()
             for job in self.core.lookahead:

@@ -391,14 +391,24 @@ class SwarmCore:
         the law, each link's setpoints handed to ``write`` (one answer per
         fresh report), then the bookkeeping (``swarm.step``). Nothing once
         the mission is finished or ending."""
-        self.step_wanted = False
-        self._fallback_at = None
-        if self.ending or self.finished:
+        fresh = self.take_step()
+        if fresh is None:
             return
-        fresh = self.table.take_fresh()
         t = self.control.advance_clock(fresh)
         self._run_events(t, now)
         run_step(self, fresh, t, now, write)
+
+    def take_step(self) -> dict[int, int] | None:
+        """The wanted step begins: the fresh reports (key -> ``time_boot_ms``)
+        taken from the table, or None once finished or ending (steps past the
+        mission's end are not part of it). ``control_step`` runs the
+        law on them here; a link shard sends them to its controller
+        (``swarm.shard``)."""
+        self.step_wanted = False
+        self._fallback_at = None
+        if self.ending or self.finished:
+            return None
+        return self.table.take_fresh()
 
     def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult, took_s: float) -> None:
         """A look-ahead's ``result``, computed off the step in ``took_s`` [s]."""

@@ -27,7 +27,15 @@ from gcs_swarm.mavlink.states import Phase
 if TYPE_CHECKING:
     from gcs_swarm.swarm.core import SwarmCore
 
-__all__ = ["LEADER_BOUND", "READYING", "SetpointBatch", "Write", "run_step"]
+__all__ = [
+    "LEADER_BOUND",
+    "READYING",
+    "SetpointBatch",
+    "Write",
+    "answer",
+    "flying_states",
+    "run_step",
+]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -65,15 +73,7 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     flying vehicles, answering those in ``fresh`` (sysid -> report time)."""
     ids = sorted(core.flying)
     if ids:
-        table = core.table
-        ks = table.slots(ids)
-        pos, vel = table.mission_states(ks)
-        if core.delay is not None:
-            for i, s in enumerate(ids):
-                k = int(ks[i])
-                if table.position(k) is not None:
-                    t_s = table.boot_ms(k) * 1e-3
-                    pos[i], vel[i] = core.delay.predict(s, t_s, now, pos[i], vel[i])
+        ks, pos, vel = flying_states(core, ids, now)
         try:
             # Overflow is judged below, on the leader (and counted, on the setpoints).
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -97,10 +97,10 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
                                out.episode, accel_mps2=accel, sent=fresh.keys(),
                                correction_mps2=cor)  # fmt: skip
         if len(fresh) == len(ids) and all(map(fresh.__contains__, ids)):  # every one: no copies
-            _answer(core, ids, ks, accel, now, t, vel, write)
+            answer(core, ids, ks, accel, now, t, vel, write)
         else:
             rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-            _answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
+            answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
         core.control.account(ids, pos, out, accel, report)
         job = core.control.pending_lookahead()
         if job is not None:
@@ -114,7 +114,25 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         core.finished = True
 
 
-def _answer(
+def flying_states(
+    core: SwarmCore, ids: list[int], now: float
+) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray]:
+    """The table rows of ``ids`` and their mission-frame states ``(K, 3)``
+    (position [m], velocity [m/s]) as the law reads them at wall ``now`` [s]:
+    predicted over the commands in flight when there is a delay compensator."""
+    table = core.table
+    ks = table.slots(ids)
+    pos, vel = table.mission_states(ks)
+    if core.delay is not None:
+        for i, s in enumerate(ids):
+            k = int(ks[i])
+            if table.position(k) is not None:
+                t_s = table.boot_ms(k) * 1e-3
+                pos[i], vel[i] = core.delay.predict(s, t_s, now, pos[i], vel[i])
+    return ks, pos, vel
+
+
+def answer(
     core: SwarmCore,
     sysids: list[int],
     ks: npt.NDArray[np.intp],

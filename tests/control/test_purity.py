@@ -11,7 +11,7 @@ import gcs_swarm.control as control
 
 FORBIDDEN = {
     "asyncio", "socket", "pymavlink", "yaml", "logging", "threading", "selectors",
-    "subprocess", "os", "io", "time",
+    "subprocess", "os", "io", "time", "zenoh",
 }  # fmt: skip
 CONTROL_DIR = Path(control.__file__).parent
 

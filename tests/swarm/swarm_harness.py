@@ -142,6 +142,8 @@ class Sky:
         self.emu = EmulatorCore(emu)
         self.dt = self.emu.dt
         self.station_running = True
+        self.control_step: Callable[[float, Any], None] = self.core.control_step
+        """What runs when the core wants a step (a link shard's differs)."""
         self.steps = 0
         self.answered: Counter[int] = Counter()
         """Setpoints of the control steps per vehicle (the station's answers)."""
@@ -227,7 +229,7 @@ class Sky:
                 return
             self._station_sends()
             if core.step_wanted:
-                core.control_step(self.now, self._write)
+                self.control_step(self.now, self._write)
                 self.steps += 1
                 core.lookahead.clear()  # the look-ahead is not exercised here
                 continue

@@ -1,0 +1,254 @@
+"""``gcs-swarm shard --connect ENDPOINT``: one link shard's process
+(docs/architecture.md, "Scaled out: shards").
+
+The shard says hello to the controller listening at ``ENDPOINT`` (Zenoh,
+``runtime.zbus``), is assigned its networks (the mission's text, the
+vehicles' links, the lockstep flag), and then runs an ordinary ``Station``
+over its vehicles only: links, codec, the vehicles' protocols, start-up,
+membership, the telemetry table. Only its control step differs: the state
+batch goes to the controller (``swarm.shard.ShardSide.take_state``) and the
+controller's reply is answered through the links (``ShardSide.apply``).
+
+Ending: the controller's ``end`` (its mode), a signal (SIGINT/SIGTERM), or
+the controller silent for the stale timeout all end every vehicle of the
+shard with ``Station.end`` (zero acceleration, then the end action,
+confirmed); the shard then sends its vehicles' report (``done``) and exits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import os
+import secrets
+import signal
+from dataclasses import asdict, replace
+from typing import Any
+
+from gcs_swarm.errors import LinkError, StartupError
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mission import parse_mission
+from gcs_swarm.runtime.plans import station_config
+from gcs_swarm.runtime.station import Station
+from gcs_swarm.runtime.zbus import Bus
+from gcs_swarm.swarm.shard import ShardSide
+from gcs_swarm.swarm.shard_wire import decode_reply, encode_state
+
+__all__ = ["BEAT_S", "HELLO_TIMEOUT_S", "run_shard", "shard_command"]
+
+_log = logging.getLogger("gcs_swarm.shard")
+
+BEAT_S = 0.1
+"""Heartbeat period [s] both ways: ten within the default 1 s stale timeout."""
+HELLO_TIMEOUT_S = 30.0
+"""How long a shard says hello before it gives up on its controller [s]."""
+
+
+async def run_shard(endpoint: str, *, token: str | None = None) -> int:
+    """Serve as one link shard of the controller at ``endpoint`` until the
+    run ends; 0 when every vehicle that flew ended, 1 otherwise.
+    ``LinkError`` when the controller cannot be reached."""
+    token = token or secrets.token_hex(8)
+    loop = asyncio.get_running_loop()
+    async with Bus(connect=[endpoint]) as bus:
+        assigned: asyncio.Future[dict[str, Any]] = loop.create_future()
+
+        def on_assign(key: str, data: bytes) -> None:
+            if not assigned.done():
+                assigned.set_result(json.loads(data))
+
+        bus.subscribe(f"assign/{token}", on_assign)
+        try:
+            async with asyncio.timeout(HELLO_TIMEOUT_S):
+                while not assigned.done():
+                    bus.put_json("hello", {"token": token, "pid": os.getpid()})
+                    await asyncio.wait([assigned], timeout=0.2)
+        except TimeoutError:
+            raise LinkError(
+                f"shard: no controller answered at {endpoint} in {HELLO_TIMEOUT_S:g} s"
+            ) from None
+        return await _serve(bus, assigned.result())
+
+
+async def _serve(bus: Bus, a: dict[str, Any]) -> int:
+    index = int(a["index"])
+    mission = parse_mission(a["mission"], a["source"])
+    links = {int(k): str(v) for k, v in a["links"].items()}
+    mine = {int(k) for k in a["keys"]}
+    full = station_config(mission, links, lockstep=bool(a["lockstep"]))
+    cfg = replace(
+        full,
+        vehicles=tuple(p for p in full.vehicles if p.sysid in mine),
+        end_timeout_s=float(a["end_timeout_s"]),
+    )
+    up = f"up/{index}"
+    start = asyncio.Event()
+    ended = asyncio.Event()
+    end_mode: list[int | None] = [None]
+    station: Station | None = None
+    side: ShardSide | None = None
+
+    def step(now: float, write: Any) -> None:
+        assert side is not None
+        batch = side.take_state(now)
+        if batch is not None:
+            bus.put(f"{up}/state", encode_state(batch))
+
+    def on_reply(key: str, data: bytes) -> None:
+        if station is None or side is None:
+            return
+        reply, shard = decode_reply(data), side
+        station.apply(lambda now, write: shard.apply(reply, now, write))
+
+    def on_down(key: str, data: bytes) -> None:
+        if station is None or side is None:
+            return
+        msg = json.loads(data)
+        side.heard(station.now())
+        if msg["kind"] == "start":
+            start.set()
+        elif msg["kind"] == "end":
+            end_mode[0] = msg.get("mode")
+            ended.set()
+
+    station = Station(cfg, control_step=step)
+    station.hold_when_ready = cfg.lockstep
+    side = ShardSide(station.core, index, cfg.stale_timeout_s)
+    bus.subscribe(f"down/{index}/reply", on_reply)
+    bus.subscribe("down/all", on_down)
+    bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
+    outcome_ok = True
+    flying_drops = [0]
+    """Setpoints dropped (a newer one queued first) before the ending began."""
+    stack = contextlib.AsyncExitStack()
+    try:
+        await stack.enter_async_context(station)
+    except LinkError as err:  # a link that does not open: the controller is told why
+        bus.put_json(f"{up}/msg", {"kind": "failed", "text": str(err)})
+        bus.put_json(f"{up}/msg", {**_done(station, side), "setpoints_dropped_before_end": 0})
+        await asyncio.sleep(0.3)  # the report's way out before the session closes
+        return 1
+    async with stack:
+        side.heard(station.now())
+
+        async def beat() -> None:  # heartbeats out; the controller's silence watched
+            assert station is not None and side is not None
+            while True:
+                core = station.core
+                flying = len(core.flying) if core.started else None
+                bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying})
+                if side.controller_silent(station.now()) and not ended.is_set():
+                    station.warn(f"controller silent for {cfg.stale_timeout_s:g} s: "
+                                 "ending every vehicle of this shard")  # fmt: skip
+                    ended.set()
+                await asyncio.sleep(BEAT_S)
+
+        beating = asyncio.ensure_future(beat())
+        try:
+            try:
+                await _until(station.ready(), ended)
+            except StartupError as err:
+                bus.put_json(f"{up}/msg", {"kind": "failed", "text": str(err)})
+                end_mode[0] = b.COPTER_MODES["LAND"]
+                outcome_ok = False
+            else:
+                if not ended.is_set():
+                    env = station.apply_envelope()
+                    bus.put_json(f"{up}/msg", {"kind": "ready", "envelope": asdict(env),
+                                               "members": len(station.members)})  # fmt: skip
+                    await _until(start.wait(), ended)
+                    if start.is_set() and not ended.is_set():
+                        station.begin()
+                        station.release()
+                        side.heard(station.now())
+                        await ended.wait()
+        finally:
+            flying_drops[0] = sum(lk.stats.setpoints_dropped for lk in station.links.values())
+            station.release()  # what a lockstep shard held before the start
+            with contextlib.suppress(asyncio.CancelledError):
+                await station.end(end_mode[0])
+            beating.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await beating
+            done = _done(station, side)
+            done["setpoints_dropped_before_end"] = flying_drops[0]
+            bus.put_json(f"{up}/msg", done)
+        outcome_ok = outcome_ok and station.outcome() == "completed"
+    await asyncio.sleep(0.3)  # the report's way out before the session closes
+    return 0 if outcome_ok else 1
+
+
+async def _until(coro: Any, ended: asyncio.Event) -> None:
+    """Await ``coro`` unless ``ended`` is set first (then it is cancelled)."""
+    task = asyncio.ensure_future(coro)
+    stop = asyncio.ensure_future(ended.wait())
+    try:
+        await asyncio.wait([task, stop], return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        stop.cancel()
+    if task.done():
+        task.result()
+    else:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+def _done(station: Station, side: ShardSide) -> dict[str, Any]:
+    """The shard's final report: each vehicle as ``VehicleAtEnd`` needs it,
+    the links' counters, the log."""
+    links = station.links.values()
+    return {
+        "kind": "done",
+        "vehicles": [
+            {
+                "sysid": s,
+                "phase": vp.phase.value,
+                "mode": vp.mode_name,
+                "failure": vp.failure,
+                "label": vp.label,
+                "last_accel_ned_mps2": [float(x) for x in vp.last_accel_ned],
+                "rate_requests": vp.rate_requests,
+                "telemetry_rate_min_hz": vp.telemetry_rate_min_hz
+                if math.isfinite(vp.telemetry_rate_min_hz)
+                else None,
+                "velocity_bias_ned_mps": list(vp.velocity_bias.bias),
+                "velocity_bias_corrected": vp.velocity_bias.settings.correct,
+                "velocity_bias_saturated": vp.velocity_bias.saturated,
+            }
+            for s, vp in sorted(station.vehicles.items())
+        ],
+        "flown": sorted(station.flown),
+        "messages_sent": sum(lk.stats.sent for lk in links),
+        "setpoints_dropped": sum(lk.stats.setpoints_dropped for lk in links),
+        "messages_dropped": sum(lk.stats.messages_dropped for lk in links),
+        "bad_packets": sum(lk.stats.bad_packets for lk in links),
+        "unknown_sysid_messages": sum(station.unknown_sysids.values()),
+        "spoofed": sum(lk.stats.spoofed for lk in links),
+        "signature_rejected": sum(lk.stats.signature_rejected for lk in links),
+        "clipped_setpoints": station.clipped_setpoints(),
+        "states": side.states,
+        "replies": side.replies,
+        "log": list(station.log),
+    }
+
+
+def shard_command(endpoint: str) -> int:
+    """``gcs-swarm shard --connect ENDPOINT``: SIGINT/SIGTERM end every
+    vehicle of the shard (the end action), then the process exits."""
+
+    async def main() -> int:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, task.cancel)
+        try:
+            return await run_shard(endpoint)
+        except asyncio.CancelledError:
+            return 130
+
+    return asyncio.run(main())

@@ -1,0 +1,472 @@
+"""``gcs-swarm run MISSION --shards N``: the controller of a sharded run
+(docs/architecture.md, "Scaled out: shards").
+
+``run_sharded`` is ``run_mission``'s twin for a station split in processes:
+it starts the bundled emulators (one per network, as ``run_mission``),
+listens for shards on a Zenoh endpoint (``runtime.zbus``; by default
+``tcp/127.0.0.1:<free port>``), starts N shard processes on this machine
+(``gcs-swarm shard --connect ENDPOINT``; with ``spawn=False`` it waits for
+shards started elsewhere), gives each whole networks, waits until every
+shard has readied its vehicles, starts the formation and runs the law
+(``swarm.controller.ControllerCore``) on their state batches until the
+mission's duration; then it sends every shard the end action and gathers
+their reports into one ``RunSummary``. It always ends the shards, also
+when cancelled (Ctrl-C) or when the start-up fails.
+
+Not (yet) in a sharded run: join/leave events and reserves, the run
+folder (``.tlog``, summary file, picture), the operator view, TIMESYNC
+delay compensation across the split (each shard predicts its own reports).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import socket
+import sys
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from typing import Any
+
+from gcs_swarm.control.params import Envelope
+from gcs_swarm.errors import LinkError, StartupError, UsageError
+from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mission import Mission
+from gcs_swarm.runtime.plans import END_MODES, emulator_config
+from gcs_swarm.runtime.shard import BEAT_S
+from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
+from gcs_swarm.runtime.zbus import Bus, check_endpoint
+from gcs_swarm.swarm.controller import ControllerCore
+from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
+from sim_vehicle import Emulator
+
+__all__ = ["LOCKSTEP_BARRIER_S", "ShardedRun", "check_shards", "run_sharded"]
+
+_log = logging.getLogger("gcs_swarm.run")
+
+LOCKSTEP_BARRIER_S = 10.0
+"""A bundled lockstep emulator's wait for an answer in a sharded run [s]
+(0.5 s in one process): a shard holds its READY vehicles' reports until
+every shard is ready and the formation starts (``Station.hold_when_ready``),
+and the emulator must wait as long, or its clock moves on unanswered and the
+flight is no longer the one-process flight (measured: shards ready up to
+0.9 s apart on a loaded 2-core machine). Lockstep semantics otherwise:
+a dead shard's emulator then steps once per this wait."""
+
+_HANDSHAKE_S = 30.0
+"""Wall time [s] for every shard to say hello (a process start and a Zenoh
+session: about a second each on a loaded 2-core machine)."""
+
+
+def check_shards(mission: Mission, shards: int) -> None:
+    """``UsageError`` unless ``mission`` can be flown by ``shards`` shards,
+    each owning whole networks (module docstring: what is not sharded yet)."""
+    nets = len({v.net_index for v in mission.vehicles})
+    if shards < 1:
+        raise UsageError(f"--shards: expected a whole number >= 1, got {shards}")
+    if shards > nets:
+        raise UsageError(
+            f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
+            " (name more networks: docs/mission-format.md, networks)"
+        )
+    if mission.events or mission.reserves:
+        raise UsageError(f"--shards {shards}: join/leave events and reserves are not sharded yet")
+
+
+def free_endpoint() -> str:
+    """``tcp/127.0.0.1:<port>`` on a port free now (the OS's pick)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    return f"tcp/127.0.0.1:{port}"
+
+
+class ShardedRun:
+    """The controller's shell: Zenoh in and out, one timer, the shards'
+    handshake and reports (``run_sharded`` drives it)."""
+
+    def __init__(self, bus: Bus, core: ControllerCore, assignment: list[dict[str, Any]]) -> None:
+        self.bus = bus
+        self.core = core
+        self.assignment = assignment
+        self.endpoint = ""
+        self.processes: list[asyncio.subprocess.Process] = []
+        """The shard processes this run started (their ids: ``pid``)."""
+        self.tokens: dict[str, int] = {}
+        self.pids: dict[int, int] = {}
+        """Each shard's process id, as its hello said (shard index -> pid)."""
+        self.emulators: dict[int, Emulator] = {}
+        """The bundled emulators, by network index (the vehicles' side of a test)."""
+        self.ready: dict[int, dict[str, Any]] = {}
+        self.ready_at: dict[int, float] = {}
+        """Loop time [s] each shard reported its vehicles READY."""
+        self.failed: dict[int, str] = {}
+        self.done: dict[int, dict[str, Any]] = {}
+        self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
+        """Bytes of state batches in, replies out, and the steps they made."""
+        self.flight_s: tuple[float, float] | None = None
+        """Loop times [s] of the formation's start and of the mission's end."""
+        self.changed = asyncio.Event()
+        self.finished = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_at: float | None = None
+
+    def now(self) -> float:
+        return self._loop.time()
+
+    def listen(self) -> None:
+        self.bus.subscribe("hello", self._on_hello)
+        for i in range(len(self.assignment)):
+            self.bus.subscribe(f"up/{i}/state", self._on_state)
+            self.bus.subscribe(f"up/{i}/msg", self._on_msg)
+
+    def _on_hello(self, key: str, data: bytes) -> None:
+        hello = json.loads(data)
+        token = str(hello["token"])
+        index = self.tokens.get(token)
+        if index is None:
+            if len(self.tokens) >= len(self.assignment):
+                return  # one shard too many: not answered
+            index = self.tokens[token] = len(self.tokens)
+            self.pids[index] = int(hello.get("pid", 0))
+            _log.info("shard %d joined (token %s)", index, token)
+        self.bus.put_json(f"assign/{token}", {"index": index, **self.assignment[index]})
+        self.changed.set()
+
+    def _on_state(self, key: str, data: bytes) -> None:
+        batch = decode_state(data)
+        self.bytes_per_step["state"] += len(data)
+        if self._declared_dead(batch.shard):
+            return
+        self.core.receive_state(batch, self.now())
+        self._after()
+
+    def _declared_dead(self, index: int) -> bool:
+        """A shard declared dead that speaks again (a Zenoh link back after
+        the stale timeout) is told to end its vehicles: it never rejoins."""
+        view = self.core.shards.get(index)
+        if view is None or view.alive:
+            return False
+        self.bus.put_json(f"down/{index}/ctl", {"kind": "end", "mode": None})
+        return True
+
+    def _on_msg(self, key: str, data: bytes) -> None:
+        index = int(key.split("/")[1])
+        msg = json.loads(data)
+        kind = msg["kind"]
+        if kind == "done":
+            self.done[index] = msg
+            self.changed.set()
+            return
+        if self.core.started and self._declared_dead(index):
+            return
+        now = self.now()
+        if kind == "beat":
+            self.core.heard(index, now, msg.get("flying"))
+        elif kind == "ready":
+            self.ready[index] = msg
+            self.ready_at[index] = now
+            self.core.heard(index, now)
+        elif kind == "failed":
+            self.failed[index] = str(msg["text"])
+        self.changed.set()
+        self._after()
+
+    def _after(self) -> None:
+        core = self.core
+        if core.step_wanted:
+            for reply in core.control_step(self.now()):
+                data = encode_reply(reply)
+                self.bytes_per_step["reply"] += len(data)
+                self.bus.put(f"down/{reply.shard}/reply", data)
+            self.bytes_per_step["steps"] += 1
+        if core.timer_moved:
+            core.timer_moved = False
+            self._arm()
+        if core.finished:
+            self.finished.set()
+        self.changed.set()  # wait_for looks again (a step, a dead shard)
+
+    def _arm(self) -> None:
+        due = self.core.get_timer()
+        if self._timer is not None:
+            if due is not None and self._timer_at is not None and self._timer_at <= due:
+                return
+            self._timer.cancel()
+            self._timer = None
+        if due is not None:
+            self._timer_at = due
+            self._timer = self._loop.call_at(due, self._on_timer, due)
+
+    def _on_timer(self, due: float) -> None:
+        self._timer = self._timer_at = None
+        self.core.handle_timer(max(self.now(), due))
+        self.core.timer_moved = True
+        self._after()
+
+    async def watch(self, proc: asyncio.subprocess.Process) -> None:
+        """Wake ``wait_for`` when a shard process this run started exits."""
+        await proc.wait()
+        self.changed.set()
+
+    def exited(self) -> str:
+        """The shard processes of this run that have exited, with their codes
+        ("" while none has): a start-up then fails at once, not after its
+        timeout."""
+        gone = [f"pid {p.pid} exit code {p.returncode}" for p in self.processes
+                if p.returncode is not None]  # fmt: skip
+        return ", ".join(gone)
+
+    def status_line(self) -> str:
+        """One line of the run's state (the command line's status)."""
+        core = self.core
+        alive = sum(v.alive for v in core.shards.values())
+        return (f"t={core.control.t_s:6.2f} s  {len(core.flying)} flying on {alive}/"
+                f"{len(core.shards)} shards  {core.control.steps} steps  "
+                f"{core.fallbacks} fallback")  # fmt: skip
+
+    async def status(self, on_status: Callable[[str], None], every_s: float = 1.0) -> None:
+        while True:
+            await asyncio.sleep(every_s)
+            if self.core.started:
+                on_status(self.status_line())
+
+    async def beat(self) -> None:
+        while True:
+            self.bus.put_json("down/all", {"kind": "beat"})
+            await asyncio.sleep(BEAT_S)
+
+    async def wait_for(self, what: Callable[[], bool], timeout_s: float) -> bool:
+        """Until ``what()`` holds (True), or ``timeout_s`` has passed (False)."""
+        try:
+            async with asyncio.timeout(timeout_s):
+                while not what():
+                    self.changed.clear()
+                    await self.changed.wait()
+        except TimeoutError:
+            return False
+        return True
+
+
+async def run_sharded(
+    mission: Mission,
+    shards: int,
+    *,
+    links: Mapping[int, str] | None = None,
+    lockstep: bool | None = None,
+    endpoint: str | None = None,
+    spawn: bool = True,
+    end_timeout_s: float = 15.0,
+    on_run: Callable[[ShardedRun], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
+    on_summary: Callable[[RunSummary], None] | None = None,
+) -> RunSummary:
+    """Fly ``mission`` with ``shards`` link shards (module docstring) and
+    return its summary. ``links`` and ``lockstep`` as ``run_mission``'s;
+    ``endpoint`` where the controller listens (default: a free TCP port on
+    127.0.0.1); ``on_run`` gets the live run (its core, its processes) once
+    the shards are started; ``on_status`` a status line every second in
+    flight; ``on_summary`` the summary, also when the run is cancelled or
+    its start-up fails (the exception then propagates). Raises
+    ``UsageError`` when the mission cannot be sharded so, ``StartupError``
+    when a shard cannot ready its vehicles (every shard then lands its
+    airborne ones)."""
+    check_shards(mission, shards)
+    endpoint = check_endpoint(endpoint) if endpoint else free_endpoint()
+    wall0 = time.monotonic()
+    given = dict(links or {})
+    sims = [v for v in mission.vehicles if v.is_sim and v.key not in given]
+    if lockstep is None:
+        lockstep = bool(sims) and mission.emulator.mode == "lockstep"
+    s = mission.settings
+    core = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate,
+                          shards=shards, duration_s=s.duration,
+                          stale_timeout_s=s.stale_timeout, lockstep=lockstep)  # fmt: skip
+    outcome = "cancelled"
+    emulators: dict[int, Emulator] = {}
+    async with contextlib.AsyncExitStack() as stack:
+        for j in sorted({v.net_index for v in sims}):
+            cfg = emulator_config(mission, network=j)
+            if cfg.clock == "lockstep":
+                cfg = replace(cfg, lockstep_timeout_s=LOCKSTEP_BARRIER_S)
+            try:
+                emu = await stack.enter_async_context(Emulator(cfg))
+            except OSError as err:
+                raise LinkError(f"bundled emulator on {cfg.host}: {err.strerror or err}") from None
+            emulators[j] = emu
+            for v in sims:
+                if v.net_index == j:
+                    host, port = emu.endpoints[v.sysid]
+                    given[v.key] = f"udpout:{host}:{port}"
+        for v in mission.vehicles:
+            given.setdefault(v.key, v.link)
+        nets = sorted({v.net_index for v in mission.vehicles})
+        common = {"mission": mission.text, "source": mission.source, "lockstep": lockstep,
+                  "links": {str(k): v for k, v in given.items()},
+                  "end_timeout_s": end_timeout_s}  # fmt: skip
+        assignment = [
+            {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]]}
+            for i in range(shards)
+        ]
+        bus = await stack.enter_async_context(Bus(listen=[endpoint]))
+        run = ShardedRun(bus, core, assignment)
+        run.endpoint = endpoint
+        run.emulators = emulators
+        run.listen()
+        beating = asyncio.ensure_future(run.beat())
+        stack.callback(beating.cancel)
+        if on_status is not None:
+            showing = asyncio.ensure_future(run.status(on_status))
+            stack.callback(showing.cancel)
+        if spawn:
+            stack.push_async_callback(_reap, run.processes, end_timeout_s + 5.0)
+            for _ in range(shards):
+                proc = await asyncio.create_subprocess_exec(
+                    sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint,
+                    stdin=asyncio.subprocess.DEVNULL)  # fmt: skip
+                run.processes.append(proc)
+                watching = asyncio.ensure_future(run.watch(proc))
+                stack.callback(watching.cancel)
+        if on_run is not None:
+            on_run(run)
+        end_mode: int | None = None
+        try:
+            # Shards started elsewhere (by hand) get as long as a start-up does.
+            hello_s = _HANDSHAKE_S if spawn else max(_HANDSHAKE_S, s.startup.ready_timeout)
+            if not await run.wait_for(lambda: len(run.tokens) == shards or bool(run.exited()),
+                                      hello_s):  # fmt: skip
+                raise StartupError(f"{len(run.tokens)} of {shards} shards said hello at "
+                                   f"{endpoint} in {hello_s:g} s")  # fmt: skip
+            ready_s = s.startup.ready_timeout + 10.0
+            if not await run.wait_for(
+                lambda: len(run.ready) + len(run.failed) == shards or bool(run.exited()), ready_s
+            ):
+                raise StartupError(f"{len(run.ready)} of {shards} shards ready in {ready_s:g} s")
+            if run.exited() and not run.failed:
+                raise StartupError(f"shard process exited during start-up: {run.exited()}")
+            if run.failed:
+                raise StartupError("; ".join(f"shard {i}: {t}" for i, t in
+                                             sorted(run.failed.items())))  # fmt: skip
+            env = Envelope()
+            for msg in run.ready.values():
+                env = env.tighter(Envelope(**msg["envelope"]))
+            core.set_envelope(env)
+            core.start(run.now(), {i: int(m["members"]) for i, m in run.ready.items()})
+            bus.put_json("down/all", {"kind": "start"})
+            run._after()
+            t_start = run.now()
+            await run.finished.wait()
+            run.flight_s = (t_start, run.now())
+            if core.failure is not None:
+                end_mode = END_MODES["hold"]
+            outcome = "flown"
+        except StartupError:
+            outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
+            raise
+        finally:
+            bus.put_json("down/all", {"kind": "end", "mode": end_mode})
+            # Every shard that joined and is neither dead nor exited reports once ended.
+            expect = {i for i, v in core.shards.items() if v.alive and i in run.pids}
+
+            def reported() -> bool:
+                gone = {p.pid for p in run.processes if p.returncode is not None}
+                return all(i in run.done or run.pids[i] in gone for i in expect)
+
+            await run.wait_for(reported, end_timeout_s + 5.0)
+            if on_summary is not None:  # also when cancelled or the start-up failed
+                on_summary(_summary(run, core, mission, outcome, time.monotonic() - wall0))
+    return _summary(run, core, mission, outcome, time.monotonic() - wall0)
+
+
+async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> None:
+    """Wait for the shard processes this run started (they exit once they
+    sent their report); one still there after 2 s gets SIGTERM (it ends its
+    vehicles, then exits: ``runtime.shard``), after ``wait_s`` more SIGKILL."""
+    for grace, stop in ((2.0, "terminate"), (wait_s, "kill"), (None, "")):
+        live = [p for p in processes if p.returncode is None]
+        if not live:
+            return
+        try:
+            async with asyncio.timeout(grace):
+                for proc in live:
+                    await proc.wait()
+        except TimeoutError:
+            for proc in live:
+                if proc.returncode is None:
+                    getattr(proc, stop)()
+
+
+def _summary(
+    run: ShardedRun, core: ControllerCore, mission: Mission, outcome: str, wall_s: float
+) -> RunSummary:
+    """One ``RunSummary`` from the controller's law and the shards' reports;
+    the vehicles of a shard that sent none are reported ``lost``."""
+    last = core.control.last
+    at: dict[int, tuple[tuple[float, float, float], float]] = {}
+    if last is not None:
+        for i, key in enumerate(last.ids):
+            p = last.pos_m[i]
+            at[key] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
+    reported = {v["sysid"]: v for d in run.done.values() for v in d["vehicles"]}
+    vehicles = []
+    for v in sorted(mission.vehicles, key=lambda v: v.key):
+        r = reported.get(v.key)
+        vehicles.append(VehicleAtEnd(
+            sysid=v.key,
+            phase=r["phase"] if r else "lost",
+            mode=r["mode"] if r else "?",
+            position_m=at[v.key][0] if v.key in at else None,
+            radius_m=at[v.key][1] if v.key in at else None,
+            last_accel_ned_mps2=tuple(r["last_accel_ned_mps2"]) if r else (0.0, 0.0, 0.0),
+            failure=r["failure"] if r else "its shard stopped answering",
+            rate_requests=r["rate_requests"] if r else 0,
+            telemetry_rate_min_hz=r["telemetry_rate_min_hz"] if r else None,
+            velocity_bias_ned_mps=tuple(r["velocity_bias_ned_mps"]) if r else (0.0, 0.0, 0.0),
+            velocity_bias_corrected=bool(r["velocity_bias_corrected"]) if r else False,
+            velocity_bias_saturated=bool(r["velocity_bias_saturated"]) if r else False,
+            label=r["label"] if r else mission.label(v.key),
+        ))  # fmt: skip
+    if outcome == "flown":
+        flown = {k for d in run.done.values() for k in d["flown"]}
+        flown |= {k for k in core.control.charges if k not in reported}  # a dead shard's
+        gone = [k for k in flown if reported.get(k, {}).get("phase") != "ended"]
+        outcome = "completed" if not gone else "degraded"
+        if core.failure is not None or (flown and len(gone) == len(flown)):
+            outcome = "failed"
+
+    def total(name: str) -> int:
+        return sum(int(d[name]) for d in run.done.values())
+
+    leader = core.control.controller.leader_pos_m
+    log = list(core.log) + [line for d in run.done.values() for line in d["log"]]
+    return RunSummary(
+        outcome=outcome,
+        mission_time_s=core.control.t_s,
+        wall_time_s=wall_s,
+        steps=core.control.steps,
+        behaviour=core.control.controller.behaviour,
+        leader_pos_m=(float(leader[0]), float(leader[1]), float(leader[2])),
+        vehicles=tuple(vehicles),
+        min_separation_m=core.control.min_separation_m,
+        min_clearance_m=core.control.min_clearance_m,
+        episodes=core.control.controller.episode,
+        messages_sent=total("messages_sent"),
+        setpoints_dropped=total("setpoints_dropped"),
+        messages_dropped=total("messages_dropped"),
+        bad_packets=total("bad_packets"),
+        unknown_sysid_messages=total("unknown_sysid_messages"),
+        spoofed=total("spoofed"),
+        signature_rejected=total("signature_rejected"),
+        safety=str(core.control.safety_stats.totals())
+        if core.control.filtering
+        else "safety filter: off",
+        log=tuple(log),
+        start_tolerance_m=mission.settings.startup.start_tolerance,
+        start_speed_tolerance_mps=mission.settings.startup.start_speed_tolerance,
+        clipped_setpoints=total("clipped_setpoints"),
+        failure=core.failure,
+    )

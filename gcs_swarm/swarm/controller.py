@@ -1,0 +1,271 @@
+"""The controller of a sharded station, without I/O (docs/architecture.md,
+"Scaled out: shards").
+
+The link shards (``swarm.shard``) own the vehicles; the controller owns the
+law: one ``ControlLoop`` (the leader in vehicle time, the law, the safety
+filter, the shaper: ``control/loop.py``) over every shard's flying vehicles.
+Driven like ``SwarmCore`` (STYLE.md habit 1): ``receive_state(batch, now)``
+and ``heard(shard, now)`` as messages arrive, ``handle_timer(now)`` at
+``get_timer()``, ``control_step(now)`` when ``step_wanted``; it returns one
+``SetpointReply`` per shard that delivered.
+
+- a step is wanted when every live shard with flying vehicles has delivered
+  a state batch since the last step, or a fallback delay after the first one
+  (0.5 s in lockstep, a period in real time: longer than a shard's own 0.2 s
+  and half period): ``SwarmCore``'s rule, one level up. The law gets every
+  live shard's latest states (a shard that has
+  not delivered this step counts with its last ones, as a vehicle's stale
+  table row does), the mission clock advances on the union of the fresh
+  reports (``ControlLoop.advance_clock``), and each shard is answered for
+  its fresh vehicles only;
+- a shard silent (no state batch, no heartbeat) for ``stale_timeout_s`` is
+  dead: its vehicles leave the formation (the law gets the rest, which
+  re-form: formation-law.md s9) and are never waited for again. A vehicle
+  a shard stops reporting (lost, failed, ended) leaves the same way;
+- the mission ends at its duration, when the law fails (``failure``), or
+  when every shard is dead.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gcs_swarm.control.loop import ControlLoop
+from gcs_swarm.control.params import Envelope, LawConfig
+from gcs_swarm.errors import SwarmError
+from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
+from gcs_swarm.swarm.step import LEADER_BOUND
+
+__all__ = ["ControllerCore", "ShardView"]
+
+_log = logging.getLogger("gcs_swarm.controller")
+
+
+@dataclass
+class ShardView:
+    """What the controller knows of one shard."""
+
+    index: int
+    alive: bool = True
+    heard_at: float | None = None
+    flying: int = 0
+    """Its flying vehicles, as its last state batch or heartbeat said."""
+    batch: StateBatch | None = None
+    """Its latest state batch (the law's input for its vehicles)."""
+    fresh: dict[int, int] = field(default_factory=dict)
+    """Fresh reports delivered since the last step (key -> time_boot_ms)."""
+    delivered: bool = False
+    died_at: float | None = None
+
+
+class ControllerCore:
+    """The law over ``shards`` link shards (module docstring). Time is an
+    argument [s]; ``charges`` by vehicle key."""
+
+    def __init__(
+        self,
+        law: LawConfig,
+        charges: Mapping[int, float],
+        rate_hz: float,
+        *,
+        shards: int,
+        duration_s: float,
+        stale_timeout_s: float,
+        lockstep: bool,
+    ) -> None:
+        # The plane look-ahead runs inline at its step: no worker thread here.
+        self.control = ControlLoop(law, charges, rate_hz, defer=False)
+        self.rate_hz = rate_hz
+        self.duration_s = duration_s
+        self.stale_timeout_s = stale_timeout_s
+        self.lockstep = lockstep
+        self.shards = {i: ShardView(i) for i in range(shards)}
+        self.started = False
+        self.finished = False
+        self.failure: str | None = None
+        self.step_wanted = False
+        self.timer_moved = False
+        self.log: deque[str] = deque(maxlen=2000)
+        self.flying: list[int] = []
+        """The vehicles the law flew at the last step (keys, sorted)."""
+        self.fallbacks = 0
+        """Steps taken on the fallback delay, without every shard's states."""
+        self._fallback_at: float | None = None
+
+    # ------------------------------------------------------------ inbound
+    def heard(self, shard: int, now: float, flying: int | None = None) -> None:
+        """Shard ``shard`` said something at ``now`` (a heartbeat: with its
+        flying count once it flies)."""
+        view = self.shards.get(shard)
+        if view is None or not view.alive:
+            return
+        view.heard_at = now
+        if flying is not None:
+            view.flying = flying
+            self._maybe_step(now)
+
+    def receive_state(self, batch: StateBatch, now: float) -> None:
+        """A shard's state batch (a dead shard's is ignored: it stays out)."""
+        view = self.shards.get(batch.shard)
+        if view is None or not view.alive:
+            return
+        view.heard_at = now
+        view.batch = batch
+        view.flying = len(batch.keys)
+        view.fresh.update(batch.fresh())
+        view.delivered = True
+        self._maybe_step(now)
+
+    # ------------------------------------------------------------- timers
+    def start(self, now: float, flying: Mapping[int, int]) -> None:
+        """The formation starts at ``now``: each shard flies ``flying[i]``
+        vehicles (its initial members) and counts as heard."""
+        self.started = True
+        for view in self.shards.values():
+            view.heard_at = now
+            view.flying = flying.get(view.index, 0)
+        self.timer_moved = True
+
+    def get_timer(self) -> float | None:
+        """The earliest time [s] ``handle_timer`` has something to do."""
+        times = [] if self._fallback_at is None else [self._fallback_at]
+        if self.started and not self.finished:
+            times += [v.heard_at + self.stale_timeout_s for v in self.shards.values()
+                      if v.alive and v.heard_at is not None]  # fmt: skip
+        return min(times) if times else None
+
+    def handle_timer(self, now: float) -> None:
+        """The step's fallback, and the shards silent for the stale timeout."""
+        if self._fallback_at is not None and self._fallback_at <= now:
+            self._fallback_at = None
+            self.step_wanted = True
+            self.fallbacks += 1
+        if not self.started or self.finished:
+            return
+        for view in self.shards.values():
+            if view.alive and view.heard_at is not None:
+                if now - view.heard_at >= self.stale_timeout_s:
+                    self._dead(view, now)
+        if not any(v.alive for v in self.shards.values()):
+            self.note("every shard is silent; ending", level=logging.WARNING)
+            self.finished = True
+        self._maybe_step(now)
+        self.timer_moved = True
+
+    def _dead(self, view: ShardView, now: float) -> None:
+        view.alive = False
+        view.died_at = now
+        gone = [] if view.batch is None else view.batch.keys.tolist()
+        silent = 0.0 if view.heard_at is None else now - view.heard_at
+        self.note(f"t={self.control.t_s:.2f} s: shard {view.index} silent for {silent:.2f} s: "
+                  f"dead; its {len(gone)} vehicles leave the formation",
+                  level=logging.WARNING)  # fmt: skip
+        view.batch, view.fresh, view.delivered, view.flying = None, {}, False, 0
+
+    # --------------------------------------------------------- control step
+    def _maybe_step(self, now: float) -> None:
+        if not self.started or self.finished:
+            return
+        live = [v for v in self.shards.values() if v.alive]
+        if not any(v.delivered for v in live):
+            return
+        if all(v.delivered or v.flying == 0 for v in live):
+            self.step_wanted = True
+        elif self._fallback_at is None:
+            # Longer than a shard's own fallback (SwarmCore._maybe_step: 0.2 s in
+            # lockstep, half a period in real time), so that a shard missing a
+            # report still delivers its partial batch before the controller moves on.
+            wait = 0.5 if self.lockstep else 1.0 / self.rate_hz
+            self._fallback_at = now + wait
+            self.timer_moved = True
+
+    def set_envelope(self, envelope: Envelope) -> Envelope:
+        """Plan and shape within the tightest of the shards' envelopes
+        (``SwarmCore.apply_envelope`` of each); returns the one in force."""
+        inforce = self.control.set_envelope(envelope)
+        if inforce.bounded:
+            self.note(f"envelope in force: {inforce.describe()}")
+        return inforce
+
+    def control_step(self, now: float) -> list[SetpointReply]:
+        """One step of the law over every live shard's flying vehicles; the
+        replies to the shards that delivered (empty while finished)."""
+        self.step_wanted = False
+        self._fallback_at = None
+        if self.finished:
+            return []
+        live = [v for v in self.shards.values() if v.alive and v.batch is not None]
+        fresh: dict[int, int] = {}
+        for v in live:
+            fresh.update(v.fresh)
+        batches = [v.batch for v in live if v.batch is not None and len(v.batch.keys)]
+        if batches:
+            keys = np.concatenate([b.keys for b in batches]).astype(np.int64)
+            order = np.argsort(keys, kind="stable")
+            ids = keys[order].tolist()
+            pos = np.concatenate([b.pos_m for b in batches])[order]
+            vel = np.concatenate([b.vel_mps for b in batches])[order]
+        else:
+            ids, pos, vel = [], np.zeros((0, 3)), np.zeros((0, 3))
+        for gone in set(self.flying) - set(ids):
+            self.control.forget(gone)  # it left: its clock and shaper start afresh
+        self.flying = ids
+        t = self.control.advance_clock(fresh)
+        replies: list[SetpointReply] = []
+        if ids:
+            accel = self._law(ids, pos, vel, t)
+            if accel is None:
+                return []
+            row = {s: i for i, s in enumerate(ids)}
+            for v in live:
+                if not v.delivered:
+                    continue
+                mine = [s for s in v.fresh if s in row]
+                mine.sort()
+                idx = [row[s] for s in mine]
+                replies.append(SetpointReply(v.index, v.batch.seq if v.batch else 0, t,
+                                             np.array(mine, dtype=np.int32),
+                                             accel[idx]))  # fmt: skip
+        for v in live:
+            v.fresh, v.delivered = {}, False
+        if t >= self.duration_s:
+            self.note(f"mission time {t:.2f} s reached the duration")
+            self.finished = True
+        return replies
+
+    def _law(self, ids: list[int], pos: np.ndarray, vel: np.ndarray, t: float) -> np.ndarray | None:
+        """``swarm.step.run_step``'s law and its checks; None when it failed."""
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                out, accel, report = self.control.command(ids, pos, vel)
+        except (SwarmError, ArithmeticError, ValueError) as err:
+            self.abort(f"t={t:.2f} s: the law failed in flight: {err}")
+            return None
+        lead = out.leader_pos_m.tolist() + out.leader_vel_mps.tolist()
+        if not all(-LEADER_BOUND <= x <= LEADER_BOUND for x in lead):  # NaN fails too
+            self.abort(f"t={t:.2f} s: the virtual leader's state is not finite")
+            return None
+        if out.event is not None:
+            what = "starts" if out.event == "start" else "ends: formation resumes"
+            self.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
+        self.control.account(ids, pos, out, accel, report)
+        return accel
+
+    def abort(self, why: str) -> None:
+        """End the mission now, as failed (the shell brakes every vehicle)."""
+        if self.failure is None:
+            self.failure = why
+            self.note(f"{why}; ending the mission (failed)", level=logging.ERROR)
+        self.finished = True
+
+    def dead_shards(self) -> list[int]:
+        return [v.index for v in self.shards.values() if not v.alive]
+
+    def note(self, text: str, *, level: int = logging.INFO) -> None:
+        _log.log(level, "%s", text)
+        self.log.append(text)

@@ -1,0 +1,111 @@
+"""A link shard's half of a step, without I/O (docs/architecture.md, "Scaled
+out: shards").
+
+A shard runs a ``SwarmCore`` over its own networks' vehicles: links, codec,
+the vehicles' protocols, membership, the telemetry table, its links' states.
+When that core wants a step (every one of its flying vehicles fresh, or the
+fallback delay: ``SwarmCore._maybe_step``) the shard does not run the law:
+``ShardSide.take_state`` takes the fresh reports and the flying vehicles'
+mission-frame states (``swarm.step.flying_states``) as a ``StateBatch`` for
+the controller, and ``ShardSide.apply`` answers them with the controller's
+``SetpointReply`` through the same ``swarm.step.answer`` the one-process
+station uses (mission frame -> NED, Eq. V1, one ``SetpointBatch`` per link).
+
+The controller's silence is watched here too (``controller_silent``): once
+nothing has come from it for ``stale_timeout_s`` the shell ends every
+vehicle of the shard (``SwarmCore.finish_all``: zero acceleration, then the
+end action), as a vehicle's own GCS failsafe would once the shard stopped.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
+from gcs_swarm.swarm.step import Write, answer, flying_states
+
+if TYPE_CHECKING:
+    from gcs_swarm.swarm.core import SwarmCore
+
+__all__ = ["ShardSide"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class ShardSide:
+    """Shard ``index``'s step over ``core`` (module docstring). Time is an
+    argument [s] (the shell's loop clock)."""
+
+    def __init__(self, core: SwarmCore, index: int, stale_timeout_s: float) -> None:
+        self.core = core
+        self.index = index
+        self.stale_timeout_s = stale_timeout_s
+        self.seq = 0
+        """The last state batch's number (the reply names the one it used)."""
+        self.heard_at: float | None = None
+        """When the controller was last heard (None: not yet)."""
+        self.replies = 0
+        self.states = 0
+        self._vel: dict[int, FloatArray] = {}
+        """The velocity [m/s] each vehicle's last state carried: Eq. V1 starts there."""
+
+    def take_state(self, now: float) -> StateBatch | None:
+        """The step the core wants, as the controller's input: None while
+        ending."""
+        core = self.core
+        fresh = core.take_step()
+        if fresh is None:
+            return None
+        ids = sorted(core.flying)
+        if ids:
+            _, pos, vel = flying_states(core, ids, now)
+        else:
+            pos, vel = np.zeros((0, 3)), np.zeros((0, 3))
+        self._vel = {s: vel[i] for i, s in enumerate(ids)}
+        self.seq += 1
+        self.states += 1
+        return StateBatch(
+            self.index,
+            self.seq,
+            np.array(ids, dtype=np.int32),
+            np.array([fresh.get(s, -1) for s in ids], dtype=np.int64),
+            pos,
+            vel,
+        )
+
+    def apply(self, reply: SetpointReply, now: float, write: Write) -> None:
+        """The controller's setpoints for this shard, handed to ``write`` link
+        by link; a vehicle that left the formation since is skipped."""
+        self.heard(now)
+        core = self.core
+        if core.ending or not len(reply.keys):
+            return
+        self.replies += 1
+        core.control.t_s = reply.t_s  # the mission time the shard's notes give
+        flying, vel = core.flying, self._vel
+        keys = reply.keys.tolist()
+        rows = [i for i, s in enumerate(keys) if s in flying and s in vel]
+        if not rows:
+            return
+        ids = [keys[i] for i in rows]
+        whole = len(rows) == len(keys)
+        accel = reply.accel_mps2 if whole else reply.accel_mps2[rows]
+        ks = core.table.slots(ids)
+        v = np.array([vel[s] for s in ids], dtype=np.float64).reshape(len(ids), 3)
+        answer(core, ids, ks, accel, now, reply.t_s, v, write)
+
+    def heard(self, now: float) -> None:
+        """Something came from the controller at ``now``."""
+        self.heard_at = now
+
+    def get_timer(self) -> float | None:
+        """When the controller's silence would reach the stale timeout [s]."""
+        return None if self.heard_at is None else self.heard_at + self.stale_timeout_s
+
+    def controller_silent(self, now: float) -> bool:
+        """The controller has said nothing for ``stale_timeout_s`` at ``now``."""
+        due = self.get_timer()
+        return due is not None and now >= due

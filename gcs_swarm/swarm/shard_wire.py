@@ -1,0 +1,149 @@
+"""What a link shard and its controller exchange each step, as bytes. NO I/O.
+
+docs/architecture.md, "Scaled out: shards". Two per-step messages, each a
+fixed 24-byte header and raw little-endian columns (numpy buffers, no
+per-vehicle objects, no pickling), so a step of K vehicles costs:
+
+- ``StateBatch`` (shard -> controller): the shard's flying vehicles in key
+  order: key ``int32``, ``time_boot_ms`` of a fresh report ``int64`` (-1:
+  not fresh since the last step), position [m] and velocity [m/s] in the
+  mission frame ``float64 (K, 3)`` each: ``STATE_BYTES_PER_VEHICLE`` = 60;
+- ``SetpointReply`` (controller -> shard): the mission time [s] of the step
+  and, for the vehicles it answers, key ``int32`` and acceleration
+  [m/s^2, mission frame] ``float64 (K, 3)``: ``REPLY_BYTES_PER_VEHICLE`` = 28.
+
+Floats cross as float64 bit patterns, so a sharded flight computes exactly
+the numbers an unsharded one does (the lockstep test compares to 1e-9 m).
+Everything else (hello, assignment, ready, start, end, heartbeats, the
+shard's final report) is small JSON, sent a few times per run or at 10 Hz.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs_swarm.errors import LinkError
+
+__all__ = [
+    "HEADER_BYTES",
+    "REPLY_BYTES_PER_VEHICLE",
+    "STATE_BYTES_PER_VEHICLE",
+    "SetpointReply",
+    "StateBatch",
+    "decode_reply",
+    "decode_state",
+    "encode_reply",
+    "encode_state",
+]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+_HEADER = struct.Struct("<4sHHIIQ")
+"""magic, kind, shard index, sequence number, vehicle count, float64 field
+(a state: unused, 0; a reply: the mission time's bits)."""
+HEADER_BYTES = _HEADER.size
+_MAGIC = b"GSSH"
+_STATE, _REPLY = 1, 2
+STATE_BYTES_PER_VEHICLE = 4 + 8 + 24 + 24
+REPLY_BYTES_PER_VEHICLE = 4 + 24
+
+
+class StateBatch(NamedTuple):
+    """One shard's flying vehicles at one step (module docstring): row k is
+    vehicle ``keys[k]``; ``boot_ms[k]`` its fresh report's ``time_boot_ms``
+    or -1; ``pos_m``/``vel_mps`` ``(K, 3)`` mission frame."""
+
+    shard: int
+    seq: int
+    keys: npt.NDArray[np.int32]
+    boot_ms: IntArray
+    pos_m: FloatArray
+    vel_mps: FloatArray
+
+    def fresh(self) -> dict[int, int]:
+        """The fresh reports as ``SwarmCore.take_step`` gives them (key -> ms)."""
+        ks, ms = self.keys.tolist(), self.boot_ms.tolist()
+        return {k: m for k, m in zip(ks, ms, strict=True) if m >= 0}
+
+
+class SetpointReply(NamedTuple):
+    """The controller's answer to one shard for one step: mission time
+    ``t_s`` [s], and ``accel_mps2 (K, 3)`` [m/s^2, mission frame] for
+    ``keys``; ``seq`` is the shard's latest state batch the step used."""
+
+    shard: int
+    seq: int
+    t_s: float
+    keys: npt.NDArray[np.int32]
+    accel_mps2: FloatArray
+
+
+def encode_state(batch: StateBatch) -> bytes:
+    n = len(batch.keys)
+    head = _HEADER.pack(_MAGIC, _STATE, batch.shard, batch.seq, n, 0)
+    return b"".join(
+        (
+            head,
+            np.ascontiguousarray(batch.keys, dtype="<i4").tobytes(),
+            np.ascontiguousarray(batch.boot_ms, dtype="<i8").tobytes(),
+            np.ascontiguousarray(batch.pos_m, dtype="<f8").tobytes(),
+            np.ascontiguousarray(batch.vel_mps, dtype="<f8").tobytes(),
+        )
+    )
+
+
+def encode_reply(reply: SetpointReply) -> bytes:
+    n = len(reply.keys)
+    (bits,) = struct.unpack("<Q", struct.pack("<d", reply.t_s))
+    head = _HEADER.pack(_MAGIC, _REPLY, reply.shard, reply.seq, n, bits)
+    return b"".join(
+        (
+            head,
+            np.ascontiguousarray(reply.keys, dtype="<i4").tobytes(),
+            np.ascontiguousarray(reply.accel_mps2, dtype="<f8").tobytes(),
+        )
+    )
+
+
+def _header(data: bytes, kind: int, per_vehicle: int) -> tuple[int, int, int, int]:
+    if len(data) < HEADER_BYTES:
+        raise LinkError(f"shard message of {len(data)} bytes: shorter than its header")
+    magic, got, shard, seq, n, bits = _HEADER.unpack_from(data)
+    if magic != _MAGIC or got != kind:
+        raise LinkError(f"not a shard message of kind {kind}: {bytes(data[:6])!r}")
+    if len(data) != HEADER_BYTES + n * per_vehicle:
+        raise LinkError(
+            f"shard message: {n} vehicles need {HEADER_BYTES + n * per_vehicle} bytes,"
+            f" got {len(data)}"
+        )
+    return shard, seq, n, bits
+
+
+def decode_state(data: bytes) -> StateBatch:
+    """``encode_state``'s bytes back; ``LinkError`` when they are not one."""
+    shard, seq, n, _ = _header(data, _STATE, STATE_BYTES_PER_VEHICLE)
+    o = HEADER_BYTES
+    keys = np.frombuffer(data, dtype="<i4", count=n, offset=o).astype(np.int32)
+    o += 4 * n
+    ms = np.frombuffer(data, dtype="<i8", count=n, offset=o).astype(np.int64)
+    o += 8 * n
+    pos = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
+    o += 24 * n
+    vel = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
+    return StateBatch(shard, seq, keys, ms, pos, vel)
+
+
+def decode_reply(data: bytes) -> SetpointReply:
+    """``encode_reply``'s bytes back; ``LinkError`` when they are not one."""
+    shard, seq, n, bits = _header(data, _REPLY, REPLY_BYTES_PER_VEHICLE)
+    (t_s,) = struct.unpack("<d", struct.pack("<Q", bits))
+    o = HEADER_BYTES
+    keys = np.frombuffer(data, dtype="<i4", count=n, offset=o).astype(np.int32)
+    o += 4 * n
+    accel = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
+    return SetpointReply(shard, seq, float(t_s), keys, accel)

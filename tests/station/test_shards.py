@@ -1,0 +1,384 @@
+"""Link shards as separate processes over Zenoh on 127.0.0.1 (issue 19 item 2).
+
+``run_sharded`` runs the controller (the law) in this process and starts two
+``gcs-swarm shard --connect tcp/127.0.0.1:<free port>`` processes; each owns
+one network of Example 1's six vehicles (``blue`` 1-3, ``red`` 1-3, as
+tests/station/test_networks.py), talks MAVLink over real UDP to its
+network's emulator, and exchanges each step's states and setpoints with the
+controller over a real Zenoh session.
+
+- lockstep: the sharded flight gives the radii and positions of the same
+  mission flown by one station process to 1e-9 m (the shards send float64
+  bit patterns, the controller sums in key order: the same numbers);
+- a shard killed with SIGKILL in flight (real time): the controller declares
+  it dead within the stale timeout (1 s) plus the heartbeat period, its
+  vehicles leave the formation and brake on their own (GUID_TIMEOUT), the
+  other shard's fly on to the mission's end;
+- the controller gone from the wire (its Zenoh session closed, the emulators
+  flying on): every shard sends its vehicles the end action (BRAKE) itself;
+- shards started on their own join a controller that listens; a shard whose
+  links do not open fails the start-up at once, with its reason;
+- Ctrl-C (SIGINT to the process group) on ``gcs-swarm run --shards 2``:
+  every vehicle ends (BRAKE), exit 130;
+- bad ``--shards`` / ``--connect`` / ``--listen`` arguments: one line, exit 2.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_swarm.mission import Mission, parse_mission
+from gcs_swarm.runtime import RunSummary, run_mission
+from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
+
+_STARTS = ["[2, 1, 2]", "[-1, -1, -1]", "[3, 4, 2]", "[4, 2, 2]", "[3, 3, 3]", "[-2, -2, -2]"]
+
+
+def _two_networks(duration: float, emulator: str, extra: str = "") -> Mission:
+    text = (
+        f"mission: {{name: shards, duration: {duration}, rate: 50, end: hold{extra}}}\n"
+        f"emulator: {{{emulator}}}\n"
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
+    )
+    for name, starts in (("blue", _STARTS[:3]), ("red", _STARTS[3:])):
+        text += f"  - name: {name}\n    vehicles:\n"
+        text += "".join(f"      - {{sysid: {i + 1}, start: {s}}}\n" for i, s in enumerate(starts))
+    return parse_mission(text)
+
+
+LOCKSTEP_S = 8.0
+"""Formation flight of the lockstep comparison [s] (400 steps: the two
+flights are compared with each other, not with the equilibrium)."""
+
+
+def test_two_shards_in_lockstep_fly_the_radii_of_one_station(tmp_path: Path) -> None:
+    mission = _two_networks(LOCKSTEP_S, "dynamics: ideal, mode: lockstep, spawn: air")
+
+    async def fly() -> tuple[RunSummary, RunSummary, ShardedRun]:
+        runs: list[ShardedRun] = []
+        async with asyncio.timeout(180):  # two flights of ~2-6 s wall each, on a loaded machine
+            one = await run_mission(mission, log_dir=None, end_timeout_s=5.0)
+            two = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=runs.append)
+        return one, two, runs[0]
+
+    one, two, run = asyncio.run(fly())
+    wait = max(run.ready_at.values()) - min(run.ready_at.values())
+    timeouts = [e.stats.lockstep_timeouts for e in run.emulators.values()]
+    print(
+        f"the first shard ready waited {wait:.3f} s for the other; controller fallback "
+        f"steps {run.core.fallbacks}; emulator lockstep timeouts {timeouts}; setpoints "
+        f"dropped {two.setpoints_dropped}, before the end "
+        f"{[d['setpoints_dropped_before_end'] for d in run.done.values()]}"
+    )
+    assert one.outcome == two.outcome == "completed"
+    assert [v.label for v in two.vehicles] == ["blue:1", "blue:2", "blue:3",
+                                               "red:1", "red:2", "red:3"]  # fmt: skip
+    assert [v.phase for v in two.vehicles] == ["ended"] * 6
+    # Lockstep and float64 on the wire: the same numbers in the same order
+    # (measured: equal bit for bit; 1e-9 m leaves room for rounding only).
+    r1 = np.array([v.radius_m for v in one.vehicles], dtype=float)
+    r2 = np.array([v.radius_m for v in two.vehicles], dtype=float)
+    np.testing.assert_allclose(r2, r1, rtol=0, atol=1e-9)
+    p1 = np.array([v.position_m for v in one.vehicles], dtype=float)
+    p2 = np.array([v.position_m for v in two.vehicles], dtype=float)
+    np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-9)
+    assert two.mission_time_s == pytest.approx(one.mission_time_s, abs=1e-9)
+    assert two.steps == one.steps
+    assert (two.bad_packets, two.unknown_sysid_messages) == (0, 0)
+    # In flight every report is answered once: nothing replaced in a queue. While
+    # ending, the emulators (in this process, no vehicle holding their clock) run
+    # at 20 x wall clock and a shard may read two reports of a vehicle in one
+    # turn: a queued zero setpoint is then replaced by the newer (measured: 0-3).
+    assert [d["setpoints_dropped_before_end"] for d in run.done.values()] == [0, 0]
+    # Each step crossed Zenoh as 24 + 60 bytes per vehicle up, 24 + 28 down, per shard.
+    steps = run.bytes_per_step["steps"]
+    assert run.bytes_per_step["state"] <= steps * 2 * (24 + 3 * 60) + 2 * (24 + 3 * 60)
+    assert sorted(run.pids) == [0, 1] and all(p > 0 for p in run.pids.values())
+
+
+TRIANGLE_RADIUS_M = 2.24167
+"""The law's equilibrium radius of three vehicles (Example 1's gains) [m]."""
+KILL_AT_S = 3.0
+"""Mission time [s] at which shard 1 is killed."""
+REALTIME_S = 9.0
+"""The killed-shard flight [s of mission time, 2 x real time]."""
+
+
+def test_a_killed_shard_is_detected_its_vehicles_brake_and_the_rest_fly_on() -> None:
+    mission = _two_networks(
+        REALTIME_S,
+        "dynamics: ideal, mode: realtime, speedup: 2, spawn: air",
+        ", startup: {guid_timeout: 0.5}",
+    )
+    killed: dict[str, float] = {}
+    braked: dict[int, float] = {}
+
+    async def watch(run: ShardedRun) -> None:
+        core = run.core
+        assert await run.wait_for(lambda: core.control.t_s >= KILL_AT_S, 60.0)
+        pid = run.pids[1]
+        assert pid in {p.pid for p in run.processes}  # one this run started
+        os.kill(pid, signal.SIGKILL)
+        killed["wall"] = time.monotonic()
+        killed["loop"] = run.now()
+        killed["t"] = core.control.t_s
+        assert await run.wait_for(lambda: not core.shards[1].alive, 10.0)
+        # Its vehicles on their own: GUID_TIMEOUT (0.5 s emulator time), then braking.
+        emu = run.emulators[1]
+        await asyncio.sleep(2.5)
+        for sysid in (1, 2, 3):
+            braked[sysid] = float(np.linalg.norm(emu.vehicle_state(sysid).vel_ned_m_s))
+
+    async def fly() -> tuple[RunSummary, ShardedRun]:
+        runs: list[ShardedRun] = []
+        tasks: list[asyncio.Task[None]] = []
+
+        def started(run: ShardedRun) -> None:
+            runs.append(run)
+            tasks.append(asyncio.ensure_future(watch(run)))
+
+        async with asyncio.timeout(180):
+            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
+            await tasks[0]
+        return summary, runs[0]
+
+    summary, run = asyncio.run(fly())
+    core = run.core
+    died = core.shards[1].died_at
+    assert died is not None and core.shards[0].alive
+    detect_s = died - killed["loop"]
+    # Declared dead within the stale timeout (1 s) of its last message, which was
+    # at most one heartbeat (0.1 s) before the kill; 0.5 s more for a loaded machine.
+    assert 0.0 < detect_s <= 1.0 + 0.1 + 0.5, detect_s
+    print(f"killed shard detected after {detect_s:.3f} s")
+    # The rest flew on to the end: the law's last step had the three blue vehicles.
+    assert summary.mission_time_s >= REALTIME_S
+    assert list(core.control.last.ids) == [1, 2, 3]
+    assert summary.outcome == "degraded"
+    by_label = {v.label: v for v in summary.vehicles}
+    assert [by_label[f"blue:{i}"].phase for i in (1, 2, 3)] == ["ended"] * 3
+    assert [by_label[f"red:{i}"].phase for i in (1, 2, 3)] == ["lost"] * 3
+    assert any("shard 1 silent" in line and "dead" in line for line in summary.log)
+    # The killed shard's vehicles braked to a stop on their own (< 0.05 m/s).
+    assert braked and max(braked.values()) < 0.05, braked
+    # The rest re-form, from the octahedron's 2.484 m towards the triangle's
+    # 2.24167 m (gcs-swarm simulate of the three alone, 60 s); measured within
+    # 0.012 m of it 6 s after the kill, 0.03 m allows for the detection's spread.
+    radii = [v.radius_m for v in summary.vehicles if v.radius_m is not None]
+    assert len(radii) == 3
+    np.testing.assert_allclose(radii, TRIANGLE_RADIUS_M, atol=0.03)
+    print(f"re-formed radii {radii}")
+
+
+def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action() -> None:
+    """The controller's Zenoh session is closed mid-flight (the emulators, in
+    this process, fly on): no end message, no heartbeat. Each shard hears
+    nothing for the stale timeout and ends its vehicles itself: BRAKE, the
+    mission's ``end: hold``, confirmed by each vehicle; then it exits."""
+    mission = _two_networks(60.0, "dynamics: ideal, mode: realtime, speedup: 2, spawn: air")
+    modes: dict[str, str] = {}
+    exits: list[int | None] = []
+
+    async def watch(run: ShardedRun) -> None:
+        assert await run.wait_for(lambda: run.core.control.t_s >= 2.0, 60.0)
+        await run.bus.__aexit__(None, None, None)  # the controller is gone from the wire
+        for _ in range(400):  # up to 20 s: 1 s of silence, then the end action confirmed
+            states = {f"{j}:{s}": emu.vehicle_state(s).mode_name
+                      for j, emu in run.emulators.items() for s in (1, 2, 3)}  # fmt: skip
+            modes.update(states)
+            if all(p.returncode is not None for p in run.processes):
+                break
+            await asyncio.sleep(0.05)
+        exits.extend(p.returncode for p in run.processes)
+
+    async def fly() -> RunSummary:
+        tasks: list[asyncio.Task[None]] = []
+
+        def started(run: ShardedRun) -> None:
+            tasks.append(asyncio.ensure_future(watch(run)))
+
+        async with asyncio.timeout(180):
+            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
+            await tasks[0]
+        return summary
+
+    summary = asyncio.run(fly())
+    assert sorted(modes) == ["0:1", "0:2", "0:3", "1:1", "1:2", "1:3"]
+    assert set(modes.values()) == {"BRAKE"}, modes
+    assert exits == [0, 0]  # each shard: every vehicle that flew ended
+    assert summary.mission_time_s < 10.0  # the controller saw both shards go silent
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["run", "{two}", "--shards", "0"], "--shards: expected a whole number >= 1, got 0"),
+        (["run", "{two}", "--shards", "3"], "a shard owns whole networks and the mission has 2"),
+        (["run", "{one}", "--shards", "2"], "a shard owns whole networks and the mission has 1"),
+        (["shard", "--connect", "127.0.0.1:7447"], "expected a Zenoh endpoint tcp/HOST:PORT"),
+        (["shard", "--connect", "tcp/127.0.0.1:99999"], "expected a Zenoh endpoint"),
+        (["run", "{two}", "--listen", "tcp/127.0.0.1:7447"], "--listen: only with --shards N"),
+        (["run", "{two}", "--shards", "2", "--listen", "7447"], "--listen '7447': expected a"),
+    ],
+)
+def test_bad_shard_arguments_are_one_line_errors(
+    argv: list[str], expected: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gcs_swarm.cli import EXIT_REFUSED, main
+
+    two = tmp_path / "two.yaml"
+    two.write_text(_two_networks(5.0, "mode: lockstep").text)
+    one = tmp_path / "one.yaml"
+    one.write_text("mission: {name: one, duration: 5}\nleader: {start: [0, 0, 0]}\n"
+                   "vehicles:\n  - {sysid: 1, start: [1, 0, 0]}\n")  # fmt: skip
+    code = main([a.format(two=two, one=one) for a in argv])
+    err = capsys.readouterr().err
+    assert code == EXIT_REFUSED
+    assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and expected in err, err
+
+
+def test_shards_started_elsewhere_join_a_controller_that_listens() -> None:
+    """``gcs-swarm run --shards 2 --listen ENDPOINT`` and two ``gcs-swarm shard
+    --connect ENDPOINT`` started on their own (here: before the controller
+    listens, as separate processes over 127.0.0.1): they keep saying hello
+    until it answers, then fly the mission with it."""
+    import subprocess
+    import sys
+
+    from gcs_swarm.runtime.sharded import free_endpoint
+
+    mission = _two_networks(3.0, "dynamics: ideal, mode: lockstep, spawn: air")
+    endpoint = free_endpoint()
+    argv = [sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint]
+    shards = [subprocess.Popen(argv, stdin=subprocess.DEVNULL) for _ in range(2)]
+    try:
+        time.sleep(1.0)  # the shards are up first, and wait
+
+        async def fly() -> RunSummary:
+            async with asyncio.timeout(120):
+                return await run_sharded(mission, 2, endpoint=endpoint, spawn=False,
+                                         end_timeout_s=5.0)  # fmt: skip
+
+        summary = asyncio.run(fly())
+        codes = [p.wait(timeout=30) for p in shards]
+    finally:
+        for p in shards:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert summary.outcome == "completed" and summary.mission_time_s == pytest.approx(3.0)
+    assert [v.phase for v in summary.vehicles] == ["ended"] * 6
+    assert codes == [0, 0]
+
+
+def test_a_shard_that_cannot_open_its_links_fails_the_start_up_at_once() -> None:
+    """Shard 1's links do not parse: it tells the controller why and exits;
+    the run fails its start-up with that reason (a ``StartupError``, one line
+    on the command line), not after the ready timeout, and the other shard
+    lands its vehicles and reports before the run returns."""
+    from gcs_swarm.errors import StartupError
+
+    mission = _two_networks(5.0, "dynamics: ideal, mode: lockstep, spawn: air")
+    runs: list[ShardedRun] = []
+
+    async def fly() -> None:
+        async with asyncio.timeout(60):  # the ready timeout is 90 s: this must not wait for it
+            await run_sharded(mission, 2, links={257: "nonsense", 258: "nonsense",
+                                                 259: "nonsense"},
+                              end_timeout_s=5.0, on_run=runs.append)  # fmt: skip
+
+    t0 = time.monotonic()
+    with pytest.raises(StartupError, match=r"shard 1: .*nonsense"):
+        asyncio.run(fly())
+    took = time.monotonic() - t0
+    print(f"start-up failure reported after {took:.1f} s")
+    assert took < 30.0
+    assert sorted(runs[0].done) == [0, 1]  # both reported (shard 0 after its ending)
+    assert all(p.returncode is not None for p in runs[0].processes)
+
+
+def test_ctrl_c_on_run_shards_ends_every_vehicle_through_its_shard(tmp_path: Path) -> None:
+    """``gcs-swarm run MISSION --shards 2`` in its own process group gets
+    SIGINT, as Ctrl-C on a terminal sends it to the controller and its shards
+    alike, once the formation flies: exit 130, and the summary it prints says
+    every vehicle ended in BRAKE (the mission's ``end: hold``)."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "long.yaml"
+    path.write_text(_two_networks(300.0, "dynamics: ideal, mode: lockstep, spawn: air").text)
+    argv = [sys.executable, "-m", "gcs_swarm", "run", str(path), "--shards", "2"]
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    import threading
+
+    # Never hang the suite: the group is killed after 120 s whatever happens.
+    guard = threading.Timer(120.0, lambda: os.killpg(proc.pid, signal.SIGKILL))
+    guard.start()
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:  # the first status line comes a second into the flight
+            if "6 flying on 2/2 shards" in line:
+                break
+        os.killpg(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        guard.cancel()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130
+    assert "outcome: cancelled" in out
+    assert out.count("ended    BRAKE") == 6, out
+
+
+def test_a_lockstep_station_holding_at_ready_loses_nobody_and_its_emulator_waits() -> None:
+    """``Station.hold_when_ready`` as a lockstep shard uses it while the other
+    shards get ready: held 3.5 s (longer than the stale timeout, 1 s, and the
+    heartbeat timeout, 3 s), the emulator's clock does not move, no vehicle
+    is LOST, and after ``release`` the formation flies."""
+    from dataclasses import replace
+
+    from gcs_swarm.mavlink.states import Phase
+    from gcs_swarm.runtime import Station, emulator_config, station_config
+    from gcs_swarm.runtime.sharded import LOCKSTEP_BARRIER_S
+    from sim_vehicle import Emulator
+
+    mission = parse_mission(
+        "mission: {name: hold, duration: 60, rate: 50, end: hold}\n"
+        "emulator: {dynamics: ideal, mode: lockstep, spawn: air}\n"
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nvehicles:\n"
+        + "".join(f"  - {{sysid: {i + 1}, start: {s}}}\n" for i, s in enumerate(_STARTS[:3]))
+    )
+    cfg = replace(emulator_config(mission), lockstep_timeout_s=LOCKSTEP_BARRIER_S)
+
+    async def fly() -> tuple[float, float, list[Phase], int]:
+        async with asyncio.timeout(60), Emulator(cfg) as emu:
+            links = {s: f"udpout:{h}:{p}" for s, (h, p) in emu.endpoints.items()}
+            async with Station(station_config(mission, links, lockstep=True)) as station:
+                station.hold_when_ready = True
+                await station.ready()
+                held_at = emu.sim_time_s
+                await asyncio.sleep(3.5)  # the other shards' start-up, made long
+                waited = emu.sim_time_s - held_at
+                station.begin()
+                station.release()
+                for _ in range(600):  # 50 steps: 1 s of flight
+                    if station.control.steps >= 50:
+                        break
+                    await asyncio.sleep(0.01)
+                phases = [vp.phase for vp in station.vehicles.values()]
+                steps = station.control.steps
+                await station.end()
+            return held_at, waited, phases, steps
+
+    _, waited, phases, steps = asyncio.run(fly())
+    assert waited <= 0.02 + 1e-9, waited  # at most the step already under way
+    assert phases == [Phase.FLYING] * 3 and steps >= 50

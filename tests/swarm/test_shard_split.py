@@ -1,0 +1,269 @@
+"""The link-shard split without I/O (issue 19 item 2): the wire's bytes, the
+controller's step rule and dead-shard rule, the shard's watch on its
+controller, and whole flights of the split on the in-process harness
+(bit-equal to the station's own step; a silent controller ends every
+vehicle), all on a hand-advanced clock (no Zenoh, no sockets, no sleeps).
+The processes over Zenoh are tests/station/test_shards.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from swarm_harness import Sky, mission_from
+
+from gcs_swarm.control.params import LawConfig
+from gcs_swarm.errors import LinkError
+from gcs_swarm.mission import Mission, parse_mission
+from gcs_swarm.swarm.controller import ControllerCore
+from gcs_swarm.swarm.shard import ShardSide
+from gcs_swarm.swarm.shard_wire import (
+    HEADER_BYTES,
+    REPLY_BYTES_PER_VEHICLE,
+    STATE_BYTES_PER_VEHICLE,
+    SetpointReply,
+    StateBatch,
+    decode_reply,
+    decode_state,
+    encode_reply,
+    encode_state,
+)
+from gcs_swarm.swarm.step import Write
+
+STALE_S = 1.0
+
+
+def _law() -> LawConfig:
+    text = """\
+mission: {name: split, duration: 10, rate: 50}
+leader: {start: [0, 0, 0], force: [0, 0, 0]}
+vehicles:
+  - {sysid: 1, start: [2, 1, 2]}
+  - {sysid: 2, start: [-1, -1, -1]}
+  - {sysid: 3, start: [3, 4, 2]}
+  - {sysid: 4, start: [4, 2, 2]}
+"""
+    return parse_mission(text).law
+
+
+def _controller(lockstep: bool = True) -> ControllerCore:
+    core = ControllerCore(_law(), {1: 1.0, 2: 1.0, 257: 1.0, 258: 1.0}, 50.0, shards=2,
+                          duration_s=10.0, stale_timeout_s=STALE_S, lockstep=lockstep)  # fmt: skip
+    core.start(0.0, {0: 2, 1: 2})
+    return core
+
+
+_POS = {1: (2.0, 1.0, 2.0), 2: (-1.0, -1.0, -1.0), 257: (3.0, 4.0, 2.0), 258: (4.0, 2.0, 2.0)}
+
+
+def _state(shard: int, seq: int, keys: list[int], ms: int, fresh: bool = True) -> StateBatch:
+    pos = np.array([_POS[k] for k in keys], dtype=np.float64).reshape(len(keys), 3)
+    return StateBatch(shard, seq, np.array(keys, dtype=np.int32),
+                      np.full(len(keys), ms if fresh else -1, dtype=np.int64),
+                      pos, np.zeros((len(keys), 3)))  # fmt: skip
+
+
+def test_state_and_reply_cross_as_exact_float64_bits_in_stated_sizes() -> None:
+    rng = np.random.default_rng(19)
+    pos, vel = rng.normal(size=(3, 3)) * 1e3, rng.normal(size=(3, 3))
+    batch = StateBatch(1, 7, np.array([3, 257, 510], dtype=np.int32),
+                       np.array([1200, -1, 4294967295], dtype=np.int64), pos, vel)  # fmt: skip
+    data = encode_state(batch)
+    assert len(data) == HEADER_BYTES + 3 * STATE_BYTES_PER_VEHICLE == 24 + 180
+    back = decode_state(data)
+    assert (back.shard, back.seq) == (1, 7)
+    assert back.keys.tolist() == [3, 257, 510] and back.boot_ms.tolist() == [1200, -1, 4294967295]
+    assert back.pos_m.tobytes() == pos.tobytes() and back.vel_mps.tobytes() == vel.tobytes()
+    assert back.fresh() == {3: 1200, 510: 4294967295}
+    reply = SetpointReply(1, 7, 0.1 + 0.2, np.array([3, 510], dtype=np.int32), pos[:2] * np.pi)
+    data = encode_reply(reply)
+    assert len(data) == HEADER_BYTES + 2 * REPLY_BYTES_PER_VEHICLE == 24 + 56
+    got = decode_reply(data)
+    assert got.t_s == 0.1 + 0.2 and got.keys.tolist() == [3, 510]
+    assert got.accel_mps2.tobytes() == reply.accel_mps2.tobytes()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        b"",
+        b"GSSH",
+        b"XXXX" + bytes(20),
+        bytes(
+            encode_reply(SetpointReply(0, 1, 0.0, np.array([1], dtype=np.int32), np.zeros((1, 3))))
+        )[:-1],
+    ],
+)
+def test_a_malformed_shard_message_is_a_link_error(bad: bytes) -> None:
+    with pytest.raises(LinkError):
+        decode_reply(bad)
+    with pytest.raises(LinkError):
+        decode_state(bad)
+
+
+def test_the_controller_steps_once_every_flying_shard_has_delivered() -> None:
+    core = _controller()
+    core.receive_state(_state(0, 1, [1, 2], 1000), 0.01)
+    assert not core.step_wanted
+    assert core.get_timer() == pytest.approx(0.51)  # lockstep fallback 0.5 s
+    core.receive_state(_state(1, 1, [257, 258], 5000), 0.02)
+    assert core.step_wanted
+    replies = core.control_step(0.02)
+    assert core.flying == [1, 2, 257, 258]
+    assert [(r.shard, r.seq, r.keys.tolist()) for r in replies] == [(0, 1, [1, 2]),
+                                                                    (1, 1, [257, 258])]  # fmt: skip
+    assert replies[0].accel_mps2.shape == (2, 3) and np.isfinite(replies[0].accel_mps2).all()
+    # Each vehicle's boot clock has its own offset (ControlLoop.advance_clock):
+    # 20 ms later on both shards is 20 ms of mission time.
+    core.receive_state(_state(0, 2, [1, 2], 1020), 0.03)
+    core.receive_state(_state(1, 2, [257, 258], 5020), 0.04)
+    (r0, r1) = core.control_step(0.04)
+    assert r0.t_s == r1.t_s == pytest.approx(0.02)
+
+
+def test_the_fallback_steps_without_a_late_shard_and_answers_only_the_fresh() -> None:
+    core = _controller()
+    core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+    core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
+    core.control_step(0.0)
+    core.receive_state(_state(0, 2, [1, 2], 1020), 0.02)
+    core.handle_timer(0.51)
+    assert not core.step_wanted  # not yet: 0.5 s after the first report
+    core.handle_timer(0.52)
+    assert core.step_wanted and core.fallbacks == 1
+    replies = core.control_step(0.52)
+    # The law flew all four (shard 1 with its last states); shard 0 is answered.
+    assert core.flying == [1, 2, 257, 258]
+    assert [(r.shard, r.keys.tolist()) for r in replies] == [(0, [1, 2])]
+
+
+def test_a_silent_shard_is_dead_after_the_stale_timeout_and_its_vehicles_leave() -> None:
+    core = _controller()
+    core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
+    core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+    core.control_step(0.0)
+    t = 0.0
+    for ms in range(1020, 2200, 20):  # shard 0 flies on; shard 1 went silent at 0.0
+        t = (ms - 1000) * 1e-3
+        core.receive_state(_state(0, ms, [1, 2], ms), t)
+        due = core.get_timer()
+        assert due is not None
+        if due <= t:
+            core.handle_timer(t)
+        if core.step_wanted:
+            core.control_step(t)
+        if not core.shards[1].alive:
+            break
+    assert core.shards[1].died_at == pytest.approx(STALE_S)
+    assert core.shards[0].alive and not core.finished
+    assert any("shard 1 silent for 1.00 s: dead" in line for line in core.log)
+    # Shard 0 alone is now waited for: its next report steps at once, with only
+    # its own vehicles in the law.
+    core.receive_state(_state(0, 9999, [1, 2], 2100), t + 0.02)
+    assert core.step_wanted
+    (reply,) = core.control_step(t + 0.02)
+    assert core.flying == [1, 2] and reply.keys.tolist() == [1, 2]
+    # A dead shard's late word is not taken back.
+    core.receive_state(_state(1, 2, [257, 258], 6000), t + 0.04)
+    assert core.shards[1].batch is None
+    # Both dead: the mission ends.
+    core.handle_timer(t + 0.02 + STALE_S)
+    assert core.finished and core.dead_shards() == [0, 1]
+
+
+def test_a_vehicle_its_shard_stops_reporting_leaves_the_law() -> None:
+    core = _controller()
+    core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
+    core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+    core.control_step(0.0)
+    core.receive_state(_state(0, 2, [1], 1020), 0.02)  # vehicle 2 lost on its shard
+    core.receive_state(_state(1, 2, [257, 258], 5020), 0.02)
+    replies = core.control_step(0.02)
+    assert core.flying == [1, 257, 258]
+    assert [r.keys.tolist() for r in replies] == [[1], [257, 258]]
+
+
+def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
+    side = ShardSide(core=None, index=0, stale_timeout_s=STALE_S)  # type: ignore[arg-type]
+    assert side.get_timer() is None and not side.controller_silent(100.0)
+    side.heard(5.0)
+    assert side.get_timer() == 6.0
+    assert not side.controller_silent(5.99)
+    assert side.controller_silent(6.0)
+
+
+# ---------------------------------------------------------------- in process
+# The split flown whole on the in-process harness (tests/swarm/swarm_harness.py:
+# the station's core against the emulator's core, one hand-advanced clock): the
+# core's step goes through ShardSide, the wire's bytes and a ControllerCore
+# instead of run_step, as in a shard process, without Zenoh or sockets.
+
+
+def _sharded(sky: Sky, mission: Mission) -> tuple[ShardSide, ControllerCore]:
+    s = mission.settings
+    side = ShardSide(sky.core, 0, s.stale_timeout)
+    ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=1,
+                         duration_s=s.duration, stale_timeout_s=s.stale_timeout,
+                         lockstep=False)  # fmt: skip
+
+    def step(now: float, write: Write) -> None:
+        batch = side.take_state(now)
+        if batch is None:
+            return
+        ctl.receive_state(decode_state(encode_state(batch)), now)
+        if ctl.step_wanted:
+            for reply in ctl.control_step(now):
+                side.apply(decode_reply(encode_reply(reply)), now, write)
+        if ctl.finished:
+            sky.core.finished = True
+
+    sky.control_step = step
+    return side, ctl
+
+
+def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
+    mission = mission_from("example1_octahedron.yaml", duration=6.0)
+    one = Sky(mission)
+    one.ready()
+    one.start()
+    one.run_until(lambda: one.core.finished, 30.0)
+    split = Sky(mission)
+    side, ctl = _sharded(split, mission)
+    split.ready()
+    ctl.set_envelope(split.core.apply_envelope())
+    split.start()
+    ctl.start(split.now, {0: len(split.core.flying)})
+    split.run_until(lambda: split.core.finished, 30.0)
+    a, b = one.core.control.last, ctl.control.last
+    assert a is not None and b is not None
+    assert (a.t_s, a.ids) == (b.t_s, b.ids) == (6.0, (1, 2, 3, 4, 5, 6))
+    # The same floats: bit for bit.
+    assert a.pos_m.tobytes() == b.pos_m.tobytes()
+    assert a.accel_mps2.tobytes() == b.accel_mps2.tobytes()
+    assert one.core.control.steps == ctl.control.steps
+    assert one.answered == split.answered and side.replies == ctl.control.steps
+
+
+def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clock() -> None:
+    mission = mission_from("example1_octahedron.yaml", duration=60.0)
+    sky = Sky(mission)
+    side, ctl = _sharded(sky, mission)
+    sky.ready()
+    ctl.set_envelope(sky.core.apply_envelope())
+    sky.start()
+    ctl.start(sky.now, {0: len(sky.core.flying)})
+    side.heard(sky.now)
+    sky.advance(2.0)
+    assert not side.controller_silent(sky.now)
+    heard = side.heard_at
+    assert heard is not None and sky.now - heard < 0.05
+
+    def dead(now: float, write: Write) -> None:  # the controller is gone: nothing comes back
+        side.take_state(now)
+
+    sky.control_step = dead
+    while not side.controller_silent(sky.now):  # the shard shell's watch (runtime/shard.py)
+        sky.advance(sky.dt)
+    assert sky.now - heard == pytest.approx(mission.settings.stale_timeout, abs=sky.dt + 1e-9)
+    sky.end()  # Station.end: zero acceleration, then the mission's end action (hold)
+    assert {vp.phase.value for vp in sky.core.vehicles.values()} == {"ended"}
+    assert {v.ap.mode_name for v in sky.vehicles.values()} == {"BRAKE"}
