@@ -6,6 +6,26 @@ Zenoh per vehicle per step.
 
     .venv/bin/python benchmarks/bench_shards.py [--duration 20] [--runs 3]
 
+``--realtime N`` measures capacity instead (issue 19 item 4): N airborne
+vehicles as ``--networks K`` networks of N/K, their emulators in a child
+process (this file with ``--emulator``, pinned to core 0, one emulator per
+network on a shared port each, real time), flown by ``run_sharded`` with
+each of ``--shards 1,2,4`` link shard processes (the controller in this
+process; shards and controller not pinned) for ``--seconds`` of formation
+at ``--rate`` Hz. Reported per shard count: controller steps per second,
+steps taken on the fallback (a shard late), setpoints per vehicle per
+second (the rate when every report is answered), and the shards' setpoint
+latency (telemetry arrival to setpoint write, measured in each shard over
+the last 16384 setpoints of each link, the end of the flight: p50 the
+median of the shards', p99 and max the largest). Each network's emulator
+keeps its own clock, so their reports arrive at different phases of the
+period; a step waits for every network's (or half a period), so the
+latency includes that wait and there can be more steps than the rate
+(each vehicle still answered once per report), as with unsynchronised
+real vehicles.
+
+    .venv/bin/python benchmarks/bench_shards.py --realtime 500 --networks 4 --shards 1,2,4
+
 Not part of the tests; wall-clock figures move with the machine's load.
 """
 
@@ -13,10 +33,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import statistics
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _common import pin
 
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
@@ -50,11 +78,113 @@ async def _sharded(mission: Mission) -> tuple[float, RunSummary, ShardedRun]:
     return time.perf_counter() - t0, summary, runs[0]
 
 
+def _rt_mission(n: int, nets: int, rate: float, duration: float) -> Mission:
+    """N vehicles on a 3 m grid (bench_station's swarm) as ``nets`` networks."""
+    side = math.ceil(n ** (1 / 3))
+    c = (side - 1) / 2
+    text = (
+        f"mission: {{name: bench-shards-rt, duration: {duration:g}, rate: {rate:g}, end: hold}}\n"
+        "emulator: {dynamics: ideal, spawn: air, shared: true}\n"
+        "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}\n"
+        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
+    )
+    per = math.ceil(n / nets)
+    for i in range(n):
+        if i % per == 0:
+            text += f"  - name: n{i // per}\n    vehicles:\n"
+        x, y, z = i % side, (i // side) % side, i // (side * side)
+        pos = f"[{3 * (x - c)}, {3 * (y - c)}, {3 * (z - c)}]"
+        text += f"      - {{sysid: {i % per + 1}, start: {pos}}}\n"
+    return parse_mission(text)
+
+
+async def _emulators(n: int, nets: int, rate: float) -> None:
+    """Child: one real-time emulator per network, ports on stdout, until stdin closes."""
+    import contextlib
+    from dataclasses import replace
+
+    from gcs_swarm.runtime.plans import emulator_config
+    from sim_vehicle import Emulator
+
+    pin(0)
+    mission = _rt_mission(n, nets, rate, 3600.0)
+    async with contextlib.AsyncExitStack() as stack:
+        ports = []
+        for j in range(nets):
+            cfg = replace(emulator_config(mission, airborne=True, network=j), shared_port=0)
+            emu = await stack.enter_async_context(Emulator(cfg))
+            ports.append(emu.endpoints[min(emu.endpoints)][1])
+        print(" ".join(map(str, ports)), flush=True)
+        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+
+
+async def _realtime(
+    n: int, nets: int, shards: int, rate: float, seconds: float
+) -> dict[str, float]:
+    import logging
+
+    logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
+    child = await asyncio.create_subprocess_exec(
+        sys.executable, __file__, "--emulator", str(n), "--networks", str(nets),
+        "--rate", f"{rate:g}", stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    )  # fmt: skip
+    assert child.stdout is not None and child.stdin is not None
+    try:
+        ports = [int(p) for p in (await child.stdout.readline()).split()]
+        mission = _rt_mission(n, nets, rate, seconds)
+        links = {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}" for v in mission.vehicles}
+        runs: list[ShardedRun] = []
+        summary = await run_sharded(mission, shards, links=links, lockstep=False,
+                                    end_timeout_s=10.0, on_run=runs.append)  # fmt: skip
+    finally:
+        child.stdin.close()
+        await child.wait()
+    run = runs[0]
+    flight = (run.flight_s[1] - run.flight_s[0]) if run.flight_s is not None else math.nan
+    lat = [d.get("latency_ms", {}) for d in run.done.values()]
+    return {
+        "outcome_ok": float(summary.outcome == "completed"),
+        "steps_per_s": summary.steps / flight,
+        "answers_hz": sum(x.get("count", 0.0) for x in lat) / n / flight,
+        "fallbacks": float(run.core.fallbacks),
+        "p50_ms": statistics.median(x.get("p50", math.nan) for x in lat) if lat else math.nan,
+        "p99_ms": max((x.get("p99", math.nan) for x in lat), default=math.nan),
+        "max_ms": max((x.get("max", math.nan) for x in lat), default=math.nan),
+        "setpoints": sum(x.get("count", 0.0) for x in lat),
+    }
+
+
+def realtime_main(args: argparse.Namespace) -> None:
+    print(f"link shards in real time: N = {args.realtime} as {args.networks} networks, "
+          f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0")  # fmt: skip
+    print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
+          f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8}")  # fmt: skip
+    for k in (int(x) for x in args.shards.split(",")):
+        r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds))
+        ok = "ok" if r["outcome_ok"] else "degraded"
+        print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
+              f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "
+              f"{r['setpoints']:8.0f}", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=20.0, help="mission time [s]")
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--realtime", type=int, default=None, metavar="N",
+                    help="capacity in real time with N vehicles (module docstring)")  # fmt: skip
+    ap.add_argument("--networks", type=int, default=4, help="--realtime: networks (default 4)")
+    ap.add_argument("--shards", default="1,2,4", help="--realtime: shard counts (default 1,2,4)")
+    ap.add_argument("--rate", type=float, default=50.0, help="--realtime: control rate [Hz]")
+    ap.add_argument("--seconds", type=float, default=10.0, help="--realtime: formation [s]")
+    ap.add_argument("--emulator", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.emulator is not None:
+        asyncio.run(_emulators(args.emulator, args.networks, args.rate))
+        return
+    if args.realtime is not None:
+        realtime_main(args)
+        return
     mission = _mission(args.duration)
     walls: dict[str, list[float]] = {"one process": [], "--shards 2": []}
     flights: list[float] = []

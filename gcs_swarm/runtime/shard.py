@@ -232,7 +232,26 @@ def _done(station: Station, side: ShardSide) -> dict[str, Any]:
         "clipped_setpoints": station.clipped_setpoints(),
         "states": side.states,
         "replies": side.replies,
+        "latency_ms": _latency_ms(station),
         "log": list(station.log),
+    }
+
+
+def _latency_ms(station: Station) -> dict[str, float]:
+    """The shard's setpoint latencies [ms] (telemetry arrival to setpoint
+    write, ``Link.latency``): p50 and p99 of each link's last samples (its
+    ring: the end of the flight), the max and count over the whole run."""
+    lat = sorted(station.setpoint_latencies_s())
+    rings = [lk.latency for lk in station.links.values()]
+
+    def pct(q: float) -> float:
+        return 1e3 * lat[min(len(lat) - 1, int(q * len(lat)))] if lat else math.nan
+
+    return {
+        "p50": pct(0.50),
+        "p99": pct(0.99),
+        "max": 1e3 * max((r.max_s for r in rings), default=math.nan),
+        "count": float(sum(r.count for r in rings)),
     }
 
 
