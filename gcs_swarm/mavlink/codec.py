@@ -222,20 +222,40 @@ class Codec:
         would differ in length) or an acceleration float32 cannot hold take
         the one-frame path."""
         k = len(targets)
-        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX))
-        if vel_ned is not None:
-            fits = fits and bool(np.all(np.abs(vel_ned) <= _F32_MAX))
-        if k < _BATCH_FROM or self._mav.signing.sign_outgoing or coordinate_frame == 0 or not fits:
+        mav = self._mav
+        # The one-frame path takes any value (one float32 cannot hold raises there, as
+        # in ``encode``), so whether they fit is asked only of a batch.
+        if (
+            k < _BATCH_FROM
+            or mav.signing.sign_outgoing
+            or coordinate_frame == 0
+            or not bool(np.all(np.abs(accel_ned) <= _F32_MAX))
+            or (vel_ned is not None and not bool(np.all(np.abs(vel_ned) <= _F32_MAX)))
+        ):
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
             vel = [zero] * k if vel_ned is None else vel_ned.tolist()
             masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
             rows = zip(targets, time_boot_ms, vel, accel_ned.tolist(), masks, strict=True)
-            frames = [
-                self.encode_setpoint((t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame))
-                for (ts, tc), t, v, a, m in rows
-            ]
+            if mav.signing.sign_outgoing:
+                frames = [
+                    self.encode_setpoint(
+                        (t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame)
+                    )
+                    for (ts, tc), t, v, a, m in rows
+                ]
+                return b"".join(frames), (len(frames[0]) if frames else 0)
+            # ``encode_setpoint`` unsigned, frame by frame, its counting done once.
+            pack, sp_pack, next_seq = _SP_FRAMES.pack, _SP_PACK, mav.seq
+            sysid, compid = mav.srcSystem, mav.srcComponent
+            frames = []
+            try:
+                for (ts, tc), t, v, a, m in rows:
+                    payload = sp_pack(t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame)
+                    frames.append(pack(next_seq, sysid, compid, payload))
+                    next_seq += 1
+            finally:  # the frames packed before one that cannot be are counted, as before
+                self._advance(len(frames), sum(map(len, frames)))
             return b"".join(frames), (len(frames[0]) if frames else 0)
-        mav = self._mav
         columns: dict[str, npt.ArrayLike] = {
             "time_boot_ms": np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF,
             "acc": accel_ned,

@@ -388,6 +388,10 @@ class TelemetryTable:
         mission-frame ``accel_mps2`` (``clip_accel_ned``, as
         ``VehicleProtocol.accel_setpoint``): kept in ``accel_ned``, a clipped
         row counted in its protocol's ``clipped_setpoints``."""
+        ned = _unclipped_ned_small(accel_mps2) if len(ks) < _SMALL_ROWS else None
+        if ned is not None:  # nothing to clip: the same rows as clip_accel_ned's
+            self.accel_ned[ks] = ned
+            return ned
         ned, clipped = clip_accel_ned(accel_mps2)
         if clipped.any():
             for j in np.flatnonzero(clipped).tolist():
@@ -396,6 +400,27 @@ class TelemetryTable:
                     vp.clipped_setpoints += 1
         self.accel_ned[ks] = ned
         return ned
+
+
+_SMALL_ROWS = 16
+"""Below this many rows ``answer`` tries ``_unclipped_ned_small`` first."""
+_SURELY_UNCLIPPED = 999.0**2
+"""A squared norm [m^2/s^4] at most this is below the ceiling in any summation order."""
+
+
+def _unclipped_ned_small(accel_mps2: FloatArray) -> FloatArray | None:
+    """``clip_accel_ned(accel_mps2)[0]`` for a few rows in Python floats when no
+    row needs clipping (every squared norm finite and at most 999^2, so
+    clearly below the ceiling whatever the order numpy sums it in), else
+    None (the caller takes ``clip_accel_ned``). The rows are (a_y, a_x,
+    -a_z): the reference's ``a * 1.0`` and ``a * -1.0``, exact, signed zeros
+    included."""
+    rows = accel_mps2.tolist()
+    lim = _SURELY_UNCLIPPED
+    for x, y, z in rows:
+        if not x * x + y * y + z * z <= lim:  # NaN and inf fail too
+            return None
+    return np.array([(y, x, -z) for x, y, z in rows], dtype=np.float64).reshape(len(rows), 3)
 
 
 def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:

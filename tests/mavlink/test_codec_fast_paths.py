@@ -246,3 +246,13 @@ def test_accel_setpoint_batch_is_the_same_bytes_as_one_frame_at_a_time() -> None
     with pytest.raises(OverflowError):
         Codec().encode_accel_setpoints([(1, 1)] * 9, [0] * 9, np.full((9, 3), 1e39),
                                        type_mask=b.TYPE_MASK_ACCEL, coordinate_frame=1)  # fmt: skip
+    # A frame that cannot be packed after two that can: those two are counted, as
+    # frame by frame (the link counts the step's setpoints unencodable).
+    one, many = Codec(), Codec()
+    acc = np.array([[1.0, 2.0, 3.0], [0.5, 0.0, -1.0], [1e39, 0.0, 0.0]])
+    for a in acc.tolist()[:2]:
+        one.encode_setpoint(_values(b.accel_setpoint(1, 1, 0, (a[0], a[1], a[2]))))
+    with pytest.raises(OverflowError):
+        many.encode_accel_setpoints([(1, 1)] * 3, [0] * 3, acc, type_mask=b.TYPE_MASK_ACCEL,
+                                    coordinate_frame=1)  # fmt: skip
+    assert many._mav.seq == one._mav.seq == 2 and many.stats == one.stats

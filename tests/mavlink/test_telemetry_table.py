@@ -13,7 +13,7 @@ import numpy as np
 from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
 from gcs_swarm.mavlink.inbound import Heartbeat, LocalPositionNed
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
-from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable, clip_accel_ned
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
 
@@ -82,6 +82,27 @@ def test_answer_equals_accel_setpoint_with_its_clipping() -> None:
         assert f.last_accel_ned.tolist() == s.last_accel_ned.tolist()
     assert sum(f.clipped_setpoints for f in fast) == 4  # 3000/-4000, NaN, inf, 1e200
     assert accel[200].tolist() == [3000.0, -4000.0, 0.0]  # the caller's array is not clipped
+
+
+def test_answer_of_a_few_rows_is_clip_accel_neds() -> None:
+    """A few rows (``answer``'s path without numpy when nothing is clipped):
+    the reference's rows bit for bit, signed zeros, NaN, infinities and
+    norms at and about the ceiling included, and the same rows kept."""
+    rng = random.Random(5)
+    edge = [0.0, -0.0, 1.0, -2.5, 998.9, 999.0, 999.5, 1000.0, -1000.0, 1000.0000001,
+            1e-320, 1e154, 1e200, math.nan, math.inf, -math.inf]  # fmt: skip
+    table = TelemetryTable(list(range(1, 10)))
+    for _ in range(3000):
+        n = rng.randrange(1, 10)
+        rows = [[rng.choice(edge) if rng.random() < 0.3 else rng.uniform(-600, 600)
+                 for _ in range(3)] for _ in range(n)]  # fmt: skip
+        accel = np.array(rows)
+        with np.errstate(over="ignore", invalid="ignore"):
+            want, _ = clip_accel_ned(accel)
+            got = table.answer(table.slots(list(range(1, n + 1))), accel)
+        assert repr(got.tolist()) == repr(want.tolist()), rows
+        assert repr(table.accel_ned[:n].tolist()) == repr(want.tolist())
+        assert got.shape == want.shape and got.dtype == want.dtype
 
 
 def test_table_and_protocol_leave_the_state_handle_message_leaves() -> None:
