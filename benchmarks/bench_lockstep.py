@@ -11,6 +11,13 @@ steps per wall second over a window of the flight (= emulator steps, one
 setpoint per telemetry), as a multiple of real time (50 steps/s), and the
 emulator's lockstep timeouts (0 = every step was answered). The emulator
 alone with a minimal stand-in for the station is ``bench_emulator.py``.
+
+``--same-core`` pins the emulator to the station's core as well. The loop is
+sequential (emulator step, reports, station step, setpoints), so a second
+core buys it nothing, while every datagram then has to wake the other side
+on another core: on a KVM guest that wake-up costs more than the work
+(benchmarks/README.md, "Lockstep speed"). One core is also what ``gcs-swarm
+run`` does with sim vehicles (the emulator in the station's own process).
 """
 
 from __future__ import annotations
@@ -40,11 +47,11 @@ def _mission():  # type: ignore[no-untyped-def]
     return replace(m, settings=replace(m.settings, duration=1e6))
 
 
-async def emulator_main() -> None:
+async def emulator_main(core: int) -> None:
     from gcs_swarm.runtime.run import emulator_config
     from sim_vehicle import Emulator
 
-    pin(0)
+    pin(core)
     cfg = replace(emulator_config(_mission(), airborne=True), clock="lockstep", shared_port=0)
     async with Emulator(cfg) as emu:
         print(emu.endpoints[1][1], flush=True)
@@ -53,7 +60,7 @@ async def emulator_main() -> None:
         await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
 
 
-async def one_run(seconds: float) -> dict[str, float]:
+async def one_run(seconds: float, emulator_core: int = 0) -> dict[str, float]:
     import logging
 
     from gcs_swarm.runtime.run import station_config
@@ -61,7 +68,7 @@ async def one_run(seconds: float) -> dict[str, float]:
 
     logging.getLogger("gcs_swarm").setLevel(logging.WARNING)
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, __file__, "--emulator",
+        sys.executable, __file__, "--emulator", "--emulator-core", str(emulator_core),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdout is not None and proc.stdin is not None
@@ -95,15 +102,18 @@ def main() -> None:
     ap.add_argument("--emulator", action="store_true")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--same-core", action="store_true", help="the emulator on the station's core")
+    ap.add_argument("--emulator-core", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.emulator:
-        asyncio.run(emulator_main())
+        asyncio.run(emulator_main(args.emulator_core))
         return
     where = pin(1)
-    print(f"lockstep, Example 1 (N = 6, 50 Hz), station on {where}, emulator on core 0")
+    emu_core = 1 if args.same_core else 0
+    print(f"lockstep, Example 1 (N = 6, 50 Hz), station on {where}, emulator on core {emu_core}")
     rows = []
     for i in range(args.runs):
-        r = asyncio.run(one_run(args.seconds))
+        r = asyncio.run(one_run(args.seconds, emu_core))
         rows.append(r)
         print(f"run {i + 1}: {r['steps_per_s']:.0f} steps/s = {r['speedup']:.1f}x real time, "
               f"station cpu {r['station_cpu']:.2f}, {r['timeouts']:.0f} timeouts",

@@ -297,18 +297,23 @@ class EmulatorCore:
         v.row_target = ap.target
         iv = ap.lpn_interval_s
         prm = ap.params
-        dyn = (
-            prm["SIM_NOISE_POS"],
-            prm["SIM_NOISE_VEL"],
-            iv if iv is not None else np.inf,
-            (prm["SIM_VBIAS_N"], prm["SIM_VBIAS_E"], prm["SIM_VBIAS_D"]),
-            prm["SIM_VBIAS_FLIP"],
-            prm["SIM_VBIAS_TAU"],
-        )
-        if dyn != v.row_dyn:
-            (f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row],
-             f.vbias_flip[row], f.vbias_tau[row]) = dyn  # fmt: skip
-            v.row_dyn = dyn
+        # The row's telemetry values come from the parameters and the interval only:
+        # read again when one of them changed (a setpoint bumps the version, 50 Hz).
+        dyn_key = (prm, prm.generation, iv)
+        if dyn_key != v.row_dyn_key:
+            v.row_dyn_key = dyn_key
+            dyn = (
+                prm["SIM_NOISE_POS"],
+                prm["SIM_NOISE_VEL"],
+                iv if iv is not None else np.inf,
+                (prm["SIM_VBIAS_N"], prm["SIM_VBIAS_E"], prm["SIM_VBIAS_D"]),
+                prm["SIM_VBIAS_FLIP"],
+                prm["SIM_VBIAS_TAU"],
+            )
+            if dyn != v.row_dyn:
+                (f.noise_pos[row], f.noise_vel[row], f.lpn_interval[row], f.vbias[row],
+                 f.vbias_flip[row], f.vbias_tau[row]) = dyn  # fmt: skip
+                v.row_dyn = dyn
         if iv is None:
             f.lpn_next[row] = np.inf
         elif ap.lpn_kick:  # rule 1: a newly enabled stream sends its first message at once

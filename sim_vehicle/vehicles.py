@@ -90,6 +90,8 @@ class HostedVehicle:
     row_dyn: tuple[float, float, float, tuple[float, float, float], float, float] | None = field(
         default=None
     )
+    # (parameter store, its generation, the report interval) row_dyn was read at
+    row_dyn_key: tuple[object, int, float | None] | None = None
 
 
 def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopilot:

@@ -53,6 +53,7 @@ __all__ = [
     "Codec",
     "CodecStats",
     "MessageSpec",
+    "RawHeartbeat",
     "RawPosition",
 ]
 
@@ -114,6 +115,22 @@ class RawPosition(NamedTuple):
     seq: int
     frame: bytes
     values: tuple[Any, ...]
+
+
+class RawHeartbeat(NamedTuple):
+    """An unsigned HEARTBEAT frame decoded without pymavlink's message
+    objects (``Codec.decode(..., raw_positions=True)``), as a ``RawPosition``
+    is: for the telemetry table to recognise a flying vehicle's unchanged
+    HEARTBEAT (``TelemetryTable.heartbeat``); ``Codec.message`` makes
+    pymavlink's message of one the table does not take. ``values`` are the
+    payload's fields in wire order: (custom_mode, type, autopilot,
+    base_mode, system_status, mavlink_version)."""
+
+    sysid: int
+    compid: int
+    seq: int
+    frame: bytes
+    values: tuple[int, ...]
 
 
 @dataclass
@@ -205,20 +222,40 @@ class Codec:
         would differ in length) or an acceleration float32 cannot hold take
         the one-frame path."""
         k = len(targets)
-        fits = bool(np.all(np.abs(accel_ned) <= _F32_MAX))
-        if vel_ned is not None:
-            fits = fits and bool(np.all(np.abs(vel_ned) <= _F32_MAX))
-        if k < _BATCH_FROM or self._mav.signing.sign_outgoing or coordinate_frame == 0 or not fits:
+        mav = self._mav
+        # The one-frame path takes any value (one float32 cannot hold raises there, as
+        # in ``encode``), so whether they fit is asked only of a batch.
+        if (
+            k < _BATCH_FROM
+            or mav.signing.sign_outgoing
+            or coordinate_frame == 0
+            or not bool(np.all(np.abs(accel_ned) <= _F32_MAX))
+            or (vel_ned is not None and not bool(np.all(np.abs(vel_ned) <= _F32_MAX)))
+        ):
             zero, frame = (0.0, 0.0, 0.0), coordinate_frame
             vel = [zero] * k if vel_ned is None else vel_ned.tolist()
             masks = [type_mask] * k if isinstance(type_mask, int) else list(type_mask)
             rows = zip(targets, time_boot_ms, vel, accel_ned.tolist(), masks, strict=True)
-            frames = [
-                self.encode_setpoint((t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame))
-                for (ts, tc), t, v, a, m in rows
-            ]
+            if mav.signing.sign_outgoing:
+                frames = [
+                    self.encode_setpoint(
+                        (t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame)
+                    )
+                    for (ts, tc), t, v, a, m in rows
+                ]
+                return b"".join(frames), (len(frames[0]) if frames else 0)
+            # ``encode_setpoint`` unsigned, frame by frame, its counting done once.
+            pack, sp_pack, next_seq = _SP_FRAMES.pack, _SP_PACK, mav.seq
+            sysid, compid = mav.srcSystem, mav.srcComponent
+            frames = []
+            try:
+                for (ts, tc), t, v, a, m in rows:
+                    payload = sp_pack(t & 0xFFFFFFFF, *zero, *v, *a, 0.0, 0.0, m, ts, tc, frame)
+                    frames.append(pack(next_seq, sysid, compid, payload))
+                    next_seq += 1
+            finally:  # the frames packed before one that cannot be are counted, as before
+                self._advance(len(frames), sum(map(len, frames)))
             return b"".join(frames), (len(frames[0]) if frames else 0)
-        mav = self._mav
         columns: dict[str, npt.ArrayLike] = {
             "time_boot_ms": np.asarray(time_boot_ms, dtype=np.int64) & 0xFFFFFFFF,
             "acc": accel_ned,
@@ -255,7 +292,8 @@ class Codec:
         counters are the same. With ``raw_positions`` a LOCAL_POSITION_NED
         frame (50 Hz per vehicle) is instead CRC-checked and unpacked with
         the dialect's own struct into a ``RawPosition`` (the telemetry
-        table's input), without a pymavlink object.
+        table's input), without a pymavlink object, and a HEARTBEAT
+        (1 Hz per vehicle) likewise into a ``RawHeartbeat``.
         """
         if not datagram or self.signing_key is not None:
             good = self._parse(data, datagram=datagram)
@@ -269,8 +307,13 @@ class Codec:
             end = i + 12 + data[i + 1]
             if end > n:
                 break
-            if raw_positions and data[i + 7] == _LPN_ID0 and data[i + 8] == 0 and data[i + 9] == 0:
-                raw = _raw_lpn(data, i, end)
+            if (
+                raw_positions
+                and data[i + 8] == 0
+                and data[i + 9] == 0
+                and ((kind := data[i + 7]) == _LPN_ID0 or kind == _HB_ID0)
+            ):
+                raw = _raw_lpn(data, i, end) if kind == _LPN_ID0 else _raw_hb(data, i, end)
                 if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
                 good.append(raw)
@@ -286,8 +329,8 @@ class Codec:
         self.stats.received += len(good)
         return good
 
-    def message(self, raw: RawPosition) -> Any:
-        """The pymavlink message of a ``RawPosition`` from ``decode``, made by
+    def message(self, raw: RawPosition | RawHeartbeat) -> Any:
+        """The pymavlink message of a ``RawPosition`` (or ``RawHeartbeat``) from ``decode``, made by
         pymavlink's own ``decode`` of its frame (for a report that goes
         through a vehicle's protocol rather than the telemetry table)."""
         msg = self._decode_frame(raw.frame, 0, len(raw.frame))
@@ -367,6 +410,30 @@ Python function)."""
 
 _SKIP = object()
 """``_decode_frame``'s answer for a frame counted and dropped."""
+
+_HB = _dialect.MAVLink_heartbeat_message
+_HB_SIZE: int = _HB.unpacker.size
+_HB_ID0: int = _HB.id  # (0, 0, 0) on the wire
+_HB_EXTRA = bytes((_HB.crc_extra,))
+_HB_UNPACK = _HB.unpacker.unpack
+_HB_UNPACK_FROM = _HB.unpacker.unpack_from
+_HB_PAD = [bytes(_HB_SIZE - n) for n in range(_HB_SIZE + 1)]
+
+
+def _raw_hb(data: bytes, i: int, end: int) -> RawHeartbeat | None:
+    """The unsigned MAVLink 2 HEARTBEAT frame ``data[i:end]``, or None if its
+    length or CRC is wrong (``_raw_lpn``'s steps for HEARTBEAT's payload)."""
+    plen = end - i - 12
+    if not 0 < plen <= _HB_SIZE:
+        return None
+    frame = data[i:end]
+    crc = _frame_crc(frame[1:-2], _HB_EXTRA) if _CRC is None else _CRC(_HB_EXTRA, _CRC(frame[1:-2]))
+    if crc != frame[-2] | (frame[-1] << 8):
+        return None
+    values = (
+        _HB_UNPACK_FROM(frame, 10) if plen == _HB_SIZE else _HB_UNPACK(frame[10:-2] + _HB_PAD[plen])
+    )
+    return _tuple_new(RawHeartbeat, (frame[5], frame[6], frame[4], frame, values))
 
 
 def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:

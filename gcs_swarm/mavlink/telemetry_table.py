@@ -16,6 +16,11 @@ The protocol hears only what changes its phase or its counters:
   before;
 - the telemetry-rate window (every ``RATE_WINDOW_MS`` of vehicle time):
   ``VehicleProtocol.rate_window``, which may ask for the interval again;
+- a HEARTBEAT: only one that differs from the last its FLYING protocol
+  handled (``heartbeat_seen``) goes on to it; an unchanged one (the same
+  component, type, autopilot, modes and status: what ``Heartbeat`` holds)
+  would change nothing there but the time the vehicle was last heard, so
+  the row keeps that time (``heartbeat``, ``heard_s``);
 - the watchdog and everything else that reads the vehicle's latest report
   (``position``, ``position_at``, ``last_accel_ned``) read this table's row
   while the vehicle is attached; leaving FLYING, the protocol takes its row
@@ -38,7 +43,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.mavlink.inbound import POSITION_LIMIT_M, SPEED_LIMIT_MPS, LocalPositionNed
+from gcs_swarm.mavlink.inbound import (
+    POSITION_LIMIT_M,
+    SPEED_LIMIT_MPS,
+    Heartbeat,
+    LocalPositionNed,
+)
 
 if TYPE_CHECKING:
     from gcs_swarm.control.velocity_bias import VelocityBiasObserver
@@ -70,6 +80,8 @@ _PACK_ROW = _ROW.pack_into
 _ROW_DTYPE = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
 _LPN_ID = 32
 """LOCAL_POSITION_NED's message id."""
+_HB_ID = 0
+"""HEARTBEAT's message id."""
 _STATE_COLS = np.array([1, 0, 2, 4, 3, 5], dtype=np.intp)
 """The NED row's columns (x, y, z, vx, vy, vz) in mission-frame order:
 north, east, down -> east, north, up."""
@@ -118,6 +130,9 @@ class TelemetryTable:
         self.owners: list[VehicleProtocol | None] = [None] * n
         self.seen_s = [-math.inf] * n
         """When each row's last report was handled [s] (the stale watchdog's clock)."""
+        self.heard_s = [-math.inf] * n
+        """When each row last took an unchanged HEARTBEAT [s] (``heartbeat``: the
+        link watchdog's clock, with the protocol's own)."""
         self.fresh_count = 0
         """Rows taken since the last ``take_fresh``."""
         self.taken = 0
@@ -134,6 +149,9 @@ class TelemetryTable:
         self._rate_t0: list[int | None] = [None] * n
         self._rate_n = [0] * n
         self._incomplete: set[int] = set()
+        self._beat: list[tuple[int, ...] | None] = [None] * n
+        """(compid, custom_mode, type, autopilot, base_mode, system_status) of the
+        HEARTBEAT the row's protocol last handled in FLYING (``heartbeat_seen``)."""
 
     # ------------------------------------------------------- attach/detach
     def attach(self, vp: VehicleProtocol) -> int:
@@ -155,6 +173,8 @@ class TelemetryTable:
         self._set_bias(k, c)
         self.accel_ned[k] = vp.last_accel_ned
         self._rate_t0[k], self._rate_n[k] = None, 0
+        self._beat[k] = None  # its first HEARTBEAT in FLYING goes to the protocol
+        self.heard_s[k] = -math.inf
         self.owners[k] = vp
         self.set_offset(k, vp.offset_m)
         if pos is None:
@@ -166,6 +186,7 @@ class TelemetryTable:
         no longer fresh; the protocol has read back what it needs."""
         self.owners[k] = None
         self._observers[k] = None
+        self._beat[k] = None
         self._incomplete.discard(k)
         if self.fresh[k]:
             self.fresh[k] = False
@@ -290,6 +311,37 @@ class TelemetryTable:
             self.on_inbound(self.sysids[k], compid, seq, _LPN_ID)
         return True
 
+    def heartbeat_seen(self, k: int, hb: Heartbeat) -> None:
+        """Row ``k``'s protocol handled ``hb`` in FLYING and is still FLYING
+        (``VehicleProtocol._on_heartbeat``): the same HEARTBEAT again would
+        change nothing there but its liveness time (``heartbeat``)."""
+        self._beat[k] = (hb.compid, hb.custom_mode, hb.type, hb.autopilot, hb.base_mode,
+                         hb.system_status)  # fmt: skip
+
+    def heartbeat(self, k: int, compid: int, seq: int, values: tuple[int, ...], now: float) -> bool:
+        """Take one HEARTBEAT of row ``k``'s vehicle (``values``: the payload in
+        wire order, (custom_mode, type, autopilot, base_mode, system_status,
+        mavlink_version)) handled at ``now`` [s] if it is the one its
+        protocol last handled in FLYING: then only the time it was heard
+        moves (``heard_s``), which is all the protocol would change (its
+        HEARTBEAT rules in FLYING keep it flying and queue nothing). False
+        (the caller hands it to the protocol): another HEARTBEAT, a row not
+        attached, or one whose protocol has something queued (``attention``:
+        the protocol is serviced after its next message, as before). ``seq``:
+        the frame's sequence number, for ``on_inbound``."""
+        beat = self._beat[k]
+        if (
+            beat is None
+            or beat[0] != compid
+            or beat[1:] != values[:5]
+            or (self.attention and self.sysids[k] in self.attention)
+        ):
+            return False
+        self.heard_s[k] = now
+        if self.on_inbound is not None:
+            self.on_inbound(self.sysids[k], compid, seq, _HB_ID)
+        return True
+
     def take_fresh(self) -> dict[int, int]:
         """The fresh rows as {sysid: time_boot_ms}, and none fresh after."""
         if not self.fresh_count:
@@ -336,6 +388,10 @@ class TelemetryTable:
         mission-frame ``accel_mps2`` (``clip_accel_ned``, as
         ``VehicleProtocol.accel_setpoint``): kept in ``accel_ned``, a clipped
         row counted in its protocol's ``clipped_setpoints``."""
+        ned = _unclipped_ned_small(accel_mps2) if len(ks) < _SMALL_ROWS else None
+        if ned is not None:  # nothing to clip: the same rows as clip_accel_ned's
+            self.accel_ned[ks] = ned
+            return ned
         ned, clipped = clip_accel_ned(accel_mps2)
         if clipped.any():
             for j in np.flatnonzero(clipped).tolist():
@@ -344,6 +400,27 @@ class TelemetryTable:
                     vp.clipped_setpoints += 1
         self.accel_ned[ks] = ned
         return ned
+
+
+_SMALL_ROWS = 16
+"""Below this many rows ``answer`` tries ``_unclipped_ned_small`` first."""
+_SURELY_UNCLIPPED = 999.0**2
+"""A squared norm [m^2/s^4] at most this is below the ceiling in any summation order."""
+
+
+def _unclipped_ned_small(accel_mps2: FloatArray) -> FloatArray | None:
+    """``clip_accel_ned(accel_mps2)[0]`` for a few rows in Python floats when no
+    row needs clipping (every squared norm finite and at most 999^2, so
+    clearly below the ceiling whatever the order numpy sums it in), else
+    None (the caller takes ``clip_accel_ned``). The rows are (a_y, a_x,
+    -a_z): the reference's ``a * 1.0`` and ``a * -1.0``, exact, signed zeros
+    included."""
+    rows = accel_mps2.tolist()
+    lim = _SURELY_UNCLIPPED
+    for x, y, z in rows:
+        if not x * x + y * y + z * z <= lim:  # NaN and inf fail too
+            return None
+    return np.array([(y, x, -z) for x, y, z in rows], dtype=np.float64).reshape(len(rows), 3)
 
 
 def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:

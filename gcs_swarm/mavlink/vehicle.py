@@ -305,6 +305,10 @@ class VehicleProtocol(_Startup, _Ending):
                 self._yield(now, f"left {label} (now {self.mode_name}): someone else has it")
             elif not hb.armed:
                 self._yield(now, "disarmed in flight")
+            elif self._table is not None:
+                # Flying on: the same HEARTBEAT again changes nothing here but the
+                # time it was heard, which its table row keeps from now on.
+                self._table.heartbeat_seen(self._slot, hb)
         elif phase is Phase.ENDING and "end_confirm" in self._timers:
             done = not hb.armed if self._disarming else hb.custom_mode == self._end_mode
             if done:

@@ -226,8 +226,10 @@ class _VehicleBase:
         """Since when nothing has been heard from the vehicle (a HEARTBEAT or
         any other message); the watchdog runs only after a first HEARTBEAT."""
         t = self._table
-        heard = self._heard_at if t is None else max(self._heard_at, t.seen_s[self._slot])
-        return max(self._hb_at, heard)
+        if t is None:
+            return max(self._hb_at, self._heard_at)
+        k = self._slot
+        return max(self._hb_at, self._heard_at, t.seen_s[k], t.heard_s[k])
 
     def next_deadline(self) -> float | None:
         """The earliest time [s] at which ``handle_timer`` has work, or None."""
@@ -264,6 +266,7 @@ class _VehicleBase:
         self._position = t.position(k)
         self._position_at = t.seen_s[k]
         self._heard_at = max(self._heard_at, t.seen_s[k])
+        self._hb_at = max(self._hb_at, t.heard_s[k])  # the unchanged HEARTBEATs it took
         self._last_accel_ned = t.accel_ned[k].copy()
         t.detach(k)
         self._table = None

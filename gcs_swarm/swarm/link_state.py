@@ -34,11 +34,14 @@ longer speaks for any system id (rebound away) loses its codec.
 Flying telemetry (issue 16): with a ``telemetry`` table, an unsigned
 LOCAL_POSITION_NED of a vehicle the link serves, from its bound peer, goes
 straight into that vehicle's row (``TelemetryTable.write``) when the row
-takes it (the vehicle is FLYING, the report plausible and newer); anything
-else comes out of ``receive`` as the message pymavlink's own decoder makes
-of the frame, in order. A vehicle's report after another message of it in
-the same datagram comes out as a message too, so that what the protocol
-hears keeps the datagram's order (a HEARTBEAT may end its flight).
+takes it (the vehicle is FLYING, the report plausible and newer), and so
+does an unsigned HEARTBEAT the row recognises as the one its FLYING
+protocol last handled (``TelemetryTable.heartbeat``: only the vehicle's
+liveness time moves); anything else comes out of ``receive`` as the
+message pymavlink's own decoder makes of the frame, in order. A vehicle's
+report or HEARTBEAT after another message of it in the same datagram comes
+out as a message too, so that what the protocol hears keeps the datagram's
+order (a HEARTBEAT may end its flight).
 
 Datagram joining: one control step's frames to one peer go out joined into
 datagrams of at most ``mavwire.MAX_DATAGRAM_BYTES``.
@@ -61,7 +64,7 @@ from gcs_swarm.mavlink.builders import (
     TYPE_MASK_ACCEL,
     TYPE_MASK_VEL_ACCEL,
 )
-from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawHeartbeat, RawPosition
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 
@@ -232,8 +235,10 @@ class LinkState:
         written = received = 0
         route, heard = self._routes.get, self._heard
         write = None if table is None else table.write
+        beat = None if table is None else table.heartbeat
         for msg in msgs:
-            raw = type(msg) is RawPosition
+            kind = type(msg)
+            raw = kind is RawPosition or kind is RawHeartbeat
             sysid = msg[0] if raw else msg.get_srcSystem()
             if route(sysid) == peer:
                 heard[sysid] = now  # ``_bound``'s answer for a peer already bound to it
@@ -246,14 +251,13 @@ class LinkState:
                 if on_frame is not None:
                     on_frame(frame, "in")
                 k = rows.get(sysid)
-                if (
-                    k is not None
-                    and write is not None
-                    and sysid not in spoke
-                    and write(k, compid, seq, values, now, now)
-                ):
-                    written += 1
-                    continue
+                if k is not None and write is not None and sysid not in spoke:
+                    if kind is RawPosition:
+                        if write(k, compid, seq, values, now, now):
+                            written += 1
+                            continue
+                    elif beat is not None and beat(k, compid, seq, values, now):
+                        continue  # a flying vehicle's unchanged HEARTBEAT: its liveness only
                 msg = codec.message(msg)  # pymavlink's own decoder, off the hot path
             elif on_frame is not None:
                 on_frame(bytes(msg.get_msgbuf()), "in")

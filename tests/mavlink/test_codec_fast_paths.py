@@ -15,7 +15,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import SETPOINT_FIELDS, Codec, MessageSpec, RawPosition
+from gcs_swarm.mavlink.codec import SETPOINT_FIELDS, Codec, MessageSpec, RawHeartbeat, RawPosition
 
 
 def _frame(rng: random.Random, kind: str, sysid: int, seq: int) -> bytes:
@@ -111,12 +111,13 @@ def test_fast_setpoint_encode_equals_pymavlink_pack_on_5000_setpoints() -> None:
 
 def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
     """``decode(raw_positions=True)``: the same messages and counters, each
-    unsigned LOCAL_POSITION_NED as a ``RawPosition`` holding the header ids,
-    the frame's bytes and the field values pymavlink decodes."""
+    unsigned LOCAL_POSITION_NED as a ``RawPosition`` (each HEARTBEAT as a
+    ``RawHeartbeat``) holding the header ids, the frame's bytes and the field
+    values pymavlink decodes."""
     rng = random.Random(4)
     kinds = ["lpn"] * 6 + ["hb", "ekf", "gps", "ack", "text", "unknown"]
     kinds += ["v1", "garbage", "badcrc", "trunc"]
-    raw_n = 0
+    raw_n = hb_n = 0
     for _ in range(1500):
         parts = [rng.choice(kinds) for _ in range(rng.randrange(1, 8))]
         data = b"".join(_frame(rng, k, rng.randrange(1, 255), rng.randrange(256)) for k in parts)
@@ -134,10 +135,19 @@ def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
                 assert g.values == tuple(getattr(m, f) for f in names)
                 assert _view(fast.message(g)) == _view(m)  # pymavlink's own message of it
                 raw_n += 1
+            elif isinstance(g, RawHeartbeat):
+                h = m.get_header()
+                assert (g.sysid, g.compid, g.seq) == (h.srcSystem, h.srcComponent, h.seq)
+                assert g.frame == bytes(m.get_msgbuf())
+                names = ("custom_mode", "type", "autopilot", "base_mode", "system_status",
+                         "mavlink_version")  # fmt: skip
+                assert g.values == tuple(getattr(m, f) for f in names)
+                assert _view(fast.message(g)) == _view(m)
+                hb_n += 1
             else:
                 assert _view(g) == _view(m)
         assert vars(fast.stats) == vars(slow.stats), parts
-    assert raw_n > 1000  # (frames after a bad one take the general parser)
+    assert raw_n > 1000 and hb_n > 100  # (frames after a bad one take the general parser)
 
 
 def test_setpoint_values_encode_to_the_same_bytes_as_the_spec() -> None:
@@ -236,3 +246,13 @@ def test_accel_setpoint_batch_is_the_same_bytes_as_one_frame_at_a_time() -> None
     with pytest.raises(OverflowError):
         Codec().encode_accel_setpoints([(1, 1)] * 9, [0] * 9, np.full((9, 3), 1e39),
                                        type_mask=b.TYPE_MASK_ACCEL, coordinate_frame=1)  # fmt: skip
+    # A frame that cannot be packed after two that can: those two are counted, as
+    # frame by frame (the link counts the step's setpoints unencodable).
+    one, many = Codec(), Codec()
+    acc = np.array([[1.0, 2.0, 3.0], [0.5, 0.0, -1.0], [1e39, 0.0, 0.0]])
+    for a in acc.tolist()[:2]:
+        one.encode_setpoint(_values(b.accel_setpoint(1, 1, 0, (a[0], a[1], a[2]))))
+    with pytest.raises(OverflowError):
+        many.encode_accel_setpoints([(1, 1)] * 3, [0] * 3, acc, type_mask=b.TYPE_MASK_ACCEL,
+                                    coordinate_frame=1)  # fmt: skip
+    assert many._mav.seq == one._mav.seq == 2 and many.stats == one.stats

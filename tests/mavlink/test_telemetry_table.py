@@ -11,9 +11,9 @@ import random
 import numpy as np
 
 from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
-from gcs_swarm.mavlink.inbound import LocalPositionNed
+from gcs_swarm.mavlink.inbound import Heartbeat, LocalPositionNed
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
-from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable, clip_accel_ned
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
 
@@ -84,6 +84,27 @@ def test_answer_equals_accel_setpoint_with_its_clipping() -> None:
     assert accel[200].tolist() == [3000.0, -4000.0, 0.0]  # the caller's array is not clipped
 
 
+def test_answer_of_a_few_rows_is_clip_accel_neds() -> None:
+    """A few rows (``answer``'s path without numpy when nothing is clipped):
+    the reference's rows bit for bit, signed zeros, NaN, infinities and
+    norms at and about the ceiling included, and the same rows kept."""
+    rng = random.Random(5)
+    edge = [0.0, -0.0, 1.0, -2.5, 998.9, 999.0, 999.5, 1000.0, -1000.0, 1000.0000001,
+            1e-320, 1e154, 1e200, math.nan, math.inf, -math.inf]  # fmt: skip
+    table = TelemetryTable(list(range(1, 10)))
+    for _ in range(3000):
+        n = rng.randrange(1, 10)
+        rows = [[rng.choice(edge) if rng.random() < 0.3 else rng.uniform(-600, 600)
+                 for _ in range(3)] for _ in range(n)]  # fmt: skip
+        accel = np.array(rows)
+        with np.errstate(over="ignore", invalid="ignore"):
+            want, _ = clip_accel_ned(accel)
+            got = table.answer(table.slots(list(range(1, n + 1))), accel)
+        assert repr(got.tolist()) == repr(want.tolist()), rows
+        assert repr(table.accel_ned[:n].tolist()) == repr(want.tolist())
+        assert got.shape == want.shape and got.dtype == want.dtype
+
+
 def test_table_and_protocol_leave_the_state_handle_message_leaves() -> None:
     """Reports in flight, duplicated, reordered, implausible (NaN, 1e9 m,
     300 m/s), a reboot, another system's: written into the table (the
@@ -141,3 +162,79 @@ def test_table_and_protocol_leave_the_state_handle_message_leaves() -> None:
     assert fast.take_outbound() == slow.take_outbound()
     assert fast.position == slow.position and fast.next_deadline() == slow.next_deadline()
     assert not table.write(0, 1, -1, (t_ms + 20, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), now, now)
+
+
+def _beat(rng: random.Random, sysid: int, change: bool) -> Heartbeat:
+    """A flying ArduCopter's HEARTBEAT (GUIDED, armed, active), or with
+    ``change`` one field of it changed as a vehicle's may change."""
+    f = {"compid": 1, "type": 2, "autopilot": 3, "base_mode": 128 | 89, "custom_mode": 4,
+         "system_status": 4}  # fmt: skip
+    if change:
+        name, value = rng.choice([("custom_mode", 5), ("custom_mode", 9), ("base_mode", 89),
+                                  ("system_status", 5), ("compid", 2), ("type", 13),
+                                  ("autopilot", 8)])  # fmt: skip
+        f[name] = value
+    return Heartbeat(sysid, **f)
+
+
+def _wire(hb: Heartbeat) -> tuple[int, ...]:
+    """``hb``'s payload in wire order, as ``RawHeartbeat.values`` holds it."""
+    return (hb.custom_mode, hb.type, hb.autopilot, hb.base_mode, hb.system_status, 3)
+
+
+def test_unchanged_heartbeats_taken_by_the_table_leave_the_protocols_state() -> None:
+    """HEARTBEATs in flight among reports, mostly the same one, sometimes one
+    that differs (another mode, disarmed, another status, component or type):
+    those the table takes (``heartbeat``: the last one the protocol handled
+    in FLYING, again) and the rest through ``handle_message``, against every
+    one through ``handle_message``: the same state, deadlines, watchdog and
+    hand-over, for runs that end by a change of mode or by silence."""
+    total = ended = 0
+    for seed in range(40):
+        rng = random.Random(seed)
+        table = TelemetryTable([7])
+        fast, slow = _ready(7, random.Random(9)), _ready(7, random.Random(9))
+        if seed % 2:  # reports may stop for longer than HEARTBEATs (3 s): the link watchdog
+            fast.config = slow.config = ProtocolConfig(stale_timeout_s=9.0)
+        fast.begin_flying(10.0, table)
+        slow.begin_flying(10.0)
+        t_ms, now, taken = fast.boot_ms(), 10.0, 0
+        for i in range(600):
+            now += rng.choice([0.02] * 30 + [0.3, 0.5])
+            if rng.random() < (0.8 if seed % 2 == 0 or i % 200 < 100 else 0.0):
+                t_ms += 20
+                pos = LocalPositionNed(7, 1, t_ms, *(_f32(rng.uniform(-9, 9)) for _ in range(6)))
+                if not table.write(0, 1, -1, pos[2:], now, now):
+                    fast.handle_message(pos, now)
+                slow.handle_message(pos, now)
+            else:
+                hb = _beat(rng, 7, change=rng.random() < 0.01)
+                took = table.heartbeat(0, hb.compid, 5, _wire(hb), now)
+                if not took:
+                    fast.handle_message(hb, now)
+                taken += took
+                slow.handle_message(hb, now)
+            for vp in (fast, slow):
+                if vp.next_deadline() is not None and vp.next_deadline() <= now:
+                    vp.handle_timer(now)
+            assert fast.phase is slow.phase, (seed, i)
+            assert fast.heartbeat == slow.heartbeat and fast.compid == slow.compid, (seed, i)
+            assert fast.next_deadline() == slow.next_deadline(), (seed, i)
+            assert fast.take_outbound() == slow.take_outbound(), (seed, i)
+            assert fast.take_events() == slow.take_events(), (seed, i)
+            if slow.phase is not Phase.FLYING:
+                break
+        else:  # flying still: silence, then the watchdog (its clock includes the table's)
+            for vp in (fast, slow):
+                while vp.phase is Phase.FLYING:
+                    due = vp.next_deadline()
+                    assert due is not None
+                    vp.handle_timer(due)
+            assert fast.phase is slow.phase
+            assert fast.take_events() == slow.take_events()
+        assert table.owners[0] is None  # handed back, and takes no HEARTBEAT any more
+        assert not table.heartbeat(0, 1, 5, _wire(_beat(rng, 7, change=False)), now)
+        assert fast.next_deadline() == slow.next_deadline()
+        total += taken
+        ended += slow.phase is not Phase.LOST
+    assert total > 2000 and 5 <= ended <= 35  # both paths, both endings
