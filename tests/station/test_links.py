@@ -4,6 +4,7 @@ scheme, several system ids on one link, bad packets and queue policies."""
 from __future__ import annotations
 
 import asyncio
+import socket
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import Codec
-from gcs_swarm.runtime.links import Link, parse_connection
+from gcs_swarm.runtime.links import UDP_RECEIVE_BUFFER_BYTES, Link, parse_connection
 from mavwire import MAX_DATAGRAM_BYTES
 
 
@@ -217,3 +218,27 @@ def test_unopenable_link_is_a_link_error() -> None:
                         pass
 
     asyncio.run(main())
+
+
+def test_udp_links_ask_for_a_receive_buffer_of_a_swarm_s_burst() -> None:
+    """Both UDP link kinds ask for ``UDP_RECEIVE_BUFFER_BYTES``; Linux grants
+    twice the request (its bookkeeping), capped at ``net.core.rmem_max``, so
+    the socket holds at least the smaller of the two, against 208 KiB by
+    default (an overflowing buffer lost start-up answers at N = 750)."""
+    try:
+        with open("/proc/sys/net/core/rmem_max") as f:
+            cap = int(f.read())
+    except OSError:
+        pytest.skip("no /proc/sys/net/core/rmem_max: not Linux")
+
+    async def main() -> list[int]:
+        sizes = []
+        for conn in ("udpin:127.0.0.1:0", "udpout:127.0.0.1:9"):
+            async with Link(conn, lambda m, lk: None) as link:
+                assert link._udp is not None
+                sock = link._udp.get_extra_info("socket")
+                sizes.append(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+        return sizes
+
+    for size in asyncio.run(main()):
+        assert size >= min(UDP_RECEIVE_BUFFER_BYTES, cap)
