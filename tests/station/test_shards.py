@@ -26,6 +26,7 @@ controller over a real Zenoh session.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import os
 import signal
 import time
@@ -34,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs_swarm.mission import Mission, parse_mission
+from gcs_swarm.mission import Mission, load_mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
 from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 
@@ -58,8 +59,22 @@ LOCKSTEP_S = 8.0
 flights are compared with each other, not with the equilibrium)."""
 
 
+DEMO = Path(__file__).resolve().parents[2] / "config" / "missions" / "example1_networks.yaml"
+"""The shipped demo of shards: Example 1's six vehicles on two networks."""
+
+
 def test_two_shards_in_lockstep_fly_the_radii_of_one_station(tmp_path: Path) -> None:
-    mission = _two_networks(LOCKSTEP_S, "dynamics: ideal, mode: lockstep, spawn: air")
+    # The shipped demo (lockstep, ideal dynamics), spawned in the air and cut
+    # to LOCKSTEP_S of formation so that both flights fit the suite.
+    demo = load_mission(DEMO)
+    mission = dataclasses.replace(
+        demo,
+        settings=dataclasses.replace(demo.settings, duration=LOCKSTEP_S),
+        emulator=dataclasses.replace(demo.emulator, spawn="air"),
+    )
+    assert [v.start for v in mission.vehicles] == [
+        v.start for v in _two_networks(1.0, "").vehicles
+    ]  # the helper's swarm, which the other tests fly
 
     async def fly() -> tuple[RunSummary, RunSummary, ShardedRun]:
         runs: list[ShardedRun] = []
