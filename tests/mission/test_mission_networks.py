@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import gcs_swarm
 from gcs_swarm.errors import MissionError
@@ -57,7 +58,23 @@ def test_two_networks_may_share_system_ids() -> None:
     assert [v.origin for v in m.vehicles] == [(k * 5.0, 0.0, -20.0) for k in range(4)]
 
 
-@pytest.mark.parametrize("path", sorted(MISSIONS.glob("*.yaml")), ids=lambda p: p.stem)
+#: The shipped missions that name no ``networks`` (the shards demo does).
+ONE_NETWORK = sorted(
+    p for p in MISSIONS.glob("*.yaml") if "networks" not in yaml.safe_load(p.read_text())
+)
+
+
+def test_the_shipped_missions_with_networks_are_the_shards_demo() -> None:
+    named = {p.stem for p in MISSIONS.glob("*.yaml")} - {p.stem for p in ONE_NETWORK}
+    assert named == {"example1_networks"}
+    m = load_mission(MISSIONS / "example1_networks.yaml")
+    assert m.networks == ("blue", "red") and m.multi_network
+    assert [m.label(v.key) for v in m.vehicles] == [
+        "blue:1", "blue:2", "blue:3", "red:1", "red:2", "red:3"
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("path", ONE_NETWORK, ids=lambda p: p.stem)
 def test_a_mission_without_networks_is_one_network_keyed_by_sysid(path: Path) -> None:
     m = load_mission(path)
     assert m.networks == (DEFAULT_NETWORK,) and not m.multi_network
