@@ -311,9 +311,9 @@ class Codec:
                 raw_positions
                 and data[i + 8] == 0
                 and data[i + 9] == 0
-                and ((kind := data[i + 7]) == _LPN_ID0 or kind == _HB_ID0)
+                and (lay := _RAW_LAYOUTS.get(data[i + 7])) is not None
             ):
-                raw = _raw_lpn(data, i, end) if kind == _LPN_ID0 else _raw_hb(data, i, end)
+                raw = _raw_frame(data, i, end, lay)
                 if raw is None:
                     break  # bad CRC or length: let the general parser judge (and count)
                 good.append(raw)
@@ -395,13 +395,31 @@ class Codec:
 
 
 _LPN = _dialect.MAVLink_local_position_ned_message
-_LPN_SIZE: int = _LPN.unpacker.size
 _LPN_ID0: int = _LPN.id  # a 24-bit id: (32, 0, 0) on the wire
-_LPN_EXTRA = bytes((_LPN.crc_extra,))
-_LPN_UNPACK = _LPN.unpacker.unpack
-_LPN_UNPACK_FROM = _LPN.unpacker.unpack_from
-_LPN_PAD = [bytes(_LPN_SIZE - n) for n in range(_LPN_SIZE + 1)]
-"""The zeros MAVLink 2 trimmed off a payload of ``n`` bytes."""
+_HB = _dialect.MAVLink_heartbeat_message
+_HB_ID0: int = _HB.id  # (0, 0, 0) on the wire
+
+
+class _RawLayout(NamedTuple):
+    """What ``_raw_frame`` needs of one message type: its payload size, CRC
+    extra, struct unpackers, the zeros MAVLink 2 trimmed off a payload of
+    ``n`` bytes (``pad[n]``), and the tuple type it makes."""
+
+    size: int
+    extra: bytes
+    unpack: Any
+    unpack_from: Any
+    pad: list[bytes]
+    kind: type
+
+
+def _layout(msg: Any, kind: type) -> _RawLayout:
+    size: int = msg.unpacker.size
+    return _RawLayout(size, bytes((msg.crc_extra,)), msg.unpacker.unpack,
+                      msg.unpacker.unpack_from, [bytes(size - n) for n in range(size + 1)],
+                      kind)  # fmt: skip
+
+
 _CRC = _MCRF4XX
 _tuple_new = tuple.__new__
 """``RawPosition`` made from a tuple in C (the NamedTuple's ``__new__`` is a
@@ -411,53 +429,30 @@ Python function)."""
 _SKIP = object()
 """``_decode_frame``'s answer for a frame counted and dropped."""
 
-_HB = _dialect.MAVLink_heartbeat_message
-_HB_SIZE: int = _HB.unpacker.size
-_HB_ID0: int = _HB.id  # (0, 0, 0) on the wire
-_HB_EXTRA = bytes((_HB.crc_extra,))
-_HB_UNPACK = _HB.unpacker.unpack
-_HB_UNPACK_FROM = _HB.unpacker.unpack_from
-_HB_PAD = [bytes(_HB_SIZE - n) for n in range(_HB_SIZE + 1)]
 
+def _raw_frame(data: bytes, i: int, end: int, lay: _RawLayout) -> Any:
+    """The unsigned MAVLink 2 frame ``data[i:end]`` of ``lay``'s message as
+    its raw tuple (``RawPosition``, ``RawHeartbeat``), or None if its length
+    or CRC is wrong.
 
-def _raw_hb(data: bytes, i: int, end: int) -> RawHeartbeat | None:
-    """The unsigned MAVLink 2 HEARTBEAT frame ``data[i:end]``, or None if its
-    length or CRC is wrong (``_raw_lpn``'s steps for HEARTBEAT's payload)."""
+    LOCAL_POSITION_NED comes at 50 Hz per vehicle, so written for speed:
+    one slice for the frame, one for the CRC's body, the payload unpacked in
+    place (or once padded, when MAVLink 2 trimmed its trailing zeros), the
+    tuple made in C."""
+    size, extra, unpack, unpack_from, pad, kind = lay
     plen = end - i - 12
-    if not 0 < plen <= _HB_SIZE:
+    if not 0 < plen <= size:
         return None
     frame = data[i:end]
-    crc = _frame_crc(frame[1:-2], _HB_EXTRA) if _CRC is None else _CRC(_HB_EXTRA, _CRC(frame[1:-2]))
+    crc = _frame_crc(frame[1:-2], extra) if _CRC is None else _CRC(extra, _CRC(frame[1:-2]))
     if crc != frame[-2] | (frame[-1] << 8):
         return None
-    values = (
-        _HB_UNPACK_FROM(frame, 10) if plen == _HB_SIZE else _HB_UNPACK(frame[10:-2] + _HB_PAD[plen])
-    )
-    return _tuple_new(RawHeartbeat, (frame[5], frame[6], frame[4], frame, values))
+    values = unpack_from(frame, 10) if plen == size else unpack(frame[10:-2] + pad[plen])
+    return _tuple_new(kind, (frame[5], frame[6], frame[4], frame, values))
 
 
-def _raw_lpn(data: bytes, i: int, end: int) -> RawPosition | None:
-    """The unsigned MAVLink 2 LOCAL_POSITION_NED frame ``data[i:end]``, or
-    None if its length or CRC is wrong.
-
-    50 Hz per vehicle, so written for speed: one slice for the frame, one
-    for the CRC's body, the payload unpacked in place (or once padded, when
-    MAVLink 2 trimmed its trailing zeros), the tuple made in C."""
-    plen = end - i - 12
-    if not 0 < plen <= _LPN_SIZE:
-        return None
-    frame = data[i:end]
-    crc = (
-        _frame_crc(frame[1:-2], _LPN_EXTRA) if _CRC is None else _CRC(_LPN_EXTRA, _CRC(frame[1:-2]))
-    )
-    if crc != frame[-2] | (frame[-1] << 8):
-        return None
-    values = (
-        _LPN_UNPACK_FROM(frame, 10)
-        if plen == _LPN_SIZE
-        else _LPN_UNPACK(frame[10:-2] + _LPN_PAD[plen])
-    )
-    return _tuple_new(RawPosition, (frame[5], frame[6], frame[4], frame, values))
+_RAW_LAYOUTS = {_LPN_ID0: _layout(_LPN, RawPosition), _HB_ID0: _layout(_HB, RawHeartbeat)}
+"""The messages ``decode`` takes raw, by their id's first byte (both ids fit in it)."""
 
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message
