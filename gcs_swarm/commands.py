@@ -18,7 +18,8 @@ import asyncio
 import os
 import signal
 import sys
-from typing import TYPE_CHECKING
+from collections.abc import Coroutine
+from typing import TYPE_CHECKING, Any
 
 from gcs_swarm.errors import MissionError
 from gcs_swarm.mission import Mission, describe, load_mission
@@ -103,21 +104,6 @@ async def _main(
 ) -> int:
     from gcs_swarm.runtime.run import EXIT_CODES, View, run_mission
 
-    loop = asyncio.get_running_loop()
-    task = asyncio.current_task()
-    assert task is not None
-    hits = 0
-
-    def interrupt() -> None:
-        nonlocal hits
-        hits += 1
-        if hits == 1:
-            print("\nending: zero acceleration and the end action for every vehicle "
-                  "(Ctrl-C again to quit at once)", file=sys.stderr)  # fmt: skip
-        task.cancel()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, interrupt)
     lines = _StatusLines()
 
     def report(summary: RunSummary) -> None:
@@ -143,21 +129,46 @@ async def _main(
 
         live = live_view(mission, host=view[0], port=view[1], on_url=url)
 
-    try:
-        summary = await run_mission(
+    summary = await _until_interrupted(
+        run_mission(
             mission,
             on_status=lines.show if status else None,
             on_summary=report,
             log_dir=log_dir,
             on_folder=announce,
             view=live,
-        )
+        ),
+        "ending: zero acceleration and the end action for every vehicle "
+        "(Ctrl-C again to quit at once)",
+    )
+    return 130 if summary is None else EXIT_CODES.get(summary.outcome, 1)
+
+
+async def _until_interrupted(run: Coroutine[Any, Any, RunSummary], say: str) -> RunSummary | None:
+    """Await ``run`` with SIGINT and SIGTERM cancelling it (its own ending then
+    ends the vehicles; ``say`` is printed at the first signal); None when it
+    was interrupted. The handlers are removed however it ends."""
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+    hits = 0
+
+    def interrupt() -> None:
+        nonlocal hits
+        hits += 1
+        if hits == 1:
+            print(f"\n{say}", file=sys.stderr)
+        task.cancel()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, interrupt)
+    try:
+        return await run
     except asyncio.CancelledError:
-        return 130
+        return None
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
-    return EXIT_CODES.get(summary.outcome, 1)
 
 
 def sharded_run_command(path: str, shards: int, *, listen: str | None = None) -> int:
@@ -174,17 +185,6 @@ def sharded_run_command(path: str, shards: int, *, listen: str | None = None) ->
     check_shards(mission, shards)
 
     async def main() -> int:
-        loop = asyncio.get_running_loop()
-        task = asyncio.current_task()
-        assert task is not None
-
-        def interrupt() -> None:
-            print("\nending: the end action for every vehicle, through its shard",
-                  file=sys.stderr)  # fmt: skip
-            task.cancel()
-
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, interrupt)
         if listen is not None:
             print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
                   file=sys.stderr, flush=True)  # fmt: skip
@@ -194,15 +194,15 @@ def sharded_run_command(path: str, shards: int, *, listen: str | None = None) ->
             lines.done()
             print(summary.format(), flush=True)
 
-        try:
-            summary = await run_sharded(mission, shards, endpoint=listen, spawn=listen is None,
-                                        on_status=lines.show, on_summary=report)  # fmt: skip
-        except asyncio.CancelledError:
-            return 130
-        finally:
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.remove_signal_handler(sig)
-        return EXIT_CODES.get(summary.outcome, 1)
+        flight = run_sharded(
+            mission, shards, endpoint=listen, spawn=listen is None,
+            on_status=lines.show, on_summary=report,
+        )  # fmt: skip
+        summary = await _until_interrupted(
+            flight,
+            "ending: the end action for every vehicle, through its shard",
+        )
+        return 130 if summary is None else EXIT_CODES.get(summary.outcome, 1)
 
     return asyncio.run(main())
 
