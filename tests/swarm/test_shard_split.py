@@ -198,7 +198,10 @@ def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
 # instead of run_step, as in a shard process, without Zenoh or sockets.
 
 
-def _sharded(sky: Sky, mission: Mission) -> tuple[ShardSide, ControllerCore]:
+def _sharded_in_flight(mission: Mission) -> tuple[Sky, ShardSide, ControllerCore]:
+    """``mission`` on the harness with its step through the split, readied and
+    started as a shard and its controller start it (``runtime/shard.py``)."""
+    sky = Sky(mission)
     s = mission.settings
     side = ShardSide(sky.core, 0, s.stale_timeout)
     ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=1,
@@ -217,7 +220,11 @@ def _sharded(sky: Sky, mission: Mission) -> tuple[ShardSide, ControllerCore]:
             sky.core.finished = True
 
     sky.control_step = step
-    return side, ctl
+    sky.ready()
+    ctl.set_envelope(sky.core.apply_envelope())
+    sky.start()
+    ctl.start(sky.now, {0: len(sky.core.flying)})
+    return sky, side, ctl
 
 
 def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
@@ -226,12 +233,7 @@ def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
     one.ready()
     one.start()
     one.run_until(lambda: one.core.finished, 30.0)
-    split = Sky(mission)
-    side, ctl = _sharded(split, mission)
-    split.ready()
-    ctl.set_envelope(split.core.apply_envelope())
-    split.start()
-    ctl.start(split.now, {0: len(split.core.flying)})
+    split, side, ctl = _sharded_in_flight(mission)
     split.run_until(lambda: split.core.finished, 30.0)
     a, b = one.core.control.last, ctl.control.last
     assert a is not None and b is not None
@@ -245,12 +247,7 @@ def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
 
 def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clock() -> None:
     mission = mission_from("example1_octahedron.yaml", duration=60.0)
-    sky = Sky(mission)
-    side, ctl = _sharded(sky, mission)
-    sky.ready()
-    ctl.set_envelope(sky.core.apply_envelope())
-    sky.start()
-    ctl.start(sky.now, {0: len(sky.core.flying)})
+    sky, side, _ = _sharded_in_flight(mission)
     side.heard(sky.now)
     sky.advance(2.0)
     assert not side.controller_silent(sky.now)
