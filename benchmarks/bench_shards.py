@@ -7,9 +7,9 @@ Zenoh per vehicle per step.
     .venv/bin/python benchmarks/bench_shards.py [--duration 20] [--runs 3]
 
 ``--realtime N`` measures capacity instead (issue 19 item 4): N airborne
-vehicles as ``--networks K`` networks of N/K, their emulators in a child
-process (this file with ``--emulator``, pinned to core 0, one emulator per
-network on a shared port each, real time), flown by ``run_sharded`` with
+vehicles as ``--networks K`` networks of N/K (bench_station's swarm), their emulators in
+bench_station's child process (pinned to core 0, one emulator per network
+on a shared port each, real time), flown by ``run_sharded`` with
 each of ``--shards 1,2,4`` link shard processes (the controller in this
 process; shards and controller not pinned) for ``--seconds`` of formation
 at ``--rate`` Hz. Reported per shard count: controller steps per second,
@@ -44,7 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import pin
+import bench_station
 
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
@@ -79,43 +79,9 @@ async def _sharded(mission: Mission) -> tuple[float, RunSummary, ShardedRun]:
 
 
 def _rt_mission(n: int, nets: int, rate: float, duration: float) -> Mission:
-    """N vehicles on a 3 m grid (bench_station's swarm) as ``nets`` networks."""
-    side = math.ceil(n ** (1 / 3))
-    c = (side - 1) / 2
-    text = (
-        f"mission: {{name: bench-shards-rt, duration: {duration:g}, rate: {rate:g}, end: hold}}\n"
-        "emulator: {dynamics: ideal, spawn: air, shared: true}\n"
-        "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}\n"
-        "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
-    )
-    per = math.ceil(n / nets)
-    for i in range(n):
-        if i % per == 0:
-            text += f"  - name: n{i // per}\n    vehicles:\n"
-        x, y, z = i % side, (i // side) % side, i // (side * side)
-        pos = f"[{3 * (x - c)}, {3 * (y - c)}, {3 * (z - c)}]"
-        text += f"      - {{sysid: {i % per + 1}, start: {pos}}}\n"
-    return parse_mission(text)
-
-
-async def _emulators(n: int, nets: int, rate: float) -> None:
-    """Child: one real-time emulator per network, ports on stdout, until stdin closes."""
-    import contextlib
-    from dataclasses import replace
-
-    from gcs_swarm.runtime.plans import emulator_config
-    from sim_vehicle import Emulator
-
-    pin(0)
-    mission = _rt_mission(n, nets, rate, 3600.0)
-    async with contextlib.AsyncExitStack() as stack:
-        ports = []
-        for j in range(nets):
-            cfg = replace(emulator_config(mission, airborne=True, network=j), shared_port=0)
-            emu = await stack.enter_async_context(Emulator(cfg))
-            ports.append(emu.endpoints[min(emu.endpoints)][1])
-        print(" ".join(map(str, ports)), flush=True)
-        await asyncio.get_running_loop().run_in_executor(None, sys.stdin.read)
+    """N vehicles on bench_station's 3 m grid as ``nets`` networks of N/nets."""
+    bench_station.RATE_HZ, bench_station.GROUP = rate, math.ceil(n / nets)
+    return parse_mission(bench_station.mission_yaml(n, networks=True, duration=duration))
 
 
 async def _realtime(
@@ -124,9 +90,10 @@ async def _realtime(
     import logging
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
+    per = math.ceil(n / nets)
     child = await asyncio.create_subprocess_exec(
-        sys.executable, __file__, "--emulator", str(n), "--networks", str(nets),
-        "--rate", f"{rate:g}", stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        sys.executable, bench_station.__file__, "--emulator", str(n), "--networks",
+        "--group", str(per), "--rate", f"{rate:g}", stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert child.stdout is not None and child.stdin is not None
     try:
@@ -177,11 +144,7 @@ def main() -> None:
     ap.add_argument("--shards", default="1,2,4", help="--realtime: shard counts (default 1,2,4)")
     ap.add_argument("--rate", type=float, default=50.0, help="--realtime: control rate [Hz]")
     ap.add_argument("--seconds", type=float, default=10.0, help="--realtime: formation [s]")
-    ap.add_argument("--emulator", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.emulator is not None:
-        asyncio.run(_emulators(args.emulator, args.networks, args.rate))
-        return
     if args.realtime is not None:
         realtime_main(args)
         return

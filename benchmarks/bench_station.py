@@ -55,17 +55,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import pin
 
 GROUP = 250
+"""Vehicles per network or station group (``--group``; the emulator child is told it too)."""
 RATE_HZ = 50.0
 """The control rate [Hz] (``--rate``; the emulator child is told it too)."""
 
 
-def mission_yaml(n: int, networks: bool = False) -> str:
+def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
     """N vehicles on a 3 m grid; with ``networks``, one mission whose
     networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
     shared by all (one formation)."""
     side = math.ceil(n ** (1 / 3))
     lines = [
-        f"mission: {{name: bench, duration: 14400, rate: {RATE_HZ:g}, end: hold}}",
+        f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold}}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
@@ -194,7 +195,8 @@ async def station_run(
     from gcs_swarm.runtime.station import Station
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
-    child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}"] + (["--networks"] if networks else [])
+    child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
+    child += ["--networks"] if networks else []
     proc = await asyncio.create_subprocess_exec(
         sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
@@ -313,11 +315,13 @@ def main() -> None:
     ap.add_argument("--record", action="store_true",
                     help="give each station a flight recorder, as a logged run has")  # fmt: skip
     ap.add_argument("--rate", type=float, default=50.0, help="control rate [Hz] (default 50)")
+    ap.add_argument("--group", type=int, default=250,
+                    help="vehicles per network or station group (default 250)")  # fmt: skip
     ap.add_argument("--networks", action="store_true",
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ
-    RATE_HZ = args.rate
+    global RATE_HZ, GROUP
+    RATE_HZ, GROUP = args.rate, args.group
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
