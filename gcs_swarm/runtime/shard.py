@@ -168,8 +168,13 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
         finally:
             flying_drops[0] = sum(lk.stats.setpoints_dropped for lk in station.links.values())
             station.release()  # what a lockstep shard held before the start
-            with contextlib.suppress(asyncio.CancelledError):
-                await station.end(end_mode[0])
+            # The ending runs to its end (it has its own timeout): a signal that
+            # arrives meanwhile (Ctrl-C reaches the controller and its shards
+            # alike) must not cut it short, or the report says "ending".
+            ending = asyncio.ensure_future(station.end(end_mode[0]))
+            while not ending.done():
+                with contextlib.suppress(asyncio.CancelledError):
+                    await asyncio.shield(ending)
             beating.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await beating
