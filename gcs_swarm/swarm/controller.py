@@ -32,14 +32,17 @@ import logging
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope, LawConfig
-from gcs_swarm.errors import SwarmError
 from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
-from gcs_swarm.swarm.step import LEADER_BOUND
+from gcs_swarm.swarm.step import command
+
+if TYPE_CHECKING:
+    from gcs_swarm.report.record import FlightRecorder
 
 __all__ = ["ControllerCore", "ShardView"]
 
@@ -77,13 +80,18 @@ class ControllerCore:
         duration_s: float,
         stale_timeout_s: float,
         lockstep: bool,
+        recorder: FlightRecorder | None = None,
     ) -> None:
+        """``recorder`` (a run with a folder) gets every step of the law and
+        every vehicle that comes into or goes out of it, as one station's
+        (``SwarmCore``) does; its annotations go to the controller's log."""
         # The plane look-ahead runs inline at its step: no worker thread here.
         self.control = ControlLoop(law, charges, rate_hz, defer=False)
         self.rate_hz = rate_hz
         self.duration_s = duration_s
         self.stale_timeout_s = stale_timeout_s
         self.lockstep = lockstep
+        self.recorder = recorder
         self.shards = {i: ShardView(i) for i in range(shards)}
         self.started = False
         self.finished = False
@@ -212,15 +220,15 @@ class ControllerCore:
             vel = np.concatenate([b.vel_mps for b in batches])[order]
         else:
             ids, pos, vel = [], np.zeros((0, 3)), np.zeros((0, 3))
-        for gone in set(self.flying) - set(ids):
-            self.control.forget(gone)  # it left: its clock and shaper start afresh
-        self.flying = ids
+        self._membership(ids)
         t = self.control.advance_clock(fresh)
         replies: list[SetpointReply] = []
         if ids:
-            accel = self._law(ids, pos, vel, t)
-            if accel is None:
+            commanded = command(self, ids, pos, vel, t, fresh.keys())
+            if commanded is None:
                 return []
+            out, accel, report = commanded
+            self.control.account(ids, pos, out, accel, report)
             row = {s: i for i, s in enumerate(ids)}
             for v in live:
                 if not v.delivered:
@@ -238,23 +246,21 @@ class ControllerCore:
             self.finished = True
         return replies
 
-    def _law(self, ids: list[int], pos: np.ndarray, vel: np.ndarray, t: float) -> np.ndarray | None:
-        """``swarm.step.run_step``'s law and its checks; None when it failed."""
-        try:
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                out, accel, report = self.control.command(ids, pos, vel)
-        except (SwarmError, ArithmeticError, ValueError) as err:
-            self.abort(f"t={t:.2f} s: the law failed in flight: {err}")
-            return None
-        lead = out.leader_pos_m.tolist() + out.leader_vel_mps.tolist()
-        if not all(-LEADER_BOUND <= x <= LEADER_BOUND for x in lead):  # NaN fails too
-            self.abort(f"t={t:.2f} s: the virtual leader's state is not finite")
-            return None
-        if out.event is not None:
-            what = "starts" if out.event == "start" else "ends: formation resumes"
-            self.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
-        self.control.account(ids, pos, out, accel, report)
-        return accel
+    def _membership(self, ids: list[int]) -> None:
+        """The law's vehicles this step: those no shard reports any more
+        (lost, ended, or of a dead shard) leave it, with their clock and
+        shaper forgotten (they start afresh if they come back); new ones
+        come in. Both told to the recorder at the mission time they were
+        last flown at (``SwarmCore``'s ``_join`` and leaving do so)."""
+        before, now_in = set(self.flying), set(ids)
+        for gone in sorted(before - now_in):
+            self.control.forget(gone)
+            if self.recorder is not None:
+                self.recorder.member(self.control.t_s, gone, False)
+        if self.recorder is not None:
+            for key in sorted(now_in - before):
+                self.recorder.member(self.control.t_s, key, True)
+        self.flying = ids
 
     def abort(self, why: str) -> None:
         """End the mission now, as failed (the shell brakes every vehicle)."""

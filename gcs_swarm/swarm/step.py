@@ -15,8 +15,8 @@ a setpoint's latency does not include it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -25,14 +25,20 @@ from gcs_swarm.errors import SwarmError
 from gcs_swarm.mavlink.states import Phase
 
 if TYPE_CHECKING:
+    from gcs_swarm.control.law import ControlOutput
+    from gcs_swarm.control.loop import ControlLoop
+    from gcs_swarm.control.safety_stats import SafetyReport
+    from gcs_swarm.report.record import FlightRecorder
     from gcs_swarm.swarm.core import SwarmCore
 
 __all__ = [
     "LEADER_BOUND",
     "READYING",
+    "Commanding",
     "SetpointBatch",
     "Write",
     "answer",
+    "command",
     "flying_states",
     "run_step",
 ]
@@ -74,28 +80,10 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     ids = sorted(core.flying)
     if ids:
         ks, pos, vel = flying_states(core, ids, now)
-        try:
-            # Overflow is judged below, on the leader (and counted, on the setpoints).
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                out, accel, report = core.control.command(ids, pos, vel)
-        except (SwarmError, ArithmeticError, ValueError) as err:
-            core.abort(f"t={t:.2f} s: the law failed in flight: {err}")
+        commanded = command(core, ids, pos, vel, t, fresh.keys())
+        if commanded is None:
             return
-        lead = (out.leader_pos_m.tolist(), out.leader_vel_mps.tolist())
-        b = LEADER_BOUND
-        if not all(-b <= x <= b for x in lead[0] + lead[1]):  # NaN fails too
-            core.abort(f"t={t:.2f} s: the virtual leader's state is not finite (position "
-                       f"{lead[0]} m, velocity {lead[1]} m/s)")  # fmt: skip
-            return
-        if out.event is not None:
-            what = "starts" if out.event == "start" else "ends: formation resumes"
-            core.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
-        if core.recorder is not None:
-            # Before the setpoints go out: the log's LEADER note marks the step.
-            cor = None if report is None else report.correction_mps2
-            core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
-                               out.episode, accel_mps2=accel, sent=fresh.keys(),
-                               correction_mps2=cor)  # fmt: skip
+        out, accel, report = commanded
         if len(fresh) == len(ids) and all(map(fresh.__contains__, ids)):  # every one: no copies
             answer(core, ids, ks, accel, now, t, vel, write)
         else:
@@ -112,6 +100,57 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     if t >= core.config.duration_s:
         core.note(f"mission time {t:.2f} s reached the duration")
         core.finished = True
+
+
+class Commanding(Protocol):
+    """What ``command`` needs of a core: the one-process ``SwarmCore`` and a
+    sharded run's ``ControllerCore`` both are."""
+
+    control: ControlLoop
+    recorder: FlightRecorder | None
+
+    def abort(self, why: str) -> None: ...
+
+    def note(self, text: str, *, level: int = ...) -> None: ...
+
+
+def command(
+    core: Commanding,
+    ids: list[int],
+    pos: FloatArray,
+    vel: FloatArray,
+    t: float,
+    sent: Iterable[int],
+) -> tuple[ControlOutput, FloatArray, SafetyReport | None] | None:
+    """The law's command for ``ids`` at their mission-frame states
+    (``ControlLoop.command``: the leader, the law, the safety filter, the
+    shaper) at mission time ``t`` [s], with the checks that end a mission as
+    failed (``core.abort``; then None and nothing goes out); the avoidance
+    episodes noted; the step given to the flight recorder, ``sent`` the
+    vehicles that get a setpoint, before the setpoints go out (the log's
+    LEADER note marks the step)."""
+    try:
+        # Overflow is judged below, on the leader (and counted, on the setpoints).
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            out, accel, report = core.control.command(ids, pos, vel)
+    except (SwarmError, ArithmeticError, ValueError) as err:
+        core.abort(f"t={t:.2f} s: the law failed in flight: {err}")
+        return None
+    lead = (out.leader_pos_m.tolist(), out.leader_vel_mps.tolist())
+    b = LEADER_BOUND
+    if not all(-b <= x <= b for x in lead[0] + lead[1]):  # NaN fails too
+        core.abort(f"t={t:.2f} s: the virtual leader's state is not finite (position "
+                   f"{lead[0]} m, velocity {lead[1]} m/s)")  # fmt: skip
+        return None
+    if out.event is not None:
+        what = "starts" if out.event == "start" else "ends: formation resumes"
+        core.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
+    if core.recorder is not None:
+        cor = None if report is None else report.correction_mps2
+        core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
+                           out.episode, accel_mps2=accel, sent=sent,
+                           correction_mps2=cor)  # fmt: skip
+    return out, accel, report
 
 
 def flying_states(
