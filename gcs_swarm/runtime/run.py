@@ -21,14 +21,13 @@ import time
 from collections.abc import Callable, Mapping
 from contextlib import AbstractAsyncContextManager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
-from gcs_swarm.mission.model import KEY_STRIDE
 from gcs_swarm.offline import demand_report, envelope_demand
-from gcs_swarm.report.artefacts import RunFolder, create_run_folder, write_json, write_report
+from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.report.replay import safety_applied
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
@@ -39,6 +38,13 @@ from gcs_swarm.runtime.plans import (
     param_settings,
     signing_key,
     station_config,
+)
+from gcs_swarm.runtime.run_report import (
+    frame_sink,
+    note_sink,
+    vehicle_param_records,
+    write_run_report,
+    write_vehicle_params,
 )
 from gcs_swarm.runtime.station import Station, StationConfig
 from gcs_swarm.runtime.summary import RunSummary
@@ -134,7 +140,7 @@ async def run_mission(
                     r0=mission.law.avoidance.r0,
                     rate_hz=mission.settings.rate,
                     safety=safety_applied(mission),
-                    sink=_note_sink(tlogs[0]),
+                    sink=note_sink(tlogs[0]),
                 )
             # One emulator per network: each speaks its own system ids, on its
             # own endpoints (and its own lockstep; the station answers them all).
@@ -162,7 +168,7 @@ async def run_mission(
                     recorder=recorder,
                     on_frame_for=None
                     if not tlogs
-                    else lambda link: _frame_sink(tlogs[network_of[link]]),
+                    else lambda link: frame_sink(tlogs[network_of[link]]),
                 )
             )
             end_mode: int | None = None
@@ -215,104 +221,13 @@ async def run_mission(
                 logging_error=next((t.error for t in tlogs if t.error), None),
             )
             if folder is not None:
-                _write_vehicle_params(folder, station)
+                write_vehicle_params(folder, vehicle_param_records(station.vehicles))
             if folder is not None and recorder is not None:
-                await _write_run_report(folder, recorder, summary, picture=picture,
-                                        networks=mission.networks)  # fmt: skip
+                await write_run_report(folder, recorder, summary, picture=picture,
+                                       networks=mission.networks)  # fmt: skip
             if on_summary is not None:
                 on_summary(summary)
     return summary
-
-
-def _write_vehicle_params(folder: RunFolder, station: Station) -> None:
-    """``vehicle_params.json``: each vehicle's envelope and every parameter the
-    station changed on it (old, new, read-back, restored)."""
-    records = []
-    for key, vp in sorted(station.vehicles.items()):
-        record = vp.vehicle_params.record()
-        if str(key) != vp.label:  # a named network: told by network:sysid (docs/mission-format.md)
-            record = {"vehicle": vp.label, **record, "sysid": key % KEY_STRIDE}
-        records.append(record)
-    try:
-        write_json({"vehicles": records}, folder.vehicle_params)
-    except OSError as err:  # never let the record hide how the flight ended
-        _log.error("%s: not written: %s", folder.vehicle_params, err.strerror or err)
-
-
-def _note_sink(tlog: TlogWriter) -> Callable[[bytes], None]:
-    def sink(frame: bytes) -> None:
-        tlog.write(frame)
-
-    return sink
-
-
-def _frame_sink(tlog: TlogWriter) -> Callable[[bytes, str], None]:
-    def sink(frame: bytes, direction: str) -> None:
-        tlog.write(frame)
-
-    return sink
-
-
-async def _write_run_report(
-    folder: RunFolder,
-    recorder: FlightRecorder,
-    summary: RunSummary,
-    *,
-    picture: bool,
-    networks: tuple[str, ...],
-) -> None:
-    """``summary.json`` and ``report.png`` of the run, off the event loop
-    (matplotlib takes about a second); the station's link counters go in too."""
-    extra: dict[str, Any] = {
-        "outcome": summary.outcome,
-        "wall_time_s": summary.wall_time_s,
-        "startup": {
-            "start_tolerance_m": summary.start_tolerance_m,
-            "start_speed_tolerance_mps": summary.start_speed_tolerance_mps,
-        },
-        "links": {
-            "messages_sent": summary.messages_sent,
-            "setpoints_dropped": summary.setpoints_dropped,
-            "messages_dropped": summary.messages_dropped,
-            "bad_packets": summary.bad_packets,
-            "unknown_sysid_messages": summary.unknown_sysid_messages,
-            "spoofed": summary.spoofed,
-            "signature_rejected": summary.signature_rejected,
-            "rebinds_refused": summary.rebinds_refused,
-        },
-        # What only the live station knows (a replay of the .tlog cannot).
-        "station": {
-            "failure": summary.failure,
-            "clipped_setpoints": summary.clipped_setpoints,
-            "logging_error": summary.logging_error,
-            "telemetry_rate": {
-                str(v.sysid): {"min_hz": v.telemetry_rate_min_hz, "requests": v.rate_requests}
-                for v in summary.vehicles
-            },
-            "velocity_bias": {
-                str(v.sysid): {
-                    "estimate_ned_mps": list(v.velocity_bias_ned_mps),
-                    "corrected": v.velocity_bias_corrected,
-                    "at_cap": v.velocity_bias_saturated,
-                }
-                for v in summary.vehicles
-            },
-        },
-    }
-    rec = recorder.record()
-    try:
-        await asyncio.shield(
-            asyncio.to_thread(
-                write_report,
-                rec,
-                folder.summary,
-                folder.picture if picture else None,
-                extra=extra,
-                networks=networks,
-            )
-        )
-    except Exception as err:  # never let the report hide how the flight ended
-        _log.error("%s: report not written: %s", folder.path, err)
 
 
 def _with_end_timeout(cfg: StationConfig, end_timeout_s: float) -> StationConfig:
