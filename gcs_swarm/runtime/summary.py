@@ -1,20 +1,26 @@
 """The end-of-run summary: what flew, where it ended, what the links counted.
 
 ``RunSummary.from_station`` reads a ``Station`` once its vehicles have been
-ended; positions are mission frame [m] at the last control step (the state
+ended (``from_controller`` a sharded run's controller and its shards'
+final reports); positions are mission frame [m] at the last control step (the state
 the law last saw), so a test can compare them with the in-process law.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Vec3
+from gcs_swarm.mission import Mission
 from gcs_swarm.runtime.station import Station
+from gcs_swarm.swarm.controller import ControllerCore
 
 __all__ = ["RunSummary", "VehicleAtEnd"]
 
@@ -97,12 +103,7 @@ class RunSummary:
         wall_time_s: float,
         logging_error: str | None = None,
     ) -> RunSummary:
-        last = station.control.last
-        at: dict[int, tuple[Vec3, float]] = {}
-        if last is not None:
-            for i, sysid in enumerate(last.ids):
-                p = last.pos_m[i]
-                at[sysid] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
+        at = _at_last_step(station.control)
         vehicles = tuple(
             VehicleAtEnd(
                 sysid=s,
@@ -159,6 +160,89 @@ class RunSummary:
             clipped_setpoints=station.clipped_setpoints(),
             rebinds_refused=station.rebinds_refused(),
             failure=station.failure,
+            logging_error=logging_error,
+        )
+
+    @classmethod
+    def from_controller(
+        cls,
+        core: ControllerCore,
+        reports: Mapping[int, Mapping[str, Any]],
+        mission: Mission,
+        *,
+        outcome: str,
+        wall_time_s: float,
+        logging_error: str | None = None,
+    ) -> RunSummary:
+        """A sharded run's summary (``runtime.sharded``): the law's figures
+        from its controller, each vehicle and the links' counters from its
+        shard's final report (``runtime.shard``, by shard index); the
+        vehicles of a shard that sent none are ``lost``. ``outcome``
+        "flown" becomes completed, degraded or failed as ``Station.outcome``
+        decides it."""
+        at = _at_last_step(core.control)
+        reported = {v["sysid"]: v for d in reports.values() for v in d["vehicles"]}
+        vehicles = []
+        for v in sorted(mission.vehicles, key=lambda v: v.key):
+            r = reported.get(v.key)
+            vehicles.append(VehicleAtEnd(
+                sysid=v.key,
+                phase=r["phase"] if r else "lost",
+                mode=r["mode"] if r else "?",
+                position_m=at[v.key][0] if v.key in at else None,
+                radius_m=at[v.key][1] if v.key in at else None,
+                last_accel_ned_mps2=tuple(r["last_accel_ned_mps2"]) if r else (0.0, 0.0, 0.0),
+                failure=r["failure"] if r else "its shard stopped answering",
+                rate_requests=r["rate_requests"] if r else 0,
+                telemetry_rate_min_hz=r["telemetry_rate_min_hz"] if r else None,
+                velocity_bias_ned_mps=tuple(r["velocity_bias_ned_mps"]) if r else (0.0, 0.0, 0.0),
+                velocity_bias_corrected=bool(r["velocity_bias_corrected"]) if r else False,
+                velocity_bias_saturated=bool(r["velocity_bias_saturated"]) if r else False,
+                label=r["label"] if r else mission.label(v.key),
+            ))  # fmt: skip
+        if outcome == "flown":
+            flown = {k for d in reports.values() for k in d["flown"]}
+            flown |= {k for k in core.control.charges if k not in reported}  # a dead shard's
+            gone = [k for k in flown if reported.get(k, {}).get("phase") != "ended"]
+            outcome = "completed" if not gone else "degraded"
+            if core.failure is not None or (flown and len(gone) == len(flown)):
+                outcome = "failed"
+
+        def total(name: str) -> int:
+            return sum(int(d[name]) for d in reports.values())
+
+        rebinds: dict[int, int] = {}
+        for d in reports.values():
+            rebinds.update({int(k): int(n) for k, n in d.get("rebinds_refused", {}).items()})
+        leader = core.control.controller.leader_pos_m
+        log = list(core.log) + [line for d in reports.values() for line in d["log"]]
+        return cls(
+            outcome=outcome,
+            mission_time_s=core.control.t_s,
+            wall_time_s=wall_time_s,
+            steps=core.control.steps,
+            behaviour=core.control.controller.behaviour,
+            leader_pos_m=(float(leader[0]), float(leader[1]), float(leader[2])),
+            vehicles=tuple(vehicles),
+            min_separation_m=core.control.min_separation_m,
+            min_clearance_m=core.control.min_clearance_m,
+            episodes=core.control.controller.episode,
+            messages_sent=total("messages_sent"),
+            setpoints_dropped=total("setpoints_dropped"),
+            messages_dropped=total("messages_dropped"),
+            bad_packets=total("bad_packets"),
+            unknown_sysid_messages=total("unknown_sysid_messages"),
+            spoofed=total("spoofed"),
+            signature_rejected=total("signature_rejected"),
+            safety=str(core.control.safety_stats.totals())
+            if core.control.filtering
+            else "safety filter: off",
+            log=tuple(log),
+            start_tolerance_m=mission.settings.startup.start_tolerance,
+            start_speed_tolerance_mps=mission.settings.startup.start_speed_tolerance,
+            clipped_setpoints=total("clipped_setpoints"),
+            rebinds_refused=rebinds,
+            failure=core.failure,
             logging_error=logging_error,
         )
 
@@ -222,3 +306,15 @@ class RunSummary:
             lines.append(f"logging: {self.logging_error}")
         lines.append(self.safety)
         return "\n".join(lines)
+
+
+def _at_last_step(control: ControlLoop) -> dict[int, tuple[Vec3, float]]:
+    """Each vehicle's mission-frame position [m] and radius [m] at the law's
+    last step, by key."""
+    last = control.last
+    at: dict[int, tuple[Vec3, float]] = {}
+    if last is not None:
+        for i, key in enumerate(last.ids):
+            p = last.pos_m[i]
+            at[key] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
+    return at
