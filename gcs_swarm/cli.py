@@ -214,7 +214,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             from gcs_swarm.runtime.zbus import check_endpoint
 
             listen = check_endpoint(args.listen, option="--listen")
-        return sharded_run_command(args.mission, args.shards, listen=listen)
+        return sharded_run_command(args.mission, args.shards, listen=listen,
+                                   status=not args.no_status, log_dir=args.log_dir,
+                                   record=not args.no_log)  # fmt: skip
     if args.listen is not None:
         raise UsageError("--listen: only with --shards N")
     return run_command(

@@ -106,15 +106,12 @@ async def _main(
 
     lines = _StatusLines()
 
+    folders: list[RunFolder] = []
+
     def report(summary: RunSummary) -> None:
         lines.done()
         print(summary.format())
-        for folder in folders:
-            for path in (folder.tlog, folder.summary, folder.picture, folder.vehicle_params):
-                if path.is_file():
-                    print(f"written: {path}")
-
-    folders: list[RunFolder] = []
+        _print_written(folders, mission)
 
     def announce(folder: RunFolder) -> None:
         folders.append(folder)
@@ -144,6 +141,16 @@ async def _main(
     return 130 if summary is None else EXIT_CODES.get(summary.outcome, 1)
 
 
+def _print_written(folders: list[RunFolder], mission: Mission) -> None:
+    """``written: PATH`` for each file the run left in its folder."""
+    for folder in folders:
+        paths = [*folder.tlogs(mission.networks), folder.controller_tlog, folder.summary,
+                 folder.picture, folder.vehicle_params]  # fmt: skip
+        for path in paths:
+            if path.is_file():
+                print(f"written: {path}", flush=True)
+
+
 async def _until_interrupted(run: Coroutine[Any, Any, RunSummary], say: str) -> RunSummary | None:
     """Await ``run`` with SIGINT and SIGTERM cancelling it (its own ending then
     ends the vehicles; ``say`` is printed at the first signal); None when it
@@ -171,32 +178,47 @@ async def _until_interrupted(run: Coroutine[Any, Any, RunSummary], say: str) -> 
             loop.remove_signal_handler(sig)
 
 
-def sharded_run_command(path: str, shards: int, *, listen: str | None = None) -> int:
+def sharded_run_command(
+    path: str,
+    shards: int,
+    *,
+    listen: str | None = None,
+    status: bool = True,
+    log_dir: str | None = None,
+    record: bool = True,
+) -> int:
     """``gcs-swarm run PATH --shards N [--listen ENDPOINT]``: the mission
-    flown by N link shards (``gcs_swarm.runtime.sharded``; no run folder
-    yet): started on this machine, or with ``listen`` awaited there from
-    ``gcs-swarm shard --connect ENDPOINT`` elsewhere; its summary printed;
-    exit codes as ``run_command``'s. Ctrl-C or SIGTERM ends every vehicle
-    (the end action) through its shard."""
+    flown by N link shards (``gcs_swarm.runtime.sharded``): started on this
+    machine, or with ``listen`` awaited there from ``gcs-swarm shard
+    --connect ENDPOINT`` elsewhere; its summary printed; the run folder, the
+    status line and the exit codes as ``run_command``'s. Ctrl-C or SIGTERM
+    ends every vehicle (the end action) through its shard."""
     from gcs_swarm.runtime.run import EXIT_CODES
     from gcs_swarm.runtime.sharded import check_shards, run_sharded
 
     mission = load_mission(path)
     check_shards(mission, shards)
+    base = (log_dir if log_dir is not None else mission.log.dir) if record else None
 
     async def main() -> int:
         if listen is not None:
             print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
                   file=sys.stderr, flush=True)  # fmt: skip
         lines = _StatusLines()
+        folders: list[RunFolder] = []
 
         def report(summary: RunSummary) -> None:
             lines.done()
             print(summary.format(), flush=True)
+            _print_written(folders, mission)
+
+        def announce(folder: RunFolder) -> None:
+            folders.append(folder)
+            print(f"run folder: {folder.path}", file=sys.stderr, flush=True)
 
         flight = run_sharded(
-            mission, shards, endpoint=listen, spawn=listen is None,
-            on_status=lines.show, on_summary=report,
+            mission, shards, endpoint=listen, spawn=listen is None, log_dir=base,
+            on_folder=announce, on_status=lines.show if status else None, on_summary=report,
         )  # fmt: skip
         summary = await _until_interrupted(
             flight,

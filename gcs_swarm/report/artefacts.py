@@ -6,7 +6,11 @@ slug is the mission name in lower case, runs of other characters as ``-``)
 holding:
 
 - ``flight.tlog``: every MAVLink frame in and out, plus the station's
-  annotations (``gcs_swarm.report.notes``), standard ``.tlog`` format;
+  annotations (``gcs_swarm.report.notes``), standard ``.tlog`` format; a
+  mission with networks has one ``flight-<network>.tlog`` each instead
+  (the annotations in the first), and a sharded run (``gcs-swarm run
+  --shards N``) keeps the annotations in ``controller.tlog``, each shard
+  writing its own networks' logs;
 - ``mission.yaml``: a byte-for-byte copy of the mission file flown;
 - ``summary.json``: the figures of ``gcs_swarm.report.figures``;
 - ``report.png``: the picture of ``gcs_swarm.report.plot``;
@@ -40,9 +44,10 @@ from gcs_swarm.mission.model import DEFAULT_NETWORK
 from gcs_swarm.report.figures import summarize_record
 from gcs_swarm.report.networks import label_summary
 from gcs_swarm.report.record import FlightRecord
-from gcs_swarm.report.replay import ReplayStats, record_from_tlog
+from gcs_swarm.report.replay import CONTROLLER_TLOG_NAME, ReplayStats, record_from_tlog
 
 __all__ = [
+    "CONTROLLER_TLOG_NAME",
     "MISSION_NAME",
     "PICTURE_NAME",
     "SUMMARY_NAME",
@@ -80,6 +85,11 @@ class RunFolder:
     @property
     def tlog(self) -> Path:
         return self.path / TLOG_NAME
+
+    @property
+    def controller_tlog(self) -> Path:
+        """A sharded run's annotations (``report.replay.CONTROLLER_TLOG_NAME``)."""
+        return self.path / CONTROLLER_TLOG_NAME
 
     def tlogs(self, networks: tuple[str, ...]) -> list[Path]:
         """The run's telemetry logs, one per network in the mission's order:

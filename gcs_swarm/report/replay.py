@@ -49,7 +49,11 @@ from gcs_swarm.report.notes import parse_note
 from gcs_swarm.report.record import F64, FlightRecord, FlightRecorder
 from gcs_swarm.report.tlog import TlogRecord, TlogStats, read_tlog
 
-__all__ = ["ReplayStats", "record_from_tlog", "safety_applied"]
+__all__ = ["CONTROLLER_TLOG_NAME", "ReplayStats", "record_from_tlog", "safety_applied"]
+
+CONTROLLER_TLOG_NAME = "controller.tlog"
+"""A sharded run's annotations (``gcs-swarm run --shards``): its controller
+runs the law and keeps the notes; the shards log each network's frames."""
 
 _LPN, _ORIGIN, _COMMAND_LONG, _SETPOINT, _DEBUG_VECT = 32, 49, 76, 84, 250
 _MAV_CMD_NAV_LAND, _MAV_CMD_DO_SET_MODE, _MAV_CMD_ARM_DISARM = 21, 176, 400
@@ -172,14 +176,24 @@ def _network_records(
     """The records of the run: ``path`` alone for a mission without networks;
     else every network's ``.tlog`` beside it (``flight-<name>.tlog``), each
     record with its network's key base, merged in time order (the first
-    network's first on a tie: it holds the station's notes)."""
-    if not mission.multi_network:
-        return [(r, 0) for r in read_tlog(path, st.tlog)]
+    network's first on a tie: it holds the station's notes); and a sharded
+    run's ``controller.tlog`` when there is one beside (the notes: first on
+    a tie). The processes of a sharded run stamp records with one machine's
+    clock: a step's notes precede the setpoints it sent."""
     folder = Path(path).parent
-    streams = [
-        [(r, j * KEY_STRIDE) for r in read_tlog(folder / f"flight-{name}.tlog", st.tlog)]
-        for j, name in enumerate(mission.networks)
-    ]
+    # A sharded run's controller logs the annotations apart (its notes name
+    # vehicles by key): first on a tie, as the station's notes come first.
+    notes = folder / CONTROLLER_TLOG_NAME
+    streams = [[(r, 0) for r in read_tlog(notes, st.tlog)]] if notes.is_file() else []
+    if not mission.multi_network:
+        streams.append([(r, 0) for r in read_tlog(path, st.tlog)])
+    else:
+        streams += [
+            [(r, j * KEY_STRIDE) for r in read_tlog(folder / f"flight-{name}.tlog", st.tlog)]
+            for j, name in enumerate(mission.networks)
+        ]
+    if len(streams) == 1:
+        return streams[0]
     return list(heapq.merge(*streams, key=lambda kr: kr[0].t_us))
 
 

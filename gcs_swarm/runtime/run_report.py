@@ -11,17 +11,22 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Iterable, Mapping
+import shutil
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from types import TracebackType
 from typing import Any
 
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.mission import Mission
 from gcs_swarm.mission.model import KEY_STRIDE
 from gcs_swarm.report.artefacts import RunFolder, write_json, write_report
-from gcs_swarm.report.record import FlightRecorder
+from gcs_swarm.report.record import FlightRecorder, LinkCounts
+from gcs_swarm.report.replay import safety_applied
 from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.tlog import TlogWriter
 
 __all__ = [
+    "ControllerLog",
     "frame_sink",
     "note_sink",
     "vehicle_param_records",
@@ -132,3 +137,84 @@ async def write_run_report(
         )
     except Exception as err:  # never let the report hide how the flight ended
         _log.error("%s: report not written: %s", folder.path, err)
+
+
+class ControllerLog:
+    """A sharded run's folder, on the controller's side (``runtime.sharded``):
+    the flight recorder of its law, whose annotations go to
+    ``controller.tlog`` (open in its ``async with``), the paths each shard
+    logs its networks' frames to, and the closing files from the recorder
+    and the shards' final reports. Does nothing without a folder."""
+
+    def __init__(self, mission: Mission, folder: RunFolder | None) -> None:
+        self.mission = mission
+        self.folder = folder
+        self._tlog: TlogWriter | None = None
+        self._closed = False
+        self.recorder: FlightRecorder | None = None
+        if folder is not None:
+            self._tlog = TlogWriter(folder.controller_tlog, on_error=_log.warning)
+            self.recorder = FlightRecorder(
+                name=mission.settings.name,
+                source="run",
+                boxes=mission.law.obstacles,
+                r0=mission.law.avoidance.r0,
+                rate_hz=mission.settings.rate,
+                safety=safety_applied(mission),
+                sink=note_sink(self._tlog),
+            )
+
+    async def __aenter__(self) -> ControllerLog:
+        if self._tlog is not None:
+            await self._tlog.__aenter__()
+        return self
+
+    async def __aexit__(
+        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if self._tlog is not None:
+            await self._tlog.__aexit__(et, ev, tb)
+        if not self._closed and self.folder is not None:
+            # The run ended before its shards were started (an emulator or
+            # the Zenoh session did not open): nothing was commanded.
+            shutil.rmtree(self.folder.path, ignore_errors=True)
+
+    def tlogs(self, networks: Sequence[int]) -> dict[str, str]:
+        """Where a shard owning ``networks`` (indices) logs each one's frames
+        (absolute paths; none without a folder)."""
+        if self.folder is None:
+            return {}
+        paths = self.folder.tlogs(self.mission.networks)
+        return {str(j): str(paths[j].resolve()) for j in networks}
+
+    def error(self, reports: Iterable[Mapping[str, Any]]) -> str | None:
+        """Why logging stopped, the controller's or a shard's, or None."""
+        if self._tlog is not None and self._tlog.error:
+            return self._tlog.error
+        return next((str(d["logging_error"]) for d in reports if d.get("logging_error")), None)
+
+    async def close(
+        self,
+        summary: RunSummary,
+        reports: Iterable[Mapping[str, Any]],
+        *,
+        picture: bool,
+        commanded: bool,
+    ) -> None:
+        """Write ``vehicle_params.json``, ``summary.json`` and ``report.png``
+        with the shards' inbound counts and parameter records; or, when no
+        shard ever joined (nothing was commanded), leave no folder behind."""
+        self._closed = True
+        if self.folder is None or self.recorder is None:
+            return
+        if not commanded:
+            shutil.rmtree(self.folder.path, ignore_errors=True)
+            return
+        params: dict[int, dict[str, Any]] = {}
+        for d in reports:
+            for key, counts in d.get("telemetry", {}).items():
+                self.recorder.telemetry.counts[int(key)] = LinkCounts(*counts)
+            params.update({int(k): r for k, r in d.get("vehicle_params", {}).items()})
+        write_vehicle_params(self.folder, [params[k] for k in sorted(params)])
+        await write_run_report(self.folder, self.recorder, summary, picture=picture,
+                               networks=self.mission.networks)  # fmt: skip

@@ -9,6 +9,11 @@ membership, the telemetry table. Only its control step differs: the state
 batch goes to the controller (``swarm.shard.ShardSide.take_state``) and the
 controller's reply is answered through the links (``ShardSide.apply``).
 
+In a run with a folder the assignment names where this shard logs each of
+its networks' frames (``flight-<network>.tlog``); its final report carries
+the inbound counts and the vehicles' parameter records for the controller's
+summary and ``vehicle_params.json``.
+
 Ending: the controller's ``end`` (its mode), a signal (SIGINT/SIGTERM), or
 the controller silent for the stale timeout all end every vehicle of the
 shard with ``Station.end`` (zero acceleration, then the end action,
@@ -25,14 +30,19 @@ import math
 import os
 import secrets
 import signal
-from dataclasses import asdict, replace
+from collections.abc import Callable
+from dataclasses import asdict, astuple, replace
+from pathlib import Path
 from typing import Any
 
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import parse_mission
+from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.plans import station_config
+from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
+from gcs_swarm.runtime.tlog import TlogWriter
 from gcs_swarm.runtime.zbus import Bus
 from gcs_swarm.swarm.shard import ShardSide
 from gcs_swarm.swarm.shard_wire import decode_reply, encode_state
@@ -114,7 +124,28 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
             end_mode[0] = msg.get("mode")
             ended.set()
 
-    station = Station(cfg, control_step=step)
+    # A run with a folder: this shard logs its own networks' frames (one
+    # .tlog each, where the controller named them) and counts what came in.
+    tlog_paths = {int(j): Path(p) for j, p in a.get("tlogs", {}).items()}
+    network_of = {links[v.key]: v.net_index for v in mission.vehicles if v.key in mine}
+    tlogs: dict[int, TlogWriter] = {}
+    recorder = FlightRecorder() if tlog_paths else None
+
+    def log_failed(text: str) -> None:  # logging stopped: say so once, fly on
+        if station is not None:
+            station.warn(text)
+
+    for j, path in sorted(tlog_paths.items()):
+        with contextlib.suppress(OSError):  # a shard on another machine: the same path there
+            path.parent.mkdir(parents=True, exist_ok=True)
+        tlogs[j] = TlogWriter(path, on_error=log_failed)
+
+    def frames_for(link: str) -> Callable[[bytes, str], None] | None:
+        tlog = tlogs.get(network_of.get(link, -1))
+        return None if tlog is None else frame_sink(tlog)
+
+    station = Station(cfg, control_step=step, recorder=recorder,
+                      on_frame_for=frames_for if tlogs else None)  # fmt: skip
     station.hold_when_ready = cfg.lockstep
     side = ShardSide(station.core, index, cfg.stale_timeout_s)
     bus.subscribe(f"down/{index}/reply", on_reply)
@@ -125,8 +156,11 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
     """Setpoints dropped (a newer one queued first) before the ending began."""
     stack = contextlib.AsyncExitStack()
     try:
+        for tlog in tlogs.values():  # closed after the station: its ending is logged
+            await stack.enter_async_context(tlog)
         await stack.enter_async_context(station)
     except LinkError as err:  # a link that does not open: the controller is told why
+        await stack.aclose()
         bus.put_json(f"{up}/msg", {"kind": "failed", "text": str(err)})
         bus.put_json(f"{up}/msg", {**_done(station, side), "setpoints_dropped_before_end": 0})
         await asyncio.sleep(0.3)  # the report's way out before the session closes
@@ -180,6 +214,7 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
                 await beating
             done = _done(station, side)
             done["setpoints_dropped_before_end"] = flying_drops[0]
+            done["logging_error"] = next((t.error for t in tlogs.values() if t.error), None)
             bus.put_json(f"{up}/msg", done)
         outcome_ok = outcome_ok and station.outcome() == "completed"
     await asyncio.sleep(0.3)  # the report's way out before the session closes
@@ -206,6 +241,8 @@ def _done(station: Station, side: ShardSide) -> dict[str, Any]:
     """The shard's final report: each vehicle as ``VehicleAtEnd`` needs it,
     the links' counters, the log."""
     links = station.links.values()
+    records = vehicle_param_records(station.vehicles)
+    params = dict(zip(map(str, sorted(station.vehicles)), records, strict=True))
     return {
         "kind": "done",
         "vehicles": [
@@ -235,10 +272,15 @@ def _done(station: Station, side: ShardSide) -> dict[str, Any]:
         "spoofed": sum(lk.stats.spoofed for lk in links),
         "signature_rejected": sum(lk.stats.signature_rejected for lk in links),
         "clipped_setpoints": station.clipped_setpoints(),
+        "rebinds_refused": {str(k): n for k, n in station.rebinds_refused().items()},
         "states": side.states,
         "replies": side.replies,
         "latency_ms": _latency_ms(station),
         "log": list(station.log),
+        "vehicle_params": params,
+        "telemetry": {}
+        if station.recorder is None
+        else {str(k): astuple(c) for k, c in station.recorder.telemetry.counts.items()},
     }
 
 

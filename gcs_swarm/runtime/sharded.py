@@ -13,9 +13,13 @@ mission's duration; then it sends every shard the end action and gathers
 their reports into one ``RunSummary``. It always ends the shards, also
 when cancelled (Ctrl-C) or when the start-up fails.
 
-Not (yet) in a sharded run: join/leave events and reserves, the run
-folder (``.tlog``, summary file, picture), the operator view, TIMESYNC
-delay compensation across the split (each shard predicts its own reports).
+With a run folder each shard logs its networks' frames, the controller its
+notes (``controller.tlog``) and, at the end, the summary, the picture and
+the vehicles' parameters (``runtime.run_report.ControllerLog``).
+
+Not (yet) in a sharded run: join/leave events and reserves, the operator
+view, TIMESYNC delay compensation across the split (each shard predicts
+its own reports).
 """
 
 from __future__ import annotations
@@ -29,15 +33,18 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
+from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.runtime.plans import END_MODES, emulator_config
+from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
-from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
+from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.zbus import Bus, check_endpoint
 from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
@@ -261,6 +268,9 @@ async def run_sharded(
     endpoint: str | None = None,
     spawn: bool = True,
     end_timeout_s: float = 15.0,
+    log_dir: str | Path | None = None,
+    picture: bool = True,
+    on_folder: Callable[[RunFolder], None] | None = None,
     on_run: Callable[[ShardedRun], None] | None = None,
     on_status: Callable[[str], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
@@ -271,7 +281,12 @@ async def run_sharded(
     127.0.0.1); ``on_run`` gets the live run (its core, its processes) once
     the shards are started; ``on_status`` a status line every second in
     flight; ``on_summary`` the summary, also when the run is cancelled or
-    its start-up fails (the exception then propagates). Raises
+    its start-up fails (the exception then propagates). With ``log_dir``
+    the run gets a folder there as ``run_mission``'s (``on_folder`` gets it
+    at once): each shard writes its networks' ``flight-<network>.tlog``,
+    the controller its annotations (``controller.tlog``), the summary,
+    the picture (unless ``picture`` is False) and the vehicles' parameters
+    from the shards' reports; ``gcs-swarm report`` reads it as any. Raises
     ``UsageError`` when the mission cannot be sharded so, ``StartupError``
     when a shard cannot ready its vehicles (every shard then lands its
     airborne ones)."""
@@ -283,12 +298,18 @@ async def run_sharded(
     if lockstep is None:
         lockstep = bool(sims) and mission.emulator.mode == "lockstep"
     s = mission.settings
+    folder = None if log_dir is None else create_run_folder(mission, base_dir=log_dir)
+    if folder is not None and on_folder is not None:
+        on_folder(folder)
+    log = ControllerLog(mission, folder)
     core = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate,
                           shards=shards, duration_s=s.duration,
-                          stale_timeout_s=s.stale_timeout, lockstep=lockstep)  # fmt: skip
+                          stale_timeout_s=s.stale_timeout, lockstep=lockstep,
+                          recorder=log.recorder)  # fmt: skip
     outcome = "cancelled"
     emulators: dict[int, Emulator] = {}
-    async with contextlib.AsyncExitStack() as stack:
+    summary: RunSummary | None = None
+    async with log, contextlib.AsyncExitStack() as stack:
         for j in sorted({v.net_index for v in sims}):
             cfg = emulator_config(mission, network=j)
             if cfg.clock == "lockstep":
@@ -309,9 +330,10 @@ async def run_sharded(
                   "links": {str(k): v for k, v in given.items()},
                   "end_timeout_s": end_timeout_s}  # fmt: skip
         assignment = [
-            {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]]}
+            {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]],
+             "tlogs": log.tlogs(nets[i::shards])}
             for i in range(shards)
-        ]
+        ]  # fmt: skip
         bus = await stack.enter_async_context(Bus(listen=[endpoint]))
         run = ShardedRun(bus, core, assignment)
         run.endpoint = endpoint
@@ -368,6 +390,7 @@ async def run_sharded(
             outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
             raise
         finally:
+            core.end()
             bus.put_json("down/all", {"kind": "end", "mode": end_mode})
             # Every shard that joined and is neither dead nor exited reports once ended.
             expect = {i for i, v in core.shards.items() if v.alive and i in run.pids}
@@ -377,9 +400,15 @@ async def run_sharded(
                 return all(i in run.done or run.pids[i] in gone for i in expect)
 
             await run.wait_for(reported, end_timeout_s + 5.0)
+            summary = RunSummary.from_controller(
+                core, run.done, mission, outcome=outcome, wall_time_s=time.monotonic() - wall0
+            )
+            summary = replace(summary, logging_error=log.error(run.done.values()))
+            await log.close(summary, run.done.values(), picture=picture, commanded=bool(run.pids))
             if on_summary is not None:  # also when cancelled or the start-up failed
-                on_summary(_summary(run, core, mission, outcome, time.monotonic() - wall0))
-    return _summary(run, core, mission, outcome, time.monotonic() - wall0)
+                on_summary(summary)
+    assert summary is not None  # the ending above ran
+    return summary
 
 
 async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> None:
@@ -398,75 +427,3 @@ async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> N
             for proc in live:
                 if proc.returncode is None:
                     getattr(proc, stop)()
-
-
-def _summary(
-    run: ShardedRun, core: ControllerCore, mission: Mission, outcome: str, wall_s: float
-) -> RunSummary:
-    """One ``RunSummary`` from the controller's law and the shards' reports;
-    the vehicles of a shard that sent none are reported ``lost``."""
-    last = core.control.last
-    at: dict[int, tuple[tuple[float, float, float], float]] = {}
-    if last is not None:
-        for i, key in enumerate(last.ids):
-            p = last.pos_m[i]
-            at[key] = ((float(p[0]), float(p[1]), float(p[2])), float(last.radii_m[i]))
-    reported = {v["sysid"]: v for d in run.done.values() for v in d["vehicles"]}
-    vehicles = []
-    for v in sorted(mission.vehicles, key=lambda v: v.key):
-        r = reported.get(v.key)
-        vehicles.append(VehicleAtEnd(
-            sysid=v.key,
-            phase=r["phase"] if r else "lost",
-            mode=r["mode"] if r else "?",
-            position_m=at[v.key][0] if v.key in at else None,
-            radius_m=at[v.key][1] if v.key in at else None,
-            last_accel_ned_mps2=tuple(r["last_accel_ned_mps2"]) if r else (0.0, 0.0, 0.0),
-            failure=r["failure"] if r else "its shard stopped answering",
-            rate_requests=r["rate_requests"] if r else 0,
-            telemetry_rate_min_hz=r["telemetry_rate_min_hz"] if r else None,
-            velocity_bias_ned_mps=tuple(r["velocity_bias_ned_mps"]) if r else (0.0, 0.0, 0.0),
-            velocity_bias_corrected=bool(r["velocity_bias_corrected"]) if r else False,
-            velocity_bias_saturated=bool(r["velocity_bias_saturated"]) if r else False,
-            label=r["label"] if r else mission.label(v.key),
-        ))  # fmt: skip
-    if outcome == "flown":
-        flown = {k for d in run.done.values() for k in d["flown"]}
-        flown |= {k for k in core.control.charges if k not in reported}  # a dead shard's
-        gone = [k for k in flown if reported.get(k, {}).get("phase") != "ended"]
-        outcome = "completed" if not gone else "degraded"
-        if core.failure is not None or (flown and len(gone) == len(flown)):
-            outcome = "failed"
-
-    def total(name: str) -> int:
-        return sum(int(d[name]) for d in run.done.values())
-
-    leader = core.control.controller.leader_pos_m
-    log = list(core.log) + [line for d in run.done.values() for line in d["log"]]
-    return RunSummary(
-        outcome=outcome,
-        mission_time_s=core.control.t_s,
-        wall_time_s=wall_s,
-        steps=core.control.steps,
-        behaviour=core.control.controller.behaviour,
-        leader_pos_m=(float(leader[0]), float(leader[1]), float(leader[2])),
-        vehicles=tuple(vehicles),
-        min_separation_m=core.control.min_separation_m,
-        min_clearance_m=core.control.min_clearance_m,
-        episodes=core.control.controller.episode,
-        messages_sent=total("messages_sent"),
-        setpoints_dropped=total("setpoints_dropped"),
-        messages_dropped=total("messages_dropped"),
-        bad_packets=total("bad_packets"),
-        unknown_sysid_messages=total("unknown_sysid_messages"),
-        spoofed=total("spoofed"),
-        signature_rejected=total("signature_rejected"),
-        safety=str(core.control.safety_stats.totals())
-        if core.control.filtering
-        else "safety filter: off",
-        log=tuple(log),
-        start_tolerance_m=mission.settings.startup.start_tolerance,
-        start_speed_tolerance_mps=mission.settings.startup.start_speed_tolerance,
-        clipped_setpoints=total("clipped_setpoints"),
-        failure=core.failure,
-    )

@@ -262,6 +262,12 @@ class ControllerCore:
                 self.recorder.member(self.control.t_s, key, True)
         self.flying = ids
 
+    def end(self) -> None:
+        """The run ends: no more steps, and every vehicle still in the law
+        leaves it (told to the recorder, as one station's ending does)."""
+        self.finished = True
+        self._membership([])
+
     def abort(self, why: str) -> None:
         """End the mission now, as failed (the shell brakes every vehicle)."""
         if self.failure is None:

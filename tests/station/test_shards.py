@@ -9,7 +9,9 @@ controller over a real Zenoh session.
 
 - lockstep: the sharded flight gives the radii and positions of the same
   mission flown by one station process to 1e-9 m (the shards send float64
-  bit patterns, the controller sums in key order: the same numbers);
+  bit patterns, the controller sums in key order: the same numbers), and
+  its run folder (the shards' network logs, the controller's notes) the
+  same summary, also when ``gcs-swarm report`` rebuilds it from the logs;
 - a shard killed with SIGKILL in flight (real time): the controller declares
   it dead within the stale timeout (1 s) plus the heartbeat period, its
   vehicles leave the formation and brake on their own (GUID_TIMEOUT), the
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import json
 import os
 import signal
 import time
@@ -36,6 +39,7 @@ import numpy as np
 import pytest
 
 from gcs_swarm.mission import Mission, load_mission, parse_mission
+from gcs_swarm.report.artefacts import RunFolder, rebuild_report
 from gcs_swarm.runtime import RunSummary, run_mission
 from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 
@@ -76,11 +80,15 @@ def test_two_shards_in_lockstep_fly_the_radii_of_one_station(tmp_path: Path) -> 
         v.start for v in _two_networks(1.0, "").vehicles
     ]  # the helper's swarm, which the other tests fly
 
+    folders: list[RunFolder] = []
+
     async def fly() -> tuple[RunSummary, RunSummary, ShardedRun]:
         runs: list[ShardedRun] = []
         async with asyncio.timeout(180):  # two flights of ~2-6 s wall each, on a loaded machine
-            one = await run_mission(mission, log_dir=None, end_timeout_s=5.0)
-            two = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=runs.append)
+            one = await run_mission(mission, log_dir=tmp_path / "one", end_timeout_s=5.0,
+                                    picture=False, on_folder=folders.append)  # fmt: skip
+            two = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=runs.append,
+                                    log_dir=tmp_path / "two", on_folder=folders.append)  # fmt: skip
         return one, two, runs[0]
 
     one, two, run = asyncio.run(fly())
@@ -116,6 +124,38 @@ def test_two_shards_in_lockstep_fly_the_radii_of_one_station(tmp_path: Path) -> 
     steps = run.bytes_per_step["steps"]
     assert run.bytes_per_step["state"] <= steps * 2 * (24 + 3 * 60) + 2 * (24 + 3 * 60)
     assert sorted(run.pids) == [0, 1] and all(p > 0 for p in run.pids.values())
+    _same_run_folders(*folders)
+
+
+def _same_run_folders(one: RunFolder, two: RunFolder) -> None:
+    """The sharded run's folder holds what one station's does (each shard
+    logs its network, the controller the notes), and both say the same."""
+    assert sorted(p.name for p in two.path.iterdir()) == [
+        "controller.tlog", "flight-blue.tlog", "flight-red.tlog", "mission.yaml",
+        "report.png", "summary.json", "vehicle_params.json"]  # fmt: skip
+    s1, s2 = (json.loads(f.summary.read_text()) for f in (one, two))
+    assert s2["control_steps"] == s1["control_steps"] == 401  # 8 s at 50 Hz and the first step
+    assert s2["overall"]["events"] == s1["overall"]["events"]  # six joins at 0, leaves at 8 s
+    for label, v in s1["vehicles"].items():
+        assert s2["vehicles"][label]["final_radius_m"] == pytest.approx(
+            v["final_radius_m"], abs=1e-9)  # fmt: skip
+        assert s2["vehicles"][label]["setpoints"]["sent"] == v["setpoints"]["sent"] == 401
+        # Inbound counts from the shards' recorders; the ending's last reports may differ.
+        assert abs(s2["vehicles"][label]["telemetry"]["received"]
+                   - v["telemetry"]["received"]) <= 10  # fmt: skip
+    params = json.loads(two.vehicle_params.read_text())["vehicles"]
+    assert [p["vehicle"] for p in params] == ["blue:1", "blue:2", "blue:3",
+                                              "red:1", "red:2", "red:3"]  # fmt: skip
+    # gcs-swarm report reads the three logs together: the controller's notes
+    # (its steps, who flew) and the shards' frames give the live record back.
+    rebuilt, _, _ = rebuild_report(two.path)
+    assert rebuilt["log"]["station_annotations"] is True
+    assert rebuilt["log"]["undecodable"] == 0
+    assert rebuilt["control_steps"] == s2["control_steps"]
+    for label, v in s2["vehicles"].items():
+        # The live law read the same LOCAL_POSITION_NED floats the logs hold.
+        assert rebuilt["vehicles"][label]["final_radius_m"] == pytest.approx(
+            v["final_radius_m"], abs=1e-9)  # fmt: skip
 
 
 TRIANGLE_RADIUS_M = 2.24167
@@ -329,7 +369,8 @@ def test_ctrl_c_on_run_shards_ends_every_vehicle_through_its_shard(tmp_path: Pat
 
     path = tmp_path / "long.yaml"
     path.write_text(_two_networks(300.0, "dynamics: ideal, mode: lockstep, spawn: air").text)
-    argv = [sys.executable, "-m", "gcs_swarm", "run", str(path), "--shards", "2"]
+    argv = [sys.executable, "-m", "gcs_swarm", "run", str(path), "--shards", "2",
+            "--log-dir", str(tmp_path / "runs")]  # fmt: skip
     proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
     import threading
@@ -352,6 +393,13 @@ def test_ctrl_c_on_run_shards_ends_every_vehicle_through_its_shard(tmp_path: Pat
     assert proc.returncode == 130
     assert "outcome: cancelled" in out
     assert out.count("ended    BRAKE") == 6, out
+    # The run folder is complete however the run ended, and the command says so.
+    (folder,) = (tmp_path / "runs").iterdir()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["outcome"] == "cancelled" and summary["control_steps"] > 0
+    for name in ("controller.tlog", "flight-blue.tlog", "flight-red.tlog", "summary.json"):
+        assert (folder / name).stat().st_size > 0
+        assert f"written: {folder / name}" in out
 
 
 def test_a_lockstep_station_holding_at_ready_loses_nobody_and_its_emulator_waits() -> None:
