@@ -29,7 +29,6 @@ from gcs_swarm.mission import Mission
 from gcs_swarm.offline import demand_report, envelope_demand
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.report.record import FlightRecorder
-from gcs_swarm.report.replay import safety_applied
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.plans import (
     END_MODES,
@@ -41,7 +40,7 @@ from gcs_swarm.runtime.plans import (
 )
 from gcs_swarm.runtime.run_report import (
     frame_sink,
-    note_sink,
+    run_recorder,
     vehicle_param_records,
     write_run_report,
     write_vehicle_params,
@@ -133,15 +132,7 @@ async def run_mission(
                 for path in folder.tlogs(mission.networks):
                     tlogs.append(await stack.enter_async_context(
                         TlogWriter(path, on_error=log_failed)))  # fmt: skip
-                recorder = FlightRecorder(
-                    name=mission.settings.name,
-                    source="run",
-                    boxes=mission.law.obstacles,
-                    r0=mission.law.avoidance.r0,
-                    rate_hz=mission.settings.rate,
-                    safety=safety_applied(mission),
-                    sink=note_sink(tlogs[0]),
-                )
+                recorder = run_recorder(mission, tlogs[0])
             # One emulator per network: each speaks its own system ids, on its
             # own endpoints (and its own lockstep; the station answers them all).
             for j in sorted({v.net_index for v in sims}):

@@ -29,6 +29,7 @@ __all__ = [
     "ControllerLog",
     "frame_sink",
     "note_sink",
+    "run_recorder",
     "vehicle_param_records",
     "write_run_report",
     "write_vehicle_params",
@@ -57,6 +58,20 @@ def write_vehicle_params(folder: RunFolder, records: Iterable[dict[str, Any]]) -
         write_json({"vehicles": list(records)}, folder.vehicle_params)
     except OSError as err:  # never let the record hide how the flight ended
         _log.error("%s: not written: %s", folder.vehicle_params, err.strerror or err)
+
+
+def run_recorder(mission: Mission, notes: TlogWriter) -> FlightRecorder:
+    """The flight recorder of a run of ``mission``, its annotations into
+    the ``notes`` log."""
+    return FlightRecorder(
+        name=mission.settings.name,
+        source="run",
+        boxes=mission.law.obstacles,
+        r0=mission.law.avoidance.r0,
+        rate_hz=mission.settings.rate,
+        safety=safety_applied(mission),
+        sink=note_sink(notes),
+    )
 
 
 def note_sink(tlog: TlogWriter) -> Callable[[bytes], None]:
@@ -154,15 +169,7 @@ class ControllerLog:
         self.recorder: FlightRecorder | None = None
         if folder is not None:
             self._tlog = TlogWriter(folder.controller_tlog, on_error=_log.warning)
-            self.recorder = FlightRecorder(
-                name=mission.settings.name,
-                source="run",
-                boxes=mission.law.obstacles,
-                r0=mission.law.avoidance.r0,
-                rate_hz=mission.settings.rate,
-                safety=safety_applied(mission),
-                sink=note_sink(self._tlog),
-            )
+            self.recorder = run_recorder(mission, self._tlog)
 
     async def __aenter__(self) -> ControllerLog:
         if self._tlog is not None:
