@@ -207,8 +207,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         if args.shards < 1:
             raise UsageError(f"--shards: expected a whole number >= 1, got {args.shards}")
-        if view is not None:
-            raise UsageError("--shards: the operator view (--view) is not sharded yet")
         listen = None
         if args.listen is not None:
             from gcs_swarm.runtime.zbus import check_endpoint
@@ -216,7 +214,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             listen = check_endpoint(args.listen, option="--listen")
         return sharded_run_command(args.mission, args.shards, listen=listen,
                                    status=not args.no_status, log_dir=args.log_dir,
-                                   record=not args.no_log)  # fmt: skip
+                                   record=not args.no_log, view=view)  # fmt: skip
     if args.listen is not None:
         raise UsageError("--listen: only with --shards N")
     return run_command(

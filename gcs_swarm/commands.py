@@ -186,15 +186,17 @@ def sharded_run_command(
     status: bool = True,
     log_dir: str | None = None,
     record: bool = True,
+    view: tuple[str, int] | None = None,
 ) -> int:
     """``gcs-swarm run PATH --shards N [--listen ENDPOINT]``: the mission
     flown by N link shards (``gcs_swarm.runtime.sharded``): started on this
     machine, or with ``listen`` awaited there from ``gcs-swarm shard
     --connect ENDPOINT`` elsewhere; its summary printed; the run folder, the
-    status line and the exit codes as ``run_command``'s. Ctrl-C or SIGTERM
-    ends every vehicle (the end action) through its shard."""
+    status line, the operator view (``view``: host, port) and the exit
+    codes as ``run_command``'s. Ctrl-C or SIGTERM ends every vehicle (the
+    end action) through its shard."""
     from gcs_swarm.runtime.run import EXIT_CODES
-    from gcs_swarm.runtime.sharded import check_shards, run_sharded
+    from gcs_swarm.runtime.sharded import ShardedView, check_shards, run_sharded
 
     mission = load_mission(path)
     check_shards(mission, shards)
@@ -216,9 +218,19 @@ def sharded_run_command(
             folders.append(folder)
             print(f"run folder: {folder.path}", file=sys.stderr, flush=True)
 
+        shown: ShardedView | None = None
+        if view is not None:
+            from gcs_swarm.view.sharded import sharded_view
+
+            def url(text: str) -> None:
+                print(f"operator view: {text}", file=sys.stderr, flush=True)
+
+            shown = sharded_view(mission, host=view[0], port=view[1], on_url=url)
+
         flight = run_sharded(
             mission, shards, endpoint=listen, spawn=listen is None, log_dir=base,
             on_folder=announce, on_status=lines.show if status else None, on_summary=report,
+            view=shown,
         )  # fmt: skip
         summary = await _until_interrupted(
             flight,
@@ -232,8 +244,9 @@ def sharded_run_command(
 def shard_command(endpoint: str) -> int:
     """``gcs-swarm shard --connect ENDPOINT`` (``gcs_swarm.runtime.shard``)."""
     from gcs_swarm.runtime.shard import shard_command as serve
+    from gcs_swarm.view.sharded import shard_frames
 
-    return serve(endpoint)
+    return serve(endpoint, frames=shard_frames)
 
 
 def report_command(

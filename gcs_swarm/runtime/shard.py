@@ -57,9 +57,19 @@ HELLO_TIMEOUT_S = 30.0
 """How long a shard says hello before it gives up on its controller [s]."""
 
 
-async def run_shard(endpoint: str, *, token: str | None = None) -> int:
+FrameSource = Callable[[Station], Callable[[float], dict[str, Any]]]
+"""Given the shard's station, what builds its operator-view frame at wall
+time ``now`` (``gcs_swarm.view.sharded.shard_frames``, passed in by the
+command line: the runtime does not import the view)."""
+
+
+async def run_shard(
+    endpoint: str, *, token: str | None = None, frames: FrameSource | None = None
+) -> int:
     """Serve as one link shard of the controller at ``endpoint`` until the
-    run ends; 0 when every vehicle that flew ended, 1 otherwise.
+    run ends; 0 when every vehicle that flew ended, 1 otherwise. With
+    ``frames``, a run that has the operator view open gets this shard's
+    frames (its vehicles) at the view's rate.
     ``LinkError`` when the controller cannot be reached."""
     token = token or secrets.token_hex(8)
     loop = asyncio.get_running_loop()
@@ -80,10 +90,10 @@ async def run_shard(endpoint: str, *, token: str | None = None) -> int:
             raise LinkError(
                 f"shard: no controller answered at {endpoint} in {HELLO_TIMEOUT_S:g} s"
             ) from None
-        return await _serve(bus, assigned.result())
+        return await _serve(bus, assigned.result(), frames)
 
 
-async def _serve(bus: Bus, a: dict[str, Any]) -> int:
+async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int:
     index = int(a["index"])
     mission = parse_mission(a["mission"], a["source"])
     links = {int(k): str(v) for k, v in a["links"].items()}
@@ -181,6 +191,18 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
                 await asyncio.sleep(BEAT_S)
 
         beating = asyncio.ensure_future(beat())
+        view_hz = float(a.get("view_hz") or 0.0)
+        if frames is not None and view_hz > 0.0:
+            frame_at = frames(station)
+
+            async def show() -> None:  # this shard's part of the operator view
+                assert station is not None
+                while True:
+                    await asyncio.sleep(1.0 / view_hz)
+                    bus.put_json(f"{up}/view", frame_at(station.now()))
+
+            showing = asyncio.ensure_future(show())
+            stack.callback(showing.cancel)
         try:
             try:
                 await _until(station.ready(), ended)
@@ -302,7 +324,7 @@ def _latency_ms(station: Station) -> dict[str, float]:
     }
 
 
-def shard_command(endpoint: str) -> int:
+def shard_command(endpoint: str, frames: FrameSource | None = None) -> int:
     """``gcs-swarm shard --connect ENDPOINT``: SIGINT/SIGTERM end every
     vehicle of the shard (the end action), then the process exits."""
 
@@ -313,7 +335,7 @@ def shard_command(endpoint: str) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, task.cancel)
         try:
-            return await run_shard(endpoint)
+            return await run_shard(endpoint, frames=frames)
         except asyncio.CancelledError:
             return 130
 

@@ -17,8 +17,12 @@ With a run folder each shard logs its networks' frames, the controller its
 notes (``controller.tlog``) and, at the end, the summary, the picture and
 the vehicles' parameters (``runtime.run_report.ControllerLog``).
 
-Not (yet) in a sharded run: join/leave events and reserves, the operator
-view, TIMESYNC delay compensation across the split (each shard predicts
+With the operator view each shard sends its vehicles' half of a frame
+(``ShardedRun.views``) and the view merges them with the law's
+(``gcs_swarm.view.sharded``).
+
+Not (yet) in a sharded run: join/leave events and reserves, TIMESYNC delay
+compensation across the split (each shard predicts
 its own reports).
 """
 
@@ -31,7 +35,9 @@ import logging
 import socket
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
+from contextlib import AbstractAsyncContextManager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -41,6 +47,7 @@ from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
+from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.plans import END_MODES, emulator_config
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
@@ -50,7 +57,14 @@ from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
 from sim_vehicle import Emulator
 
-__all__ = ["LOCKSTEP_BARRIER_S", "ShardedRun", "check_shards", "run_sharded"]
+__all__ = [
+    "LOCKSTEP_BARRIER_S",
+    "SHARD_VIEW_HZ",
+    "ShardedRun",
+    "ShardedView",
+    "check_shards",
+    "run_sharded",
+]
 
 _log = logging.getLogger("gcs_swarm.run")
 
@@ -62,6 +76,13 @@ and the emulator must wait as long, or its clock moves on unanswered and the
 flight is no longer the one-process flight (measured: shards ready up to
 0.9 s apart on a loaded 2-core machine). Lockstep semantics otherwise:
 a dead shard's emulator then steps once per this wait."""
+
+ShardedView = Callable[["ShardedRun", EndRequest], AbstractAsyncContextManager[object]]
+"""An operator view's lifetime over a sharded run (``gcs_swarm.view.sharded``):
+its frames merge the shards' (``ShardedRun.views``) with the controller's law."""
+
+SHARD_VIEW_HZ = 10.0
+"""How often each shard sends its part of the operator view [Hz], when open."""
 
 _HANDSHAKE_S = 30.0
 """Wall time [s] for every shard to say hello (a process start and a Zenoh
@@ -116,6 +137,10 @@ class ShardedRun:
         """Bytes of state batches in, replies out, and the steps they made."""
         self.flight_s: tuple[float, float] | None = None
         """Loop times [s] of the formation's start and of the mission's end."""
+        self.views: dict[int, dict[str, Any]] = {}
+        """Each shard's latest operator-view frame (its vehicles), when the view is open."""
+        self.view_events: deque[dict[str, Any]] = deque(maxlen=2000)
+        """The shards' view events (joins, leaves, their notes) not yet shown."""
         self.changed = asyncio.Event()
         self.finished = asyncio.Event()
         self._loop = asyncio.get_running_loop()
@@ -130,6 +155,7 @@ class ShardedRun:
         for i in range(len(self.assignment)):
             self.bus.subscribe(f"up/{i}/state", self._on_state)
             self.bus.subscribe(f"up/{i}/msg", self._on_msg)
+            self.bus.subscribe(f"up/{i}/view", self._on_view)
 
     def _on_hello(self, key: str, data: bytes) -> None:
         hello = json.loads(data)
@@ -143,6 +169,11 @@ class ShardedRun:
             _log.info("shard %d joined (token %s)", index, token)
         self.bus.put_json(f"assign/{token}", {"index": index, **self.assignment[index]})
         self.changed.set()
+
+    def _on_view(self, key: str, data: bytes) -> None:
+        frame = json.loads(data)
+        self.views[int(key.split("/")[1])] = frame
+        self.view_events.extend(frame.get("events", ()))
 
     def _on_state(self, key: str, data: bytes) -> None:
         batch = decode_state(data)
@@ -247,6 +278,38 @@ class ShardedRun:
             self.bus.put_json("down/all", {"kind": "beat"})
             await asyncio.sleep(BEAT_S)
 
+    async def start(self, shards: int, hello_s: float, ready_timeout_s: float) -> None:
+        """The start-up: every shard says hello within ``hello_s`` [s] and
+        readies its vehicles within ``ready_timeout_s`` + 10 s, then the
+        formation starts within the tightest of their envelopes.
+        ``StartupError`` when a shard fails, exits or is late."""
+        core, endpoint = self.core, self.endpoint
+        if not await self.wait_for(lambda: len(self.tokens) == shards or bool(self.exited()),
+                                   hello_s):  # fmt: skip
+            raise StartupError(f"{len(self.tokens)} of {shards} shards said hello at "
+                               f"{endpoint} in {hello_s:g} s")  # fmt: skip
+        ready_s = ready_timeout_s + 10.0
+        if not await self.wait_for(
+            lambda: len(self.ready) + len(self.failed) == shards or bool(self.exited()), ready_s
+        ):
+            raise StartupError(f"{len(self.ready)} of {shards} shards ready in {ready_s:g} s")
+        if self.exited() and not self.failed:
+            raise StartupError(f"shard process exited during start-up: {self.exited()}")
+        if self.failed:
+            raise StartupError("; ".join(f"shard {i}: {t}" for i, t in
+                                         sorted(self.failed.items())))  # fmt: skip
+        env = Envelope()
+        for msg in self.ready.values():
+            env = env.tighter(Envelope(**msg["envelope"]))
+        core.set_envelope(env)
+        core.start(self.now(), {i: int(m["members"]) for i, m in self.ready.items()})
+        self.bus.put_json("down/all", {"kind": "start"})
+        self._after()
+
+    async def flown(self) -> None:
+        """Until the mission is over (its duration, a failure, every shard dead)."""
+        await self.finished.wait()
+
     async def wait_for(self, what: Callable[[], bool], timeout_s: float) -> bool:
         """Until ``what()`` holds (True), or ``timeout_s`` has passed (False)."""
         try:
@@ -271,6 +334,7 @@ async def run_sharded(
     log_dir: str | Path | None = None,
     picture: bool = True,
     on_folder: Callable[[RunFolder], None] | None = None,
+    view: ShardedView | None = None,
     on_run: Callable[[ShardedRun], None] | None = None,
     on_status: Callable[[str], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
@@ -286,7 +350,10 @@ async def run_sharded(
     at once): each shard writes its networks' ``flight-<network>.tlog``,
     the controller its annotations (``controller.tlog``), the summary,
     the picture (unless ``picture`` is False) and the vehicles' parameters
-    from the shards' reports; ``gcs-swarm report`` reads it as any. Raises
+    from the shards' reports; ``gcs-swarm report`` reads it as any.
+    ``view`` is entered once the controller listens: its ``EndRequest``
+    (the page's Hold, Land, Return) ends the run with that end action, as
+    the mission's duration does (``gcs_swarm.view.sharded``). Raises
     ``UsageError`` when the mission cannot be sharded so, ``StartupError``
     when a shard cannot ready its vehicles (every shard then lands its
     airborne ones)."""
@@ -328,7 +395,8 @@ async def run_sharded(
         nets = sorted({v.net_index for v in mission.vehicles})
         common = {"mission": mission.text, "source": mission.source, "lockstep": lockstep,
                   "links": {str(k): v for k, v in given.items()},
-                  "end_timeout_s": end_timeout_s}  # fmt: skip
+                  "end_timeout_s": end_timeout_s,
+                  "view_hz": SHARD_VIEW_HZ if view is not None else 0.0}  # fmt: skip
         assignment = [
             {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]],
              "tlogs": log.tlogs(nets[i::shards])}
@@ -355,37 +423,23 @@ async def run_sharded(
                 stack.callback(watching.cancel)
         if on_run is not None:
             on_run(run)
+        request = None if view is None else EndRequest()
+        if view is not None and request is not None:
+            await stack.enter_async_context(view(run, request))
         end_mode: int | None = None
         try:
             # Shards started elsewhere (by hand) get as long as a start-up does.
             hello_s = _HANDSHAKE_S if spawn else max(_HANDSHAKE_S, s.startup.ready_timeout)
-            if not await run.wait_for(lambda: len(run.tokens) == shards or bool(run.exited()),
-                                      hello_s):  # fmt: skip
-                raise StartupError(f"{len(run.tokens)} of {shards} shards said hello at "
-                                   f"{endpoint} in {hello_s:g} s")  # fmt: skip
-            ready_s = s.startup.ready_timeout + 10.0
-            if not await run.wait_for(
-                lambda: len(run.ready) + len(run.failed) == shards or bool(run.exited()), ready_s
-            ):
-                raise StartupError(f"{len(run.ready)} of {shards} shards ready in {ready_s:g} s")
-            if run.exited() and not run.failed:
-                raise StartupError(f"shard process exited during start-up: {run.exited()}")
-            if run.failed:
-                raise StartupError("; ".join(f"shard {i}: {t}" for i, t in
-                                             sorted(run.failed.items())))  # fmt: skip
-            env = Envelope()
-            for msg in run.ready.values():
-                env = env.tighter(Envelope(**msg["envelope"]))
-            core.set_envelope(env)
-            core.start(run.now(), {i: int(m["members"]) for i, m in run.ready.items()})
-            bus.put_json("down/all", {"kind": "start"})
-            run._after()
-            t_start = run.now()
-            await run.finished.wait()
-            run.flight_s = (t_start, run.now())
+            if not await unless_ended(request, run.start(shards, hello_s, s.startup.ready_timeout)):
+                t_start = run.now()
+                await unless_ended(request, run.flown())
+                run.flight_s = (t_start, run.now())
+                outcome = "flown"
             if core.failure is not None:
                 end_mode = END_MODES["hold"]
-            outcome = "flown"
+            elif request is not None and request.action is not None:
+                end_mode = END_MODES[request.action]  # the operator's button
+                core.note(f"ending on the operator's request: {request.action}")
         except StartupError:
             outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
             raise

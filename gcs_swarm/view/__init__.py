@@ -5,6 +5,8 @@ the end buttons, and replay (docs/operator-view.md).
 - ``server``: the asyncio shell (``websockets``): the page and its files over
   HTTP, frames over a WebSocket, a per-run token, a slot per client;
 - ``live``: the view ``gcs-swarm run --view`` enters over the station;
+- ``sharded``: the same over a sharded run (``run --shards N --view``): the
+  shards' halves of each frame merged with the controller's law;
 - ``replay``: a finished run's flight record (or a simulation's) in the same
   page, with play, pause, speed and a time slider (``gcs-swarm view``);
 - ``static/``: the page, its script (a small canvas 3-D renderer written here)

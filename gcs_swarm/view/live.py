@@ -33,6 +33,27 @@ END_LABELS = {"hold": "Hold", "land": "Land", "rtl": "Return"}
 """The page's button for each end action."""
 
 
+def end_command(msg: dict[str, Any], request: EndRequest, *, ending: bool) -> dict[str, Any]:
+    """The page's only command, an end button: ``request`` filled with its
+    action unless the mission is ``ending`` already or was asked before;
+    the answer the page shows."""
+    action = msg.get("action")
+    if msg.get("type") != "end" or action not in END_ACTIONS:
+        return {"ok": False, "text": "the view takes only an end action: "
+                + ", ".join(END_ACTIONS)}  # fmt: skip
+    assert isinstance(action, str)
+    if ending or not request.request(action):
+        return {"ok": False, "action": action, "text": "the mission is already ending"}
+    text = f"{END_LABELS[action]}: ending the mission for every vehicle"
+    return {"ok": True, "action": action, "text": text}
+
+
+def live_hello(mission: Mission) -> dict[str, Any]:
+    """What a live page is told first: its mode, the mission, the buttons."""
+    return {"mode": "live", "name": mission.settings.name,
+            "actions": [[a, END_LABELS[a]] for a in END_ACTIONS]}  # fmt: skip
+
+
 def live_view(
     mission: Mission,
     *,
@@ -69,20 +90,10 @@ def live_view(
             return frame
 
         def command(msg: dict[str, Any]) -> dict[str, Any]:
-            action = msg.get("action")
-            if msg.get("type") != "end" or action not in END_ACTIONS:
-                return {"ok": False, "text": "the view takes only an end action: "
-                        + ", ".join(END_ACTIONS)}  # fmt: skip
-            assert isinstance(action, str)
-            if station.ending or not request.request(action):
-                return {"ok": False, "action": action, "text": "the mission is already ending"}
-            text = f"{END_LABELS[action]}: ending the mission for every vehicle"
-            return {"ok": True, "action": action, "text": text}
+            return end_command(msg, request, ending=station.ending)
 
-        hello = {"mode": "live", "name": mission.settings.name,
-                 "actions": [[a, END_LABELS[a]] for a in END_ACTIONS]}  # fmt: skip
         async with ViewServer(frames, host=host, port=port, rate_hz=rate_hz, token=token,
-                              on_command=command, hello=hello,
+                              on_command=command, hello=live_hello(mission),
                               write_limit=write_limit,
                               send_buffer=send_buffer) as server:  # fmt: skip
             station.on_step = server.step_done

@@ -31,7 +31,7 @@ from gcs_swarm.control.obstacles import Ellipsoids, box_signed_distance
 from gcs_swarm.mavlink.states import Phase
 
 if TYPE_CHECKING:
-    from gcs_swarm.control.loop import ControlLoop
+    from gcs_swarm.control.loop import ControlLoop, StepResult
     from gcs_swarm.control.params import LawConfig
     from gcs_swarm.mavlink.telemetry_table import TelemetryTable
     from gcs_swarm.mavlink.vehicle import VehicleProtocol
@@ -43,7 +43,10 @@ __all__ = [
     "SnapshotBuilder",
     "StationState",
     "float_column",
+    "frame_head",
     "geometry_columns",
+    "law_columns",
+    "new_lines",
     "obstacles_of",
     "scene_of",
 ]
@@ -166,6 +169,38 @@ def geometry_columns(
     }
 
 
+def law_columns(last: StepResult | None, ids: list[int]) -> tuple[F64, F64]:
+    """Each of ``ids``' commanded acceleration |a| [m/s^2] and safety
+    correction [m/s^2] at the law's last step ``last``; NaN for a vehicle
+    not in it (and for the correction without a filter)."""
+    accel = np.full(len(ids), np.nan)
+    correction = np.full(len(ids), np.nan)
+    if last is not None:
+        col = {s: k for k, s in enumerate(ids)}
+        rows = [col[s] for s in last.ids if s in col]
+        have = [i for i, s in enumerate(last.ids) if s in col]
+        accel[rows] = np.linalg.norm(last.accel_mps2[have], axis=1)
+        if last.safety is not None:
+            correction[rows] = last.safety.correction_mps2[have]
+    return accel, correction
+
+
+def frame_head(seq: int, t: float, stage: str, last: StepResult | None) -> dict[str, Any]:
+    """A live frame's fields before its vehicles: number ``seq``, mission
+    time ``t`` [s], ``stage``, and the law's behaviour, episode and leader
+    at its last step ``last``."""
+    leader = None if last is None else last.law.leader_pos_m
+    return {
+        "type": "frame",
+        "seq": seq,
+        "t": round(t, 3),
+        "stage": stage,
+        "behaviour": None if last is None else str(last.law.behaviour),
+        "episode": None if last is None else int(last.law.episode),
+        "leader": None if leader is None else float_column(np.asarray(leader), 3),
+    }
+
+
 def obstacles_of(scene: Mapping[str, Any]) -> Ellipsoids:
     """The scene's boxes as the law's arrays (Eqs. 14-17)."""
     from gcs_swarm.control.params import Box
@@ -218,15 +253,7 @@ class SnapshotBuilder:
             pos[:, 2] = off[:, 2] - ned[:, 2]
         modes, armed = self._mode_columns(vps)
         leader = None if last is None else last.law.leader_pos_m
-        accel = np.full(n, np.nan)
-        correction = np.full(n, np.nan)
-        if last is not None:
-            col = {s: k for k, s in enumerate(ids)}
-            rows = [col[s] for s in last.ids if s in col]
-            have = [i for i, s in enumerate(last.ids) if s in col]
-            accel[rows] = np.linalg.norm(last.accel_mps2[have], axis=1)
-            if last.safety is not None:
-                correction[rows] = last.safety.correction_mps2[have]
+        accel, correction = law_columns(last, ids)
         flying = station.flying
         heard = np.array([now - vp.position_at for vp in vps], dtype=np.float64)
         rate = np.array([math.nan if vp.telemetry_rate_hz is None else vp.telemetry_rate_hz
@@ -243,13 +270,7 @@ class SnapshotBuilder:
         self.seq += 1
         stage = "ending" if station.ending else "flying" if station.started else "starting"
         return {
-            "type": "frame",
-            "seq": self.seq,
-            "t": round(t, 3),
-            "stage": stage,
-            "behaviour": behaviour,
-            "episode": None if last is None else int(last.law.episode),
-            "leader": None if leader is None else float_column(np.asarray(leader), 3),
+            **frame_head(self.seq, t, stage, last),
             "vehicles": {
                 "sysid": ids,
                 "label": [vp.label for vp in vps],
@@ -313,15 +334,20 @@ class SnapshotBuilder:
         return out
 
     def _new_lines(self, log: deque[str]) -> list[str]:
-        """The log's lines after the one the last frame ended on (the log is
-        a bounded deque: the mark is that line, looked for from the end)."""
-        if not log:
-            return []
-        mark, self._last_line = self._last_line, log[-1]
-        lines: list[str] = []
-        for line in itertools.islice(reversed(log), _LOG_SCAN):
-            if line is mark:
-                break
-            lines.append(line)
-        lines.reverse()
+        lines, self._last_line = new_lines(log, self._last_line)
         return lines
+
+
+def new_lines(log: deque[str], mark: str | None) -> tuple[list[str], str | None]:
+    """The log's lines after ``mark``, the line the last frame ended on, and
+    the new mark (the log is a bounded deque: the mark is that line object,
+    looked for from the end, at most ``_LOG_SCAN`` back)."""
+    if not log:
+        return [], mark
+    lines: list[str] = []
+    for line in itertools.islice(reversed(log), _LOG_SCAN):
+        if line is mark:
+            break
+        lines.append(line)
+    lines.reverse()
+    return lines, log[-1]

@@ -22,7 +22,9 @@ controller over a real Zenoh session.
   links do not open fails the start-up at once, with its reason;
 - Ctrl-C (SIGINT to the process group) on ``gcs-swarm run --shards 2``:
   every vehicle ends (BRAKE), exit 130;
-- bad ``--shards`` / ``--connect`` / ``--listen`` arguments: one line, exit 2.
+- bad ``--shards`` / ``--connect`` / ``--listen`` arguments: one line, exit 2;
+- the operator view of a sharded run: both shards' vehicles with the law's
+  columns, and its Hold button ends them all.
 """
 
 from __future__ import annotations
@@ -33,7 +35,9 @@ import json
 import os
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -445,3 +449,83 @@ def test_a_lockstep_station_holding_at_ready_loses_nobody_and_its_emulator_waits
     _, waited, phases, steps = asyncio.run(fly())
     assert waited <= 0.02 + 1e-9, waited  # at most the step already under way
     assert phases == [Phase.FLYING] * 3 and steps >= 50
+
+
+def test_the_operator_view_of_a_sharded_run_shows_both_shards_and_hold_ends_it() -> None:
+    """``run --shards 2 --view``: the page's frames hold the six vehicles of
+    the two shards (their phase, mode, position from the shards; the leader,
+    radius, commanded acceleration and membership from the controller's law),
+    and its Hold button ends every vehicle in BRAKE through its shard."""
+    from websockets.asyncio.client import connect
+
+    from gcs_swarm.view import ViewServer
+    from gcs_swarm.view.sharded import sharded_view
+
+    mission = _two_networks(3600.0, "dynamics: ideal, mode: lockstep, spawn: air")
+    seen: list[dict[str, Any]] = []
+    story: list[dict[str, Any]] = []
+    answers: list[dict[str, Any]] = []
+
+    async def frames_until(ws: Any, done: Callable[[dict[str, Any]], bool]) -> None:
+        for _ in range(5000):
+            msg = json.loads(await ws.recv())
+            if msg["type"] == "frame":
+                seen.append(msg)
+                story.extend(msg["events"])
+                if done(msg):
+                    return
+        raise AssertionError("not seen in 5000 messages")
+
+    def flying(f: dict[str, Any]) -> bool:
+        v = f["vehicles"]
+        return f["t"] >= 1.0 and len(v["sysid"]) == 6 and all(v["in_formation"])
+
+    async def main() -> RunSummary:
+        servers: list[ViewServer] = []
+        listening = asyncio.Event()
+
+        def on_server(server: ViewServer) -> None:
+            servers.append(server)
+            listening.set()
+
+        view = sharded_view(mission, on_server=on_server)
+        async with asyncio.timeout(120):
+            run = asyncio.create_task(run_sharded(mission, 2, end_timeout_s=5.0, view=view))
+            try:
+                await listening.wait()
+                server = servers[0]
+                url = f"ws://127.0.0.1:{server.port}/ws?token={server.token}"
+                async with connect(url) as ws:
+                    hello = json.loads(await ws.recv())
+                    assert hello["mode"] == "live"
+                    await frames_until(ws, flying)
+                    t1 = seen[-1]["t"]
+                    await frames_until(ws, lambda f: f["t"] >= t1 + 0.5)
+                    await ws.send(json.dumps({"type": "end", "action": "hold"}))
+                    while True:
+                        msg = json.loads(await ws.recv())
+                        if msg["type"] == "answer":
+                            answers.append(msg)
+                            break
+                return await run
+            finally:
+                run.cancel()  # a failed test: end the run (its shards end their vehicles)
+                await asyncio.wait([run])
+
+    summary = asyncio.run(main())
+    first = next(f for f in seen if flying(f))
+    last = seen[-1]
+    v = last["vehicles"]
+    assert v["label"] == ["blue:1", "blue:2", "blue:3", "red:1", "red:2", "red:3"]
+    assert v["sysid"] == sorted(v["sysid"])
+    assert set(v["phase"]) == {"flying"} and set(v["mode"]) == {"GUIDED"}
+    assert last["leader"] is not None and all(r is not None for r in v["radius"])
+    assert all(a is not None for a in v["accel"])  # the law's, for every shard's vehicle
+    moved = [max(abs(a - b) for a, b in zip(p0, p1, strict=True))
+             for p0, p1 in zip(first["vehicles"]["pos"], v["pos"], strict=True)]  # fmt: skip
+    assert min(moved) > 1e-3  # every vehicle's position changed [m]
+    assert sorted(e["sysid"] for e in story if e["kind"] == "join") == sorted(v["sysid"])
+    assert [a["ok"] for a in answers] == [True]
+    assert summary.outcome == "completed" and summary.mission_time_s < 3600.0
+    assert [x.mode for x in summary.vehicles] == ["BRAKE"] * 6
+    assert any("operator's request: hold" in line for line in summary.log)
