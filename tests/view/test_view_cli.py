@@ -20,13 +20,22 @@ ROOT = Path(__file__).resolve().parents[2]
 DEMO = ROOT / "config" / "missions" / "example1_octahedron.yaml"
 
 
-def test_run_with_view_prints_the_address_and_serves_the_page(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("demo", "extra"),
+    [(DEMO, []), (ROOT / "config" / "missions" / "example1_networks.yaml", ["--shards", "2"])],
+    ids=["one-station", "two-shards"],
+)
+def test_run_with_view_prints_the_address_and_serves_the_page(
+    demo: Path, extra: list[str], tmp_path: Path
+) -> None:
     mission = tmp_path / "short.yaml"
-    mission.write_text(DEMO.read_text().replace("duration: 150", "duration: 20", 1))
+    text = demo.read_text()
+    assert "duration: 150" in text
+    mission.write_text(text.replace("duration: 150", "duration: 20", 1))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
         [sys.executable, "-m", "gcs_swarm", "run", str(mission), "--view", "127.0.0.1:0",
-         "--no-log", "--no-status"],
+         "--no-log", "--no-status", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
     )  # fmt: skip
     try:
