@@ -37,8 +37,10 @@ from typing import Any
 
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mission import parse_mission
 from gcs_swarm.report.record import FlightRecorder
+from gcs_swarm.runtime.config import StationConfig
 from gcs_swarm.runtime.plans import station_config
 from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
@@ -123,16 +125,27 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         reply, shard = decode_reply(data), side
         station.apply(lambda now, write: shard.apply(reply, now, write))
 
+    relayed: asyncio.Future[GeoOrigin] = asyncio.get_running_loop().create_future()
+    """The mission origin as the controller's beats carry it (``_relayed_origin``)."""
+
     def on_down(key: str, data: bytes) -> None:
+        msg = json.loads(data)
+        if msg.get("origin") is not None and not relayed.done():
+            relayed.set_result(GeoOrigin(*(float(x) for x in msg["origin"])))
+        if msg["kind"] == "end":
+            end_mode[0] = msg.get("mode")
+            ended.set()
         if station is None or side is None:
             return
-        msg = json.loads(data)
         side.heard(station.now())
         if msg["kind"] == "start":
             start.set()
-        elif msg["kind"] == "end":
-            end_mode[0] = msg.get("mode")
-            ended.set()
+
+    bus.subscribe("down/all", on_down)
+    bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
+    waited = await _relayed_origin(cfg, full, relayed, ended)
+    if waited is not None:
+        cfg = replace(cfg, mission_origin=waited)
 
     # A run with a folder: this shard logs its own networks' frames (one
     # .tlog each, where the controller named them) and counts what came in.
@@ -159,13 +172,19 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
     station.hold_when_ready = cfg.lockstep
     side = ShardSide(station.core, index, cfg.stale_timeout_s)
     bus.subscribe(f"down/{index}/reply", on_reply)
-    bus.subscribe("down/all", on_down)
-    bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
+    if waited is not None:
+        station.core.note("mission origin = the mission's first vehicle's EKF origin, "
+                          "from the shard that owns it")  # fmt: skip
     outcome_ok = True
     flying_drops = [0]
     """Setpoints dropped (a newer one queued first) before the ending began."""
     stack = contextlib.AsyncExitStack()
     try:
+        if cfg.mission_origin is None and cfg.vehicles[0].sysid != full.vehicles[0].sysid:
+            first = mission.label(full.vehicles[0].sysid)
+            raise LinkError(f"no mission origin came from the controller in "
+                            f"{cfg.ready_timeout_s:g} s (the EKF origin of {first}, "
+                            "another shard's vehicle)")  # fmt: skip
         for tlog in tlogs.values():  # closed after the station: its ending is logged
             await stack.enter_async_context(tlog)
         await stack.enter_async_context(station)
@@ -183,7 +202,9 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
             while True:
                 core = station.core
                 flying = len(core.flying) if core.started else None
-                bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying})
+                o = core.origin
+                origin = None if o is None else [o.lat_deg, o.lon_deg, o.alt_m]
+                bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying, "origin": origin})
                 if side.controller_silent(station.now()) and not ended.is_set():
                     station.warn(f"controller silent for {cfg.stale_timeout_s:g} s: "
                                  "ending every vehicle of this shard")  # fmt: skip
@@ -241,6 +262,30 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         outcome_ok = outcome_ok and station.outcome() == "completed"
     await asyncio.sleep(0.3)  # the report's way out before the session closes
     return 0 if outcome_ok else 1
+
+
+async def _relayed_origin(
+    cfg: StationConfig,
+    full: StationConfig,
+    relayed: asyncio.Future[GeoOrigin],
+    ended: asyncio.Event,
+) -> GeoOrigin | None:
+    """The mission origin this shard must wait for, or None when it needs
+    none: a mission without ``mission.origin`` is flown in its first
+    vehicle's EKF-origin frame, and when another shard owns that vehicle
+    the origin comes with the controller's beats (float64 through JSON: the
+    owner's numbers). Until it has come this shard does not talk to its
+    vehicles: it could not place them, and a lockstep emulator (as SITL)
+    waits for its station's first datagram. None too after
+    ``ready_timeout_s`` or once the run ends (the caller then fails)."""
+    if full.mission_origin is not None or not cfg.vehicles:
+        return None
+    if cfg.vehicles[0].sysid == full.vehicles[0].sysid:
+        return None  # this shard owns the first vehicle: it learns the origin itself
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(cfg.ready_timeout_s):
+            await _until(asyncio.shield(relayed), ended)
+    return relayed.result() if relayed.done() else None
 
 
 async def _until(coro: Any, ended: asyncio.Event) -> None:

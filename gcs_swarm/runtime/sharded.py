@@ -137,6 +137,10 @@ class ShardedRun:
         """Bytes of state batches in, replies out, and the steps they made."""
         self.flight_s: tuple[float, float] | None = None
         """Loop times [s] of the formation's start and of the mission's end."""
+        self.origin: list[float] | None = None
+        """The mission origin (latitude, longitude [deg], altitude [m]) as the
+        shard owning the mission's first vehicle learned it; every beat tells
+        every shard (a mission that names none: its first vehicle's EKF origin)."""
         self.views: dict[int, dict[str, Any]] = {}
         """Each shard's latest operator-view frame (its vehicles), when the view is open."""
         self.view_events: deque[dict[str, Any]] = deque(maxlen=2000)
@@ -205,6 +209,8 @@ class ShardedRun:
         now = self.now()
         if kind == "beat":
             self.core.heard(index, now, msg.get("flying"))
+            if self.origin is None and msg.get("origin") is not None:
+                self.origin = [float(x) for x in msg["origin"]]
         elif kind == "ready":
             self.ready[index] = msg
             self.ready_at[index] = now
@@ -275,7 +281,7 @@ class ShardedRun:
 
     async def beat(self) -> None:
         while True:
-            self.bus.put_json("down/all", {"kind": "beat"})
+            self.bus.put_json("down/all", {"kind": "beat", "origin": self.origin})
             await asyncio.sleep(BEAT_S)
 
     async def start(self, shards: int, hello_s: float, ready_timeout_s: float) -> None:

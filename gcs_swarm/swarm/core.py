@@ -47,6 +47,7 @@ from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.control.tracking import VelocityReference
 from gcs_swarm.mavlink.codec import MessageSpec
+from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
 from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import Phase, ProtocolEvent
@@ -236,6 +237,11 @@ class SwarmCore:
         self._arm(vp)
         if events:
             self.changed = True
+
+    @property
+    def origin(self) -> GeoOrigin | None:
+        """The mission origin, once known (the mission's, or learned)."""
+        return self._origin
 
     def _on_event(self, vp: VehicleProtocol, event: ProtocolEvent, now: float) -> None:
         level = {"refused": logging.WARNING, "failed": logging.ERROR, "lost": logging.WARNING,

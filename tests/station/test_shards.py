@@ -30,6 +30,7 @@ controller over a real Zenoh session.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import json
 import os
@@ -529,3 +530,66 @@ def test_the_operator_view_of_a_sharded_run_shows_both_shards_and_hold_ends_it()
     assert summary.outcome == "completed" and summary.mission_time_s < 3600.0
     assert [x.mode for x in summary.vehicles] == ["BRAKE"] * 6
     assert any("operator's request: hold" in line for line in summary.log)
+
+
+def test_shards_fly_in_the_first_vehicle_s_frame_when_the_mission_names_no_origin() -> None:
+    """A mission of real links without ``mission.origin``: the mission origin
+    is its first vehicle's EKF origin (``blue:1``, on shard 0), and shard 1's
+    vehicles, whose homes are 15-25 m east of it, must be flown in that frame
+    too, not in their own first vehicle's (``red:1``). Against emulators
+    started here (lockstep, homes 5 m apart: ``emulator.origin_spread``),
+    the sharded flight gives the one-station flight's positions to 1e-9 m;
+    taken in red:1's frame its vehicles would be 15 m off."""
+    from gcs_swarm.runtime.plans import emulator_config
+    from gcs_swarm.runtime.sharded import LOCKSTEP_BARRIER_S
+    from sim_vehicle import Emulator
+
+    # Homes 5 m below the file's origin: in blue:1's frame every vehicle
+    # spawns 5 m above its start and is flown down to it (starts above 2 m).
+    starts = [s.replace("-1]", "3]").replace("-2]", "4]") for s in _STARTS]
+    text = _two_networks(4.0, "dynamics: ideal, mode: lockstep, spawn: air, ground: -5").text
+    for old, new in zip(_STARTS, starts, strict=True):
+        text = text.replace(old, new)
+    sim = parse_mission(text)
+
+    def real(links: dict[int, str]) -> Mission:
+        """The same vehicles as real links, in a file of its own (the shards
+        read the mission's text): the station learns every origin."""
+        text = ("mission: {name: shards, duration: 4.0, rate: 50, end: hold,"
+                " startup: {ready_timeout: 30}}\n"
+                "leader: {start: [0, 0, 6], force: [0, 0, 0]}\nnetworks:\n")  # fmt: skip
+        for j, name in enumerate(("blue", "red")):
+            text += f"  - name: {name}\n    vehicles:\n"
+            for v in sim.vehicles:
+                if v.net_index == j:
+                    text += (f"      - {{sysid: {v.sysid}, start: {list(v.start)}, "
+                             f"link: '{links[v.key]}', autopilot: ardupilot}}\n")  # fmt: skip
+        mission = parse_mission(text)
+        assert mission.origin_geo() is None
+        return mission
+
+    async def fly(sharded: bool) -> RunSummary:
+        async with contextlib.AsyncExitStack() as stack:
+            links: dict[int, str] = {}
+            for j in (0, 1):
+                cfg = dataclasses.replace(emulator_config(sim, network=j),
+                                          lockstep_timeout_s=LOCKSTEP_BARRIER_S)  # fmt: skip
+                emu = await stack.enter_async_context(Emulator(cfg))
+                for v in sim.vehicles:
+                    if v.net_index == j:
+                        host, port = emu.endpoints[v.sysid]
+                        links[v.key] = f"udpout:{host}:{port}"
+            mission = real(links)
+            async with asyncio.timeout(120):
+                if sharded:
+                    return await run_sharded(mission, 2, lockstep=True, end_timeout_s=5.0)
+                return await run_mission(mission, lockstep=True, log_dir=None, end_timeout_s=5.0)
+
+    one = asyncio.run(fly(False))
+    two = asyncio.run(fly(True))
+    assert one.outcome == two.outcome == "completed"
+    assert any("mission origin = vehicle blue:1's EKF origin" in x for x in one.log)
+    assert any("from the shard that owns it" in x for x in two.log)  # shard 1: blue:1's
+    p1 = np.array([v.position_m for v in one.vehicles], dtype=float)
+    p2 = np.array([v.position_m for v in two.vehicles], dtype=float)
+    np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-9)
