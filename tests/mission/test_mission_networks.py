@@ -58,20 +58,25 @@ def test_two_networks_may_share_system_ids() -> None:
     assert [v.origin for v in m.vehicles] == [(k * 5.0, 0.0, -20.0) for k in range(4)]
 
 
-#: The shipped missions that name no ``networks`` (the shards demo does).
+#: The shipped missions that name no ``networks`` (the shards demos do).
 ONE_NETWORK = sorted(
     p for p in MISSIONS.glob("*.yaml") if "networks" not in yaml.safe_load(p.read_text())
 )
 
 
-def test_the_shipped_missions_with_networks_are_the_shards_demo() -> None:
+@pytest.mark.parametrize(
+    ("name", "labels"),
+    [("example1_networks", ["blue:1", "blue:2", "blue:3", "red:1", "red:2", "red:3"]),
+     ("sitl_arducopter_networks", ["blue:1", "blue:2", "red:1", "red:2"])],
+)  # fmt: skip
+def test_the_shipped_missions_with_networks_are_the_shards_demos(
+    name: str, labels: list[str]
+) -> None:
     named = {p.stem for p in MISSIONS.glob("*.yaml")} - {p.stem for p in ONE_NETWORK}
-    assert named == {"example1_networks"}
-    m = load_mission(MISSIONS / "example1_networks.yaml")
+    assert named == {"example1_networks", "sitl_arducopter_networks"}
+    m = load_mission(MISSIONS / f"{name}.yaml")
     assert m.networks == ("blue", "red") and m.multi_network
-    assert [m.label(v.key) for v in m.vehicles] == [
-        "blue:1", "blue:2", "blue:3", "red:1", "red:2", "red:3"
-    ]  # fmt: skip
+    assert [m.label(v.key) for v in m.vehicles] == labels
 
 
 @pytest.mark.parametrize("path", ONE_NETWORK, ids=lambda p: p.stem)
