@@ -5,7 +5,8 @@ The shard says hello to the controller listening at ``ENDPOINT`` (Zenoh,
 ``runtime.zbus``), is assigned its networks (the mission's text, the
 vehicles' links, the lockstep flag), and then runs an ordinary ``Station``
 over its vehicles only: links, codec, the vehicles' protocols, start-up,
-membership, the telemetry table. Only its control step differs: the state
+membership and its vehicles' join/leave events (reserves readied with the
+others), the telemetry table. Only its control step differs: the state
 batch goes to the controller (``swarm.shard.ShardSide.take_state``) and the
 controller's reply is answered through the links (``ShardSide.apply``).
 
@@ -31,7 +32,7 @@ from typing import Any
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import parse_mission
-from gcs_swarm.runtime.plans import station_config
+from gcs_swarm.runtime.plans import shard_config, station_config
 from gcs_swarm.runtime.station import Station
 from gcs_swarm.runtime.zbus import Bus
 from gcs_swarm.swarm.shard import ShardSide
@@ -79,11 +80,7 @@ async def _serve(bus: Bus, a: dict[str, Any]) -> int:
     links = {int(k): str(v) for k, v in a["links"].items()}
     mine = {int(k) for k in a["keys"]}
     full = station_config(mission, links, lockstep=bool(a["lockstep"]))
-    cfg = replace(
-        full,
-        vehicles=tuple(p for p in full.vehicles if p.sysid in mine),
-        end_timeout_s=float(a["end_timeout_s"]),
-    )
+    cfg = replace(shard_config(full, mine), end_timeout_s=float(a["end_timeout_s"]))
     up = f"up/{index}"
     start = asyncio.Event()
     ended = asyncio.Event()

@@ -13,9 +13,12 @@ mission's duration; then it sends every shard the end action and gathers
 their reports into one ``RunSummary``. It always ends the shards, also
 when cancelled (Ctrl-C) or when the start-up fails.
 
-Not (yet) in a sharded run: join/leave events and reserves, the run
-folder (``.tlog``, summary file, picture), the operator view, TIMESYNC
-delay compensation across the split (each shard predicts its own reports).
+Join/leave events and reserves are each run by the shard owning the
+vehicle (``swarm.shard``); ``check_shards`` refuses the events a shard
+cannot run as one station would (a rejoin after a leave, a join while
+nobody of its shard flies). Not (yet) in a sharded run: the run folder
+(``.tlog``, summary file, picture), the operator view, TIMESYNC delay
+compensation across the split (each shard predicts its own reports).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
-from gcs_swarm.runtime.plans import END_MODES, emulator_config
+from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config, shard_of_network
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
 from gcs_swarm.runtime.zbus import Bus, check_endpoint
@@ -72,8 +75,7 @@ def check_shards(mission: Mission, shards: int) -> None:
             f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
             " (name more networks: docs/mission-format.md, networks)"
         )
-    if mission.events or mission.reserves:
-        raise UsageError(f"--shards {shards}: join/leave events and reserves are not sharded yet")
+    check_shard_events(mission, shards)
 
 
 def free_endpoint() -> str:
@@ -304,12 +306,12 @@ async def run_sharded(
                     given[v.key] = f"udpout:{host}:{port}"
         for v in mission.vehicles:
             given.setdefault(v.key, v.link)
-        nets = sorted({v.net_index for v in mission.vehicles})
+        owner = shard_of_network(mission, shards)
         common = {"mission": mission.text, "source": mission.source, "lockstep": lockstep,
                   "links": {str(k): v for k, v in given.items()},
                   "end_timeout_s": end_timeout_s}  # fmt: skip
         assignment = [
-            {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]]}
+            {**common, "keys": [v.key for v in mission.vehicles if owner[v.net_index] == i]}
             for i in range(shards)
         ]
         bus = await stack.enter_async_context(Bus(listen=[endpoint]))

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.runtime import emulator_config, station_config
+from gcs_swarm.runtime.plans import shard_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
 from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot
@@ -110,7 +111,11 @@ class Sky:
 
     ``downlink``/``uplink``: the impairment of every datagram to the station
     (telemetry) / to a vehicle (setpoints, commands), seeded per vehicle and
-    direction from ``seed`` as the emulator seeds its endpoints."""
+    direction from ``seed`` as the emulator seeds its endpoints.
+
+    ``keys``: only these vehicles, on both sides (a link shard's part of the
+    mission: ``runtime.plans.shard_config``, its own vehicles' events only);
+    the vehicles are seeded as in the whole sky."""
 
     def __init__(
         self,
@@ -119,15 +124,19 @@ class Sky:
         downlink: Impairment | None = None,
         uplink: Impairment | None = None,
         seed: int = 0,
+        keys: Collection[int] | None = None,
     ) -> None:
         cfg = station_config(mission, {v.sysid: LINK for v in mission.vehicles})
+        mine = [v.sysid for v in mission.vehicles if keys is None or v.sysid in keys]
+        if keys is not None:
+            cfg = shard_config(cfg, keys)
         self.core = SwarmCore(cfg)
         self.notices: list[str] = []
         self.now = 0.0
         self.link = LinkState(
             LINK,
             unix_clock=lambda: 1.7e9 + self.now,
-            sysids=[v.sysid for v in mission.vehicles],
+            sysids=mine,
             telemetry=self.core.table,
             on_notice=self.notices.append,
         )
@@ -138,6 +147,7 @@ class Sky:
             emu, ekf_ready_s=0.0, boot_s=0.0, accel_shaping=False,
             params={**emu.params, "SIM_PREARM_S": 0.0}, seed=seed,
             uplink=uplink or Impairment(), downlink=downlink or Impairment(),
+            vehicles=tuple(spec for spec in emu.vehicles if spec.sysid in mine),
         )  # fmt: skip
         self.emu = EmulatorCore(emu)
         self.dt = self.emu.dt
