@@ -270,25 +270,32 @@ def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clo
     assert {v.ap.mode_name for v in sky.vehicles.values()} == {"BRAKE"}
 
 
-# Example 1's six, split 1-3 | 4-7 as two shards, with vehicle 2 leaving and a
-# reserve, 7, joining (each event on its own shard's side of the split).
+# Example 1's six on two networks, a shard each (as run_sharded assigns them),
+# with blue:2 leaving and red's reserve, red:4, joining: each event on its own
+# shard's side of the split.
 _EVENTS_MISSION = """\
 mission: {name: split events, duration: 4, rate: 50, end: hold}
 emulator: {dynamics: ideal}
 leader: {start: [0, 0, 0], force: [0, 0, 0]}
-vehicles:
-  - {sysid: 1, start: [2, 1, 2]}
-  - {sysid: 2, start: [-1, -1, -1]}
-  - {sysid: 3, start: [3, 4, 2]}
-  - {sysid: 4, start: [4, 2, 2]}
-  - {sysid: 5, start: [3, 3, 3]}
-  - {sysid: 6, start: [-2, -2, -2]}
-  - {sysid: 7, start: [1, -4, 3], reserve: true}
+networks:
+  - name: blue
+    vehicles:
+      - {sysid: 1, start: [2, 1, 2]}
+      - {sysid: 2, start: [-1, -1, -1]}
+      - {sysid: 3, start: [3, 4, 2]}
+  - name: red
+    vehicles:
+      - {sysid: 1, start: [4, 2, 2]}
+      - {sysid: 2, start: [3, 3, 3]}
+      - {sysid: 3, start: [-2, -2, -2]}
+      - {sysid: 4, start: [1, -4, 3], reserve: true}
 events:
-  - {t: 1.5, leave: 2}
-  - {t: 2.5, join: 7}
+  - {t: 1.5, leave: 2, network: blue}
+  - {t: 2.5, join: 4, network: red}
 """
 LEAVE_T_S, JOIN_T_S = 1.5, 2.5
+BLUE, RED = (1, 2, 3), (257, 258, 259, 260)
+"""The vehicles' keys: network j's system id s is j * 256 + s."""
 
 
 def _flying_at(steps: list[tuple[float, tuple[int, ...]]], at: float) -> tuple[int, ...]:
@@ -297,10 +304,11 @@ def _flying_at(steps: list[tuple[float, tuple[int, ...]]], at: float) -> tuple[i
 
 
 def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
-    """Two shards on one hand clock (each a ``Sky`` of its own vehicles and
-    events, one ``ControllerCore``) against one station of all seven: the
-    leave and the join happen at the same step, and the law computes the
-    same floats throughout (bit for bit, as the split without events)."""
+    """Two shards on one hand clock (each a ``Sky`` of its own network's
+    vehicles and events, one ``ControllerCore``) against one station of both
+    networks: the leave and the join happen at the same step, and the law
+    computes the same floats throughout (bit for bit, as the split without
+    events)."""
     mission = parse_mission(_EVENTS_MISSION)
     one = Sky(mission)
     one_steps: list[tuple[float, tuple[int, ...]]] = []
@@ -308,7 +316,7 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
     def station_step(now: float, write: Write) -> None:
         one.core.control_step(now, write)
         last = one.core.control.last
-        if last is not None and (not one_steps or one.core.control.steps > len(one_steps)):
+        if last is not None and one.core.control.steps > len(one_steps):
             one_steps.append((last.t_s, last.ids))
 
     one.control_step = station_step
@@ -317,8 +325,7 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
     one.start()
     one.run_until(lambda: one.core.finished, 30.0)
 
-    parts = ({1, 2, 3}, {4, 5, 6, 7})
-    skies = [Sky(mission, keys=keys) for keys in parts]
+    skies = [Sky(mission, keys=keys) for keys in (BLUE, RED)]
     s = mission.settings
     sides = [ShardSide(sky.core, i, s.stale_timeout) for i, sky in enumerate(skies)]
     ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=2,
@@ -366,16 +373,16 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
 
     # Each shard's core held only its own vehicles' events.
     assert [sky.core.config.events for sky in skies] == [((LEAVE_T_S, "leave", 2),),
-                                                         ((JOIN_T_S, "join", 7),)]  # fmt: skip
-    # The leave and the join at the station's steps: 2 out, then 7 in.
+                                                         ((JOIN_T_S, "join", 260),)]  # fmt: skip
+    # The leave and the join at the station's steps: blue:2 out, then red:4 in.
     assert split_steps == one_steps
-    assert _flying_at(one_steps, LEAVE_T_S - 0.02) == (1, 2, 3, 4, 5, 6)
-    assert _flying_at(one_steps, LEAVE_T_S) == (1, 3, 4, 5, 6)
-    assert _flying_at(one_steps, JOIN_T_S - 0.02) == (1, 3, 4, 5, 6)
-    assert _flying_at(one_steps, JOIN_T_S) == (1, 3, 4, 5, 6, 7)
+    assert _flying_at(one_steps, LEAVE_T_S - 0.02) == (1, 2, 3, 257, 258, 259)
+    assert _flying_at(one_steps, LEAVE_T_S) == (1, 3, 257, 258, 259)
+    assert _flying_at(one_steps, JOIN_T_S - 0.02) == (1, 3, 257, 258, 259)
+    assert _flying_at(one_steps, JOIN_T_S) == (1, 3, 257, 258, 259, 260)
     a, b = one.core.control.last, ctl.control.last
     assert a is not None and b is not None
-    assert (a.t_s, a.ids) == (b.t_s, b.ids) == (4.0, (1, 3, 4, 5, 6, 7))
+    assert (a.t_s, a.ids) == (b.t_s, b.ids) == (4.0, (1, 3, 257, 258, 259, 260))
     # The same floats: bit for bit (the split without events is too).
     assert a.pos_m.tobytes() == b.pos_m.tobytes()
     assert a.accel_mps2.tobytes() == b.accel_mps2.tobytes()
@@ -383,4 +390,4 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
     assert one.core.control.steps == ctl.control.steps
     assert one.answered == skies[0].answered + skies[1].answered
     # The leaver ended (the mission's end: hold) on its shard, as in one station.
-    assert skies[0].core.vehicles[2].phase is one.core.vehicles[2].phase
+    assert skies[0].core.vehicles[2].phase is one.core.vehicles[2].phase is Phase.ENDED
