@@ -188,7 +188,8 @@ def shard_config(full: StationConfig, keys: Collection[int]) -> StationConfig:
 
 def shard_of_network(mission: Mission, shards: int) -> dict[int, int]:
     """Which shard owns each network (index -> shard): round robin over the
-    networks in order, as ``run_sharded`` assigns them."""
+    networks in order, as ``run_sharded`` assigns them (shard i gets
+    ``nets[i::shards]``)."""
     nets = sorted({v.net_index for v in mission.vehicles})
     return {n: i % shards for i, n in enumerate(nets)}
 

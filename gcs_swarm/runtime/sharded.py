@@ -38,7 +38,7 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
-from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config, shard_of_network
+from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary, VehicleAtEnd
 from gcs_swarm.runtime.zbus import Bus, check_endpoint
@@ -306,12 +306,12 @@ async def run_sharded(
                     given[v.key] = f"udpout:{host}:{port}"
         for v in mission.vehicles:
             given.setdefault(v.key, v.link)
-        owner = shard_of_network(mission, shards)
+        nets = sorted({v.net_index for v in mission.vehicles})
         common = {"mission": mission.text, "source": mission.source, "lockstep": lockstep,
                   "links": {str(k): v for k, v in given.items()},
                   "end_timeout_s": end_timeout_s}  # fmt: skip
         assignment = [
-            {**common, "keys": [v.key for v in mission.vehicles if owner[v.net_index] == i]}
+            {**common, "keys": [v.key for v in mission.vehicles if v.net_index in nets[i::shards]]}
             for i in range(shards)
         ]
         bus = await stack.enter_async_context(Bus(listen=[endpoint]))
