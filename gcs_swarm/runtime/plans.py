@@ -1,17 +1,21 @@
 """From a loaded mission to what the station and the bundled emulator are
 given: ``station_config`` (the vehicles, by key, with their links and
-parameter settings), ``emulator_config`` (one network's sim vehicles),
+parameter settings), ``shard_of_network``, ``shard_config`` and
+``check_shard_events`` (which shard owns a network, a shard's vehicles and
+events, the events a sharded run refuses), ``emulator_config`` (one
+network's sim vehicles),
 ``param_settings``, ``signing_key``, and the end modes and exit codes of
-``gcs-swarm run`` (``gcs_swarm.runtime.run`` re-exports them all).
+``gcs-swarm run`` (``gcs_swarm.runtime.run`` re-exports all but the shards').
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
+from dataclasses import replace
 
 from gcs_swarm.control.velocity_bias import BiasSettings
-from gcs_swarm.errors import StartupError
+from gcs_swarm.errors import StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
 from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned, origin_offset_m
@@ -31,8 +35,11 @@ __all__ = [
     "END_MODES",
     "EXIT_CODES",
     "LOCKSTEP_GROUND_SPEEDUP",
+    "check_shard_events",
     "emulator_config",
     "param_settings",
+    "shard_config",
+    "shard_of_network",
     "signing_key",
     "station_config",
 ]
@@ -166,6 +173,52 @@ def station_config(
         signing_key=signing_key(mission),
         allow_rebind=s.signing is not None and s.signing.allow_rebind,
     )
+
+
+def shard_config(full: StationConfig, keys: Collection[int]) -> StationConfig:
+    """The part of the station ``full`` a link shard runs: the vehicles of
+    ``keys`` and only their join/leave events (the rest are other shards';
+    docs/architecture.md, "Scaled out: shards")."""
+    return replace(
+        full,
+        vehicles=tuple(p for p in full.vehicles if p.sysid in keys),
+        events=tuple(e for e in full.events if e[2] in keys),
+    )
+
+
+def shard_of_network(mission: Mission, shards: int) -> dict[int, int]:
+    """Which shard owns each network (index -> shard): round robin over the
+    networks in order, as ``run_sharded`` assigns them (shard i gets
+    ``nets[i::shards]``)."""
+    nets = sorted({v.net_index for v in mission.vehicles})
+    return {n: i % shards for i, n in enumerate(nets)}
+
+
+def check_shard_events(mission: Mission, shards: int) -> None:
+    """``UsageError`` for the events a shard cannot run as one station would.
+    A shard runs its events at its own steps, and it steps only while one of
+    its vehicles flies (``swarm.shard``): a join must find its shard flying.
+    A departed vehicle's rejoin is not sharded yet: it is readied to its
+    slot beside the leader (``swarm.step.run_step``), which only the
+    controller knows."""
+    owner = shard_of_network(mission, shards)
+    flying: dict[int, set[int]] = {i: set() for i in range(shards)}
+    for v in mission.initial:
+        flying[owner[v.net_index]].add(v.key)
+    left: set[int] = set()
+    for e in mission.events:  # in time order (the loader sorts them)
+        shard = owner[e.net_index]
+        what = f"events: vehicle {mission.label(e.key)} joins at t={e.t:g} s"
+        if e.action == "leave":
+            flying[shard].discard(e.key)
+            left.add(e.key)
+        elif e.key in left:
+            raise UsageError(f"--shards {shards}: {what} after leaving; not sharded yet")
+        elif not flying[shard]:
+            raise UsageError(f"--shards {shards}: {what} when no vehicle of its shard flies"
+                             " (a shard steps only while one does); not sharded yet")  # fmt: skip
+        else:
+            flying[shard].add(e.key)
 
 
 def emulator_config(

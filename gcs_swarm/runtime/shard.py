@@ -5,7 +5,8 @@ The shard says hello to the controller listening at ``ENDPOINT`` (Zenoh,
 ``runtime.zbus``), is assigned its networks (the mission's text, the
 vehicles' links, the lockstep flag), and then runs an ordinary ``Station``
 over its vehicles only: links, codec, the vehicles' protocols, start-up,
-membership, the telemetry table. Only its control step differs: the state
+membership and its vehicles' join/leave events (reserves readied with the
+others), the telemetry table. Only its control step differs: the state
 batch goes to the controller (``swarm.shard.ShardSide.take_state``) and the
 controller's reply is answered through the links (``ShardSide.apply``).
 
@@ -41,7 +42,7 @@ from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mission import parse_mission
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.config import StationConfig
-from gcs_swarm.runtime.plans import station_config
+from gcs_swarm.runtime.plans import shard_config, station_config
 from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
 from gcs_swarm.runtime.tlog import TlogWriter
@@ -101,11 +102,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
     links = {int(k): str(v) for k, v in a["links"].items()}
     mine = {int(k) for k in a["keys"]}
     full = station_config(mission, links, lockstep=bool(a["lockstep"]))
-    cfg = replace(
-        full,
-        vehicles=tuple(p for p in full.vehicles if p.sysid in mine),
-        end_timeout_s=float(a["end_timeout_s"]),
-    )
+    cfg = replace(shard_config(full, mine), end_timeout_s=float(a["end_timeout_s"]))
     up = f"up/{index}"
     start = asyncio.Event()
     ended = asyncio.Event()

@@ -21,9 +21,11 @@ With the operator view each shard sends its vehicles' half of a frame
 (``ShardedRun.views``) and the view merges them with the law's
 (``gcs_swarm.view.sharded``).
 
-Not (yet) in a sharded run: join/leave events and reserves, TIMESYNC delay
-compensation across the split (each shard predicts
-its own reports).
+Join/leave events and reserves are each run by the shard owning the
+vehicle (``swarm.shard``); ``check_shards`` refuses the events a shard
+cannot run as one station would (a rejoin after a leave, a join while
+nobody of its shard flies). Not (yet) in a sharded run: TIMESYNC delay
+compensation across the split (each shard predicts its own reports).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
-from gcs_swarm.runtime.plans import END_MODES, emulator_config
+from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
@@ -100,8 +102,7 @@ def check_shards(mission: Mission, shards: int) -> None:
             f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
             " (name more networks: docs/mission-format.md, networks)"
         )
-    if mission.events or mission.reserves:
-        raise UsageError(f"--shards {shards}: join/leave events and reserves are not sharded yet")
+    check_shard_events(mission, shards)
 
 
 def free_endpoint() -> str:

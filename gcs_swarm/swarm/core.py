@@ -400,9 +400,18 @@ class SwarmCore:
         fresh = self.take_step()
         if fresh is None:
             return
+        t = self.advance_clock_and_events(fresh, now)
+        run_step(self, fresh, t, now, write)
+
+    def advance_clock_and_events(self, fresh: dict[int, int], now: float) -> float:
+        """The step's mission time [s] from its ``fresh`` reports
+        (``ControlLoop.advance_clock``), with the events due by then run:
+        a vehicle leaving or joining at that time is out of, or in, this
+        step's flying set. ``control_step`` calls it before the law; a link
+        shard before it takes its state batch (``swarm.shard``)."""
         t = self.control.advance_clock(fresh)
         self._run_events(t, now)
-        run_step(self, fresh, t, now, write)
+        return t
 
     def take_step(self) -> dict[int, int] | None:
         """The wanted step begins: the fresh reports (key -> ``time_boot_ms``)

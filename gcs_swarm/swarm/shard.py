@@ -11,6 +11,20 @@ the controller, and ``ShardSide.apply`` answers them with the controller's
 ``SetpointReply`` through the same ``swarm.step.answer`` the one-process
 station uses (mission frame -> NED, Eq. V1, one ``SetpointBatch`` per link).
 
+Membership is the shard's own, as in one station: its core holds only its
+vehicles' join/leave events (``runtime.plans.shard_config``), readies its
+reserves with the others, and runs the events due before each batch is
+taken (``SwarmCore.advance_clock_and_events``), at the mission time of its
+own clock: ``ControlLoop.advance_clock`` over its own fresh reports, which
+in lockstep (every vehicle's report of the same instant) is the
+controller's time over all of them. So a vehicle leaving or joining at time
+t is out of or in the law at the step it would be in one process. The
+controller's time (``SetpointReply.t_s``) only replaces ``control.t_s``, what
+the shard's notes say, until the next step; the clock's own state stays
+the shard's. The controller sees a leaving vehicle vanish from the batch
+(it forgets its clock and shaper) and a joining one appear (mapped afresh,
+shaped from hover), as ``ControlLoop`` does in one process.
+
 The controller's silence is watched here too (``controller_silent``): once
 nothing has come from it for ``stale_timeout_s`` the shell ends every
 vehicle of the shard (``SwarmCore.finish_all``: zero acceleration, then the
@@ -59,6 +73,9 @@ class ShardSide:
         fresh = core.take_step()
         if fresh is None:
             return None
+        # The step's mission time on the shard's own clock, and its events: a
+        # vehicle leaving or joining now is out of, or in, this batch.
+        core.advance_clock_and_events(fresh, now)
         ids = sorted(core.flying)
         if ids:
             _, pos, vel = flying_states(core, ids, now)
@@ -84,7 +101,10 @@ class ShardSide:
         if core.ending or not len(reply.keys):
             return
         self.replies += 1
-        core.control.t_s = reply.t_s  # the mission time the shard's notes give
+        # The mission time the shard's notes give until its next step. Its own
+        # clock (advance_clock's offsets and milliseconds) is not touched: the
+        # events run on that, as in one process (module docstring).
+        core.control.t_s = reply.t_s
         flying, vel = core.flying, self._vel
         keys = reply.keys.tolist()
         rows = [i for i, s in enumerate(keys) if s in flying and s in vel]

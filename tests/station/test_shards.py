@@ -12,6 +12,7 @@ controller over a real Zenoh session.
   bit patterns, the controller sums in key order: the same numbers), and
   its run folder (the shards' network logs, the controller's notes) the
   same summary, also when ``gcs-swarm report`` rebuilds it from the logs;
+  also with a leave and two reserves joining, each event run by its own shard;
 - a shard killed with SIGKILL in flight (real time): the controller declares
   it dead within the stale timeout (1 s) plus the heartbeat period, its
   vehicles leave the formation and brake on their own (GUID_TIMEOUT), the
@@ -22,7 +23,9 @@ controller over a real Zenoh session.
   links do not open fails the start-up at once, with its reason;
 - Ctrl-C (SIGINT to the process group) on ``gcs-swarm run --shards 2``:
   every vehicle ends (BRAKE), exit 130;
-- bad ``--shards`` / ``--connect`` / ``--listen`` arguments: one line, exit 2;
+- bad ``--shards`` / ``--connect`` / ``--listen`` arguments, and the events a
+  shard cannot run (a rejoin, a join while its shard has nobody flying):
+  one line, exit 2;
 - the operator view of a sharded run: both shards' vehicles with the law's
   columns, and its Hold button ends them all.
 """
@@ -51,16 +54,25 @@ from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 _STARTS = ["[2, 1, 2]", "[-1, -1, -1]", "[3, 4, 2]", "[4, 2, 2]", "[3, 3, 3]", "[-2, -2, -2]"]
 
 
-def _two_networks(duration: float, emulator: str, extra: str = "") -> Mission:
+def _two_networks(
+    duration: float,
+    emulator: str,
+    extra: str = "",
+    more: tuple[str, str] = ("", ""),
+    events: str = "",
+) -> Mission:
+    """Example 1's six on networks blue and red; ``more``: vehicle lines
+    added to blue and to red, ``events``: an ``events:`` section."""
     text = (
         f"mission: {{name: shards, duration: {duration}, rate: 50, end: hold{extra}}}\n"
         f"emulator: {{{emulator}}}\n"
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
     )
-    for name, starts in (("blue", _STARTS[:3]), ("red", _STARTS[3:])):
+    for name, starts, lines in (("blue", _STARTS[:3], more[0]), ("red", _STARTS[3:], more[1])):
         text += f"  - name: {name}\n    vehicles:\n"
         text += "".join(f"      - {{sysid: {i + 1}, start: {s}}}\n" for i, s in enumerate(starts))
-    return parse_mission(text)
+        text += lines
+    return parse_mission(text + events)
 
 
 LOCKSTEP_S = 8.0
@@ -161,6 +173,76 @@ def _same_run_folders(one: RunFolder, two: RunFolder) -> None:
         # The live law read the same LOCAL_POSITION_NED floats the logs hold.
         assert rebuilt["vehicles"][label]["final_radius_m"] == pytest.approx(
             v["final_radius_m"], abs=1e-9)  # fmt: skip
+
+
+EVENTS_S = 4.0
+"""Formation flight of the events comparison [s] (200 steps): blue:2 leaves
+at 1.5 s, the reserves red:4 and blue:4 join at 2.5 s and 3 s."""
+
+
+def _with_events() -> Mission:
+    """Example 1's six on two networks, a reserve on each (readied by its own
+    shard) and three events, each run by the shard owning its vehicle. Three
+    choices make the sharded flight bit-equal to the station's in lockstep
+    (measured; they are about the start-up and the sockets, not the events):
+    - the reserves take off from the ground (``emulator_config``), and a shard
+      holds its emulator's clock once its own vehicles are READY
+      (``Station.hold_when_ready``) while one station's vehicles hover on until
+      every one is: with a reserve on red only, blue hovered 0.02 s of vehicle
+      time before the start instead of 23.56 s, and the hovers' last 1e-9 m/s
+      differ. So each network has a reserve readied in the same time (its
+      home right below its start, the two mirrored);
+    - ``shared: true``: a network's reports of a step reach its shard through
+      one socket, in order. With a socket per vehicle the joining reserve's
+      report of the step can reach the shard after the step began (seen in
+      two of a handful of runs): the join then takes its previous report;
+    - ``stale_timeout: 3``: a shard whose controller is silent that long ends
+      its vehicles, and during the reserves' take-off a 1 s stall of a loaded
+      machine did so once in about fifteen runs (nothing goes stale in flight).
+    """
+    return _two_networks(
+        EVENTS_S, "dynamics: ideal, mode: lockstep, spawn: air, shared: true",
+        extra=", stale_timeout: 3",
+        more=("      - {sysid: 4, start: [-1, 4, 3], origin: [-1, 4, -20], reserve: true}\n",
+              "      - {sysid: 4, start: [1, -4, 3], origin: [1, -4, -20], reserve: true}\n"),
+        events="events:\n  - {t: 1.5, leave: 2, network: blue}\n"
+               "  - {t: 2.5, join: 4, network: red}\n  - {t: 3, join: 4, network: blue}\n",
+    )  # fmt: skip
+
+
+def test_a_leave_and_reserves_joining_fly_the_same_radii_sharded_as_in_one_station() -> None:
+    mission = _with_events()
+
+    async def fly() -> tuple[RunSummary, RunSummary, ShardedRun]:
+        runs: list[ShardedRun] = []
+        async with asyncio.timeout(180):  # two flights of a few s wall each, on a loaded machine
+            one = await run_mission(mission, log_dir=None, end_timeout_s=5.0)
+            two = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=runs.append)
+        return one, two, runs[0]
+
+    one, two, run = asyncio.run(fly())
+    timeouts = [e.stats.lockstep_timeouts for e in run.emulators.values()]
+    print(f"controller fallback steps {run.core.fallbacks}; emulator lockstep timeouts {timeouts}")
+    assert one.outcome == two.outcome == "completed"
+    assert [v.phase for v in two.vehicles] == [v.phase for v in one.vehicles] == ["ended"] * 8
+    # The law's last step flew seven: blue:2 left, both reserves joined.
+    assert list(run.core.control.last.ids) == [1, 3, 4, 257, 258, 259, 260]
+    out = [v.label for v in two.vehicles if v.radius_m is None]
+    assert out == [v.label for v in one.vehicles if v.radius_m is None] == ["blue:2"]
+    # Each event was run by its own shard at the station's mission time.
+    for line in ("t=1.5 s: vehicle blue:2 leaves", "t=2.5 s: vehicle red:4 joins",
+                 "t=3 s: vehicle blue:4 joins"):  # fmt: skip
+        assert line in one.log and line in two.log, line
+    # Lockstep and float64 on the wire: the same numbers (1e-9 m as the
+    # comparison without events: room for rounding only).
+    r1 = np.array([v.radius_m for v in one.vehicles if v.radius_m is not None], dtype=float)
+    r2 = np.array([v.radius_m for v in two.vehicles if v.radius_m is not None], dtype=float)
+    np.testing.assert_allclose(r2, r1, rtol=0, atol=1e-9)
+    p1 = np.array([v.position_m for v in one.vehicles if v.position_m is not None], dtype=float)
+    p2 = np.array([v.position_m for v in two.vehicles if v.position_m is not None], dtype=float)
+    np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-9)
+    assert two.mission_time_s == pytest.approx(one.mission_time_s, abs=1e-9)
+    assert two.steps == one.steps
 
 
 TRIANGLE_RADIUS_M = 2.24167
@@ -286,6 +368,15 @@ def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action(
         (["shard", "--connect", "tcp/127.0.0.1:99999"], "expected a Zenoh endpoint"),
         (["run", "{two}", "--listen", "tcp/127.0.0.1:7447"], "--listen: only with --shards N"),
         (["run", "{two}", "--shards", "2", "--listen", "7447"], "--listen '7447': expected a"),
+        # What of the events a shard cannot run as one station would (check_shard_events):
+        (
+            ["run", "{rejoin}", "--shards", "2"],
+            "--shards 2: events: vehicle blue:2 joins at t=2 s after leaving; not sharded yet",
+        ),
+        (
+            ["run", "{alone}", "--shards", "2"],
+            "--shards 2: events: vehicle red:4 joins at t=2 s when no vehicle of its shard flies",
+        ),
     ],
 )
 def test_bad_shard_arguments_are_one_line_errors(
@@ -298,7 +389,17 @@ def test_bad_shard_arguments_are_one_line_errors(
     one = tmp_path / "one.yaml"
     one.write_text("mission: {name: one, duration: 5}\nleader: {start: [0, 0, 0]}\n"
                    "vehicles:\n  - {sysid: 1, start: [1, 0, 0]}\n")  # fmt: skip
-    code = main([a.format(two=two, one=one) for a in argv])
+    rejoin = tmp_path / "rejoin.yaml"
+    rejoin.write_text(_two_networks(5.0, "mode: lockstep", events="events:\n"
+                                    "  - {t: 1, leave: 2, network: blue}\n"
+                                    "  - {t: 2, join: 2, network: blue}\n").text)  # fmt: skip
+    alone = tmp_path / "alone.yaml"
+    alone.write_text(_two_networks(
+        5.0, "mode: lockstep", more=("", "      - {sysid: 4, start: [1, -4, 3], reserve: true}\n"),
+        events="events:\n" + "".join(f"  - {{t: 1, leave: {i}, network: red}}\n" for i in (1, 2, 3))
+        + "  - {t: 2, join: 4, network: red}\n",
+    ).text)  # fmt: skip
+    code = main([a.format(two=two, one=one, rejoin=rejoin, alone=alone) for a in argv])
     err = capsys.readouterr().err
     assert code == EXIT_REFUSED
     assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and expected in err, err

@@ -2,17 +2,18 @@
 hand-advanced clock (aioquic's client/server ``transfer`` in its tests).
 
 Station side: ``gcs_swarm.swarm.SwarmCore`` behind one listening
-``LinkState`` (every vehicle on one ``udpin`` link, each from its own
-address, as MAVProxy or a radio bridge would). Vehicle side: the emulator's
-own I/O-free ``sim_vehicle.core.EmulatorCore`` (the autopilots, ArduCopter
-or PX4 as the mission's ``autopilot`` says, the fleet, delivery, the
-telemetry schedule and the seeded link impairments of
-``sim_vehicle.impairments``: loss, duplicates, delay, jitter), each vehicle
-on a ``Radio``, a ``core.Port`` without a socket. Between them, datagrams as
-bytes, which a test may also forge or silence; ``station_off`` stops the
-station's side altogether (its timers, HEARTBEAT and setpoints), so the
-vehicles' own failsafes act. No sockets, no event loop, no sleeps: a second
-of flight is 50 physics steps and whatever the core asks for.
+``LinkState`` per network (every vehicle of a network on one ``udpin``
+link, each from its own address, as MAVProxy or a radio bridge would).
+Vehicle side: the emulator's own I/O-free ``sim_vehicle.core.EmulatorCore``,
+one per network (the autopilots, ArduCopter or PX4 as the mission's
+``autopilot`` says, the fleet, delivery, the telemetry schedule and the
+seeded link impairments of ``sim_vehicle.impairments``: loss, duplicates,
+delay, jitter), each vehicle on a ``Radio``, a ``core.Port`` without a
+socket. Between them, datagrams as bytes, which a test may also forge or
+silence; ``station_off`` stops the station's side altogether (its timers,
+HEARTBEAT and setpoints), so the vehicles' own failsafes act. No sockets,
+no event loop, no sleeps: a second of flight is 50 physics steps and
+whatever the core asks for.
 
 The station side follows ``runtime/station.py`` (``_after``, ``_on_timer``,
 ``_control_task``); the vehicle side is what ``sim_vehicle/server.py`` does
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,7 @@ from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.runtime import emulator_config, station_config
+from gcs_swarm.runtime.plans import shard_config
 from gcs_swarm.swarm import LinkState, SetpointBatch, SwarmCore
 from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot
@@ -44,8 +46,9 @@ from sim_vehicle.vehicles import HostedVehicle
 
 MISSIONS = Path(__file__).resolve().parents[2] / "config" / "missions"
 LINK = "udpin:0.0.0.0:14550"
+"""The station's link (of network 0; network j's: ``link_of(j)``)."""
 GCS: tuple[str, int] = ("10.0.0.1", 14550)
-"""The station's address as the vehicles see it."""
+"""The station's address as the vehicles see it (network 0's: ``gcs_of(j)``)."""
 _SETPOINT = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 Datagram = tuple[tuple[str, int], bytes]
@@ -59,8 +62,18 @@ def mission_from(name: str, *, duration: float) -> Mission:
 
 
 def address(sysid: int) -> tuple[str, int]:
-    """Vehicle ``sysid``'s own address."""
+    """Vehicle ``sysid``'s own address (its key on a later network)."""
     return ("10.0.1.1", 5760 + 10 * sysid)
+
+
+def link_of(network: int) -> str:
+    """The station's link to network index ``network``: a link per network."""
+    return f"udpin:0.0.0.0:{14550 + network}"
+
+
+def gcs_of(network: int) -> tuple[str, int]:
+    """The station's address as network ``network``'s vehicles see it."""
+    return (GCS[0], GCS[1] + network)
 
 
 class Radio:
@@ -71,12 +84,18 @@ class Radio:
     shared = False
     signing_key: bytes | None = None
 
-    def __init__(self, sky: Sky, addr: tuple[str, int], up: Impairer, down: Impairer) -> None:
+    def __init__(
+        self, sky: Sky, addr: tuple[str, int], up: Impairer, down: Impairer, network: int = 0
+    ) -> None:
         self.sky, self.address = sky, addr
         self.uplink, self.downlink = up, down
-        self.out: tuple[str, int] | None = GCS
+        self.link, self.gcs = link_of(network), gcs_of(network)
+        """The station's link and address this radio talks to (its network's)."""
+        self.emu: EmulatorCore | None = None
+        """Its network's emulator core."""
+        self.out: tuple[str, int] | None = self.gcs
         self.sysids: dict[int, int] = {}
-        self.peers: dict[tuple[str, int], None] = {GCS: None}
+        self.peers: dict[tuple[str, int], None] = {self.gcs: None}
         self.outbox: list[tuple[bytes, int]] = []
         self.silent = False
         self.parser = mav.MAVLink(None)
@@ -86,8 +105,9 @@ class Radio:
         then acts inside the emulator's core: ``Sky.stats.rx_lost``)."""
 
     def sendto(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.sky.stats.tx_datagrams += 1  # as link.Endpoint counts what it sends
-        self.sky.to_station(self.address, data)
+        assert self.emu is not None
+        self.emu.stats.link.tx_datagrams += 1  # as link.Endpoint counts what it sends
+        self.sky.to_station(self.address, data, self.link)
 
     def close(self) -> None:
         pass
@@ -110,7 +130,13 @@ class Sky:
 
     ``downlink``/``uplink``: the impairment of every datagram to the station
     (telemetry) / to a vehicle (setpoints, commands), seeded per vehicle and
-    direction from ``seed`` as the emulator seeds its endpoints."""
+    direction from ``seed`` as the emulator seeds its endpoints.
+
+    A mission of several networks gets a link and an emulator core per
+    network (as ``run_mission``); ``link``, ``emu`` and ``stats`` are network
+    0's. ``keys``: only these vehicles, on both sides (a link shard's part of
+    the mission: ``runtime.plans.shard_config``, its own vehicles' events
+    only); the vehicles are seeded as in the whole sky."""
 
     def __init__(
         self,
@@ -119,27 +145,61 @@ class Sky:
         downlink: Impairment | None = None,
         uplink: Impairment | None = None,
         seed: int = 0,
+        keys: Collection[int] | None = None,
     ) -> None:
-        cfg = station_config(mission, {v.sysid: LINK for v in mission.vehicles})
+        mine = [v for v in mission.vehicles if keys is None or v.key in keys]
+        nets = sorted({v.net_index for v in mine})
+        cfg = station_config(mission, {v.key: link_of(v.net_index) for v in mission.vehicles})
+        if keys is not None:
+            cfg = shard_config(cfg, keys)
         self.core = SwarmCore(cfg)
         self.notices: list[str] = []
         self.now = 0.0
-        self.link = LinkState(
-            LINK,
-            unix_clock=lambda: 1.7e9 + self.now,
-            sysids=[v.sysid for v in mission.vehicles],
-            telemetry=self.core.table,
-            on_notice=self.notices.append,
-        )
-        # The emulator as the mission starts it, airborne, with a quick start-up: the
-        # EKF ready, boot ended and PX4's pre-arm checks passed at once; no shaping.
-        emu = emulator_config(mission, airborne=True)
-        emu = dataclasses.replace(
-            emu, ekf_ready_s=0.0, boot_s=0.0, accel_shaping=False,
-            params={**emu.params, "SIM_PREARM_S": 0.0}, seed=seed,
-            uplink=uplink or Impairment(), downlink=downlink or Impairment(),
-        )  # fmt: skip
-        self.emu = EmulatorCore(emu)
+        self.links = {
+            link_of(j): LinkState(
+                link_of(j),
+                unix_clock=lambda: 1.7e9 + self.now,
+                sysids=[v.key for v in mine if v.net_index == j],
+                telemetry=self.core.table,
+                on_notice=self.notices.append,
+                base=self.core.base_of[link_of(j)],
+            )
+            for j in nets
+        }
+        """The station's link to each network, by name."""
+        self.link = self.links[link_of(nets[0])]
+        self.emus: list[EmulatorCore] = []
+        self.vehicles: dict[int, SimVehicle] = {}
+        self._radios: dict[tuple[str, int], Radio] = {}
+        for j in nets:
+            # Each network's emulator as the mission starts it, airborne, with a quick
+            # start-up: the EKF ready, boot ended and PX4's pre-arm checks passed at
+            # once; no shaping.
+            emu = emulator_config(mission, airborne=True, network=j)
+            wire = {v.sysid for v in mine if v.net_index == j}
+            emu = dataclasses.replace(
+                emu, ekf_ready_s=0.0, boot_s=0.0, accel_shaping=False,
+                params={**emu.params, "SIM_PREARM_S": 0.0}, seed=seed,
+                uplink=uplink or Impairment(), downlink=downlink or Impairment(),
+                vehicles=tuple(spec for spec in emu.vehicles if spec.sysid in wire),
+            )  # fmt: skip
+            core = EmulatorCore(emu)
+            self.emus.append(core)
+            base = self.core.base_of[link_of(j)]
+            for spec in emu.vehicles:
+                # seeded as the emulator seeds each endpoint's two directions
+                # (server._open_endpoint)
+                ss = np.random.SeedSequence([seed, spec.key, 7])
+                up, down = (np.random.default_rng(q) for q in ss.spawn(2))
+                radio = Radio(self, address(base + spec.sysid), Impairer(emu.uplink, up),
+                              Impairer(emu.downlink, down), network=j)  # fmt: skip
+                radio.emu = core
+                core.ports.append(radio)
+                enc = signing.mavlink(spec.sysid, spec.compid, None)
+                hosted = core.add(spec, radio, initial=True, enc=enc)
+                self.vehicles[base + spec.sysid] = SimVehicle(hosted, radio)
+                self._radios[radio.address] = radio
+        self.emu = self.emus[0]
         self.dt = self.emu.dt
         self.station_running = True
         self.control_step: Callable[[float, Any], None] = self.core.control_step
@@ -149,21 +209,8 @@ class Sky:
         """Setpoints of the control steps per vehicle (the station's answers)."""
         self._next_hb = 0.0
         self._next_status = 1.0
-        self._to_station: list[Datagram] = []
-        self.vehicles: dict[int, SimVehicle] = {}
-        self._radios: dict[tuple[str, int], Radio] = {}
-        for spec in emu.vehicles:
-            # seeded as the emulator seeds each endpoint's two directions
-            # (server._open_endpoint)
-            ss = np.random.SeedSequence([seed, spec.key, 7])
-            up, down = (np.random.default_rng(q) for q in ss.spawn(2))
-            radio = Radio(self, address(spec.sysid), Impairer(emu.uplink, up),
-                          Impairer(emu.downlink, down))  # fmt: skip
-            self.emu.ports.append(radio)
-            enc = signing.mavlink(spec.sysid, spec.compid, None)
-            hosted = self.emu.add(spec, radio, initial=True, enc=enc)
-            self.vehicles[spec.sysid] = SimVehicle(hosted, radio)
-            self._radios[radio.address] = radio
+        self._to_station: list[tuple[tuple[str, int], bytes, str]] = []
+        """(sender address, bytes, the station's link it reaches)."""
 
     @property
     def stats(self) -> LinkStats:
@@ -172,9 +219,9 @@ class Sky:
         return self.emu.stats.link
 
     # ----------------------------------------------------------- vehicles
-    def to_station(self, sender: tuple[str, int], data: bytes) -> None:
-        """A datagram towards the station (from a vehicle's radio, or ``inject``)."""
-        self._to_station.append((sender, data))
+    def to_station(self, sender: tuple[str, int], data: bytes, link: str = LINK) -> None:
+        """A datagram towards the station's ``link`` (from a vehicle's radio, or ``inject``)."""
+        self._to_station.append((sender, data, link))
 
     def _to_vehicle(self, radio: Radio, data: bytes) -> None:
         """A datagram from the station arrives at a vehicle's radio (server ``_receive``)."""
@@ -182,11 +229,14 @@ class Sky:
             return
         msgs = radio.parser.parse_buffer(data) or []
         radio.setpoints_in += sum(m.get_msgId() == _SETPOINT for m in msgs)
-        self.emu.receive(radio, msgs, GCS, None)
+        assert radio.emu is not None
+        radio.emu.receive(radio, msgs, radio.gcs, None)
 
     def set_silent(self, sysid: int, silent: bool = True) -> None:
         """Vehicle ``sysid``'s radio off (it keeps flying) or on again."""
-        self.emu.set_silent(self.vehicles[sysid].hosted, silent)
+        v = self.vehicles[sysid]
+        assert v.radio.emu is not None
+        v.radio.emu.set_silent(v.hosted, silent)
 
     def inject(self, sender: tuple[str, int], data: bytes) -> None:
         """A datagram to the station from ``sender`` (a forger, a stray port)."""
@@ -196,9 +246,8 @@ class Sky:
     def _write(self, link: str, batch: SetpointBatch | None) -> None:
         if batch is not None:
             self.answered.update(batch.sysids)
-        writes = (
-            self.link.datagrams_to_send() if batch is None else self.link.accel_setpoints(*batch)
-        )
+        lk = self.links[link]
+        writes = lk.datagrams_to_send() if batch is None else lk.accel_setpoints(*batch)
         self._deliver(writes)
 
     def _deliver(self, writes: list[tuple[Any, bytes, list[float | None]]]) -> None:
@@ -211,9 +260,10 @@ class Sky:
         core = self.core
         if core.outbound:
             out, core.outbound = core.outbound, []
-            for _link, spec, sysid in out:
-                self.link.send(spec, sysid)
-        self._deliver(self.link.datagrams_to_send())
+            for link, spec, sysid in out:
+                self.links[link].send(spec, sysid)
+        for lk in self.links.values():
+            self._deliver(lk.datagrams_to_send())
 
     def station_off(self) -> None:
         """The station's side stops for good (killed): no timer, no HEARTBEAT, no
@@ -222,7 +272,7 @@ class Sky:
 
     def transfer(self) -> None:
         """Pass datagrams both ways until nobody has anything to say (at ``now``)."""
-        core, link = self.core, self.link
+        core = self.core
         for _ in range(100):
             if not self.station_running:
                 self._to_station.clear()  # nobody listens any more
@@ -236,9 +286,10 @@ class Sky:
             if not self._to_station:
                 return
             batch, self._to_station = self._to_station, []
-            for sender, data in batch:
+            for sender, data, name in batch:
+                link = self.links[name]
                 for msg in link.receive(data, sender, self.now, datagram=True):
-                    core.receive(msg, LINK, self.now, self.now)
+                    core.receive(msg, name, self.now, self.now)
                 if link.positions_written:
                     core.telemetry_written(self.now)
         raise AssertionError("the two sides kept talking at one instant")
@@ -249,7 +300,8 @@ class Sky:
         polls, telemetry and delayed datagrams), the core's timers at their own times."""
         end = self.now + seconds - 1e-9
         if self.emu.step_count == 0 and self.now == 0.0:
-            self.emu.emit(0.0)  # what is due at once (the emulator's clock task)
+            for emu in self.emus:
+                emu.emit(0.0)  # what is due at once (the emulator's clock task)
             self.transfer()
         while self.now < end:
             tick = self.now + self.dt
@@ -261,8 +313,10 @@ class Sky:
                 self.transfer()
             if self.station_running and self._next_hb <= tick:  # its shell's 1 Hz HEARTBEAT
                 self._next_hb += 1.0
-                self.link.send(b.heartbeat())
-            self.emu.step()
+                for lk in self.links.values():
+                    lk.send(b.heartbeat())
+            for emu in self.emus:
+                emu.step()
             self.now = tick
             self.transfer()
             if self.station_running and self._next_status <= self.now:  # its status task

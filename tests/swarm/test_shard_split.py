@@ -1,11 +1,14 @@
 """The link-shard split without I/O (issue 19 item 2): the wire's bytes, the
 controller's step rule and dead-shard rule, the shard's watch on its
 controller, and whole flights of the split on the in-process harness
-(bit-equal to the station's own step; a silent controller ends every
-vehicle), all on a hand-advanced clock (no Zenoh, no sockets, no sleeps).
+(bit-equal to the station's own step, also with a leave and a reserve's
+join run by two shards; a silent controller ends every vehicle), all on a
+hand-advanced clock (no Zenoh, no sockets, no sleeps).
 The processes over Zenoh are tests/station/test_shards.py."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -13,6 +16,7 @@ from swarm_harness import Sky, mission_from
 
 from gcs_swarm.control.params import LawConfig
 from gcs_swarm.errors import LinkError
+from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard import ShardSide
@@ -264,3 +268,126 @@ def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clo
     sky.end()  # Station.end: zero acceleration, then the mission's end action (hold)
     assert {vp.phase.value for vp in sky.core.vehicles.values()} == {"ended"}
     assert {v.ap.mode_name for v in sky.vehicles.values()} == {"BRAKE"}
+
+
+# Example 1's six on two networks, a shard each (as run_sharded assigns them),
+# with blue:2 leaving and red's reserve, red:4, joining: each event on its own
+# shard's side of the split.
+_EVENTS_MISSION = """\
+mission: {name: split events, duration: 4, rate: 50, end: hold}
+emulator: {dynamics: ideal}
+leader: {start: [0, 0, 0], force: [0, 0, 0]}
+networks:
+  - name: blue
+    vehicles:
+      - {sysid: 1, start: [2, 1, 2]}
+      - {sysid: 2, start: [-1, -1, -1]}
+      - {sysid: 3, start: [3, 4, 2]}
+  - name: red
+    vehicles:
+      - {sysid: 1, start: [4, 2, 2]}
+      - {sysid: 2, start: [3, 3, 3]}
+      - {sysid: 3, start: [-2, -2, -2]}
+      - {sysid: 4, start: [1, -4, 3], reserve: true}
+events:
+  - {t: 1.5, leave: 2, network: blue}
+  - {t: 2.5, join: 4, network: red}
+"""
+LEAVE_T_S, JOIN_T_S = 1.5, 2.5
+BLUE, RED = (1, 2, 3), (257, 258, 259, 260)
+"""The vehicles' keys: network j's system id s is j * 256 + s."""
+
+
+def _flying_at(steps: list[tuple[float, tuple[int, ...]]], at: float) -> tuple[int, ...]:
+    """The vehicles the law flew at the first step at or after mission time ``at``."""
+    return next(ids for t, ids in steps if t >= at - 1e-9)
+
+
+def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
+    """Two shards on one hand clock (each a ``Sky`` of its own network's
+    vehicles and events, one ``ControllerCore``) against one station of both
+    networks: the leave and the join happen at the same step, and the law
+    computes the same floats throughout (bit for bit, as the split without
+    events)."""
+    mission = parse_mission(_EVENTS_MISSION)
+    one = Sky(mission)
+    one_steps: list[tuple[float, tuple[int, ...]]] = []
+
+    def station_step(now: float, write: Write) -> None:
+        one.core.control_step(now, write)
+        last = one.core.control.last
+        if last is not None and one.core.control.steps > len(one_steps):
+            one_steps.append((last.t_s, last.ids))
+
+    one.control_step = station_step
+    one.ready()
+    ready_at = one.now
+    one.start()
+    one.run_until(lambda: one.core.finished, 30.0)
+
+    skies = [Sky(mission, keys=keys) for keys in (BLUE, RED)]
+    s = mission.settings
+    sides = [ShardSide(sky.core, i, s.stale_timeout) for i, sky in enumerate(skies)]
+    ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=2,
+                         duration_s=s.duration, stale_timeout_s=s.stale_timeout,
+                         lockstep=False)  # fmt: skip
+    split_steps: list[tuple[float, tuple[int, ...]]] = []
+
+    def shard_step(i: int) -> Callable[[float, Write], None]:
+        def step(now: float, write: Write) -> None:
+            batch = sides[i].take_state(now)
+            if batch is None:
+                return
+            ctl.receive_state(decode_state(encode_state(batch)), now)
+            if not ctl.step_wanted:
+                return
+            for reply in ctl.control_step(now):
+                j = reply.shard
+                sides[j].apply(decode_reply(encode_reply(reply)), now, skies[j]._write)
+            if ctl.control.last is not None and ctl.control.steps > len(split_steps):
+                split_steps.append((ctl.control.last.t_s, ctl.control.last.ids))
+            if ctl.finished:
+                for sky in skies:
+                    sky.core.finished = True
+
+        return step
+
+    def together(done: Callable[[], bool]) -> None:
+        """Both shards' skies a physics step at a time on one clock."""
+        while not done():
+            assert skies[0].now < 30.0, [sky.phases() for sky in skies]
+            for sky in skies:
+                sky.advance(sky.dt)
+            assert skies[0].now == skies[1].now
+
+    for i, sky in enumerate(skies):
+        sky.control_step = shard_step(i)
+    together(lambda: all(p is Phase.READY for sky in skies for p in sky.phases().values()))
+    assert skies[0].now == ready_at  # readied (the reserve took off) in the same time
+    envelope = skies[0].core.apply_envelope().tighter(skies[1].core.apply_envelope())
+    ctl.set_envelope(envelope)
+    for sky in skies:
+        sky.start()
+    ctl.start(skies[0].now, {i: len(sky.core.flying) for i, sky in enumerate(skies)})
+    together(lambda: ctl.finished)
+
+    # Each shard's core held only its own vehicles' events.
+    assert [sky.core.config.events for sky in skies] == [((LEAVE_T_S, "leave", 2),),
+                                                         ((JOIN_T_S, "join", 260),)]  # fmt: skip
+    # The leave and the join at the station's steps: blue:2 out, then red:4 in.
+    assert split_steps == one_steps
+    assert _flying_at(one_steps, LEAVE_T_S - 0.02) == (1, 2, 3, 257, 258, 259)
+    assert _flying_at(one_steps, LEAVE_T_S) == (1, 3, 257, 258, 259)
+    assert _flying_at(one_steps, JOIN_T_S - 0.02) == (1, 3, 257, 258, 259)
+    assert _flying_at(one_steps, JOIN_T_S) == (1, 3, 257, 258, 259, 260)
+    a, b = one.core.control.last, ctl.control.last
+    assert a is not None and b is not None
+    assert (a.t_s, a.ids) == (b.t_s, b.ids) == (4.0, (1, 3, 257, 258, 259, 260))
+    # The same floats: bit for bit (the split without events is too).
+    assert a.pos_m.tobytes() == b.pos_m.tobytes()
+    assert a.accel_mps2.tobytes() == b.accel_mps2.tobytes()
+    assert a.radii_m.tobytes() == b.radii_m.tobytes()
+    assert one.core.control.steps == ctl.control.steps
+    assert one.answered == skies[0].answered + skies[1].answered
+    # The leaver ended (the mission's end: hold) on its shard, as in one station.
+    assert skies[0].core.vehicles[2].phase is one.core.vehicles[2].phase is Phase.ENDED
