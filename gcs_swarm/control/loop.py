@@ -209,12 +209,15 @@ class ControlLoop:
     def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult) -> None:
         self.controller.resolve_lookahead(job, result)
 
-    def slot_m(self, start_m: Sequence[float]) -> FloatArray:
+    def slot_m(self, start_m: Sequence[float], leader_m: FloatArray | None = None) -> FloatArray:
         """Where a vehicle readied mid-mission should fly to [m]: its start
-        position carried along with the virtual leader since the start."""
+        position carried along with the virtual leader since the start (the
+        leader at ``leader_m`` [m] when given: a link shard's, which runs no
+        law, is its controller's)."""
         start = np.asarray(start_m, dtype=np.float64)
         leader0 = np.asarray(self.config.leader.start, dtype=np.float64)
-        return start - leader0 + self.controller.leader_pos_m
+        leader = self.controller.leader_pos_m if leader_m is None else leader_m
+        return start - leader0 + leader
 
 
 _GRAM_FROM_N = 48

@@ -36,6 +36,8 @@ from dataclasses import asdict, astuple, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.coordinates import GeoOrigin
@@ -135,6 +137,9 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         if station is None or side is None:
             return
         side.heard(station.now())
+        if msg.get("leader") is not None:
+            leader, shard = np.array(msg["leader"], dtype=np.float64), side
+            station.apply(lambda now, write: shard.leader_at(leader))
         if msg["kind"] == "start":
             start.set()
 

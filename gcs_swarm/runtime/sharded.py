@@ -282,7 +282,10 @@ class ShardedRun:
 
     async def beat(self) -> None:
         while True:
-            self.bus.put_json("down/all", {"kind": "beat", "origin": self.origin})
+            core = self.core
+            leader = core.control.controller.leader_pos_m.tolist() if core.started else None
+            self.bus.put_json("down/all", {"kind": "beat", "origin": self.origin,
+                                           "leader": leader})  # fmt: skip
             await asyncio.sleep(BEAT_S)
 
     async def start(self, shards: int, hello_s: float, ready_timeout_s: float) -> None:

@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
-from gcs_swarm.swarm.step import Write, answer, flying_states
+from gcs_swarm.swarm.step import Write, answer, flying_states, send_rejoiners
 
 if TYPE_CHECKING:
     from gcs_swarm.swarm.core import SwarmCore
@@ -116,6 +116,14 @@ class ShardSide:
         ks = core.table.slots(ids)
         v = np.array([vel[s] for s in ids], dtype=np.float64).reshape(len(ids), 3)
         answer(core, ids, ks, accel, now, reply.t_s, v, write)
+
+    def leader_at(self, leader_m: FloatArray) -> None:
+        """The controller's leader is at ``leader_m`` [m] (its beats, 10 a
+        second, also while this shard has nobody flying): members being
+        readied again fly to their slot beside it, as in one station
+        (``swarm.step.send_rejoiners``), not to their mission start."""
+        if self.core.started and not self.core.ending:
+            send_rejoiners(self.core, leader_m)
 
     def heard(self, now: float) -> None:
         """Something came from the controller at ``now``."""

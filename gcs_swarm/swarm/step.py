@@ -41,6 +41,7 @@ __all__ = [
     "command",
     "flying_states",
     "run_step",
+    "send_rejoiners",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -93,13 +94,22 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         job = core.control.pending_lookahead()
         if job is not None:
             core.lookahead.append(job)
-    for sysid in (core.members & core.flown) - core.flying:
-        vp = core.vehicles[sysid]
-        if vp.phase in READYING and vp.phase is not Phase.READY:
-            vp.set_goto(core.control.slot_m(core.plans[sysid].start_m))
+    send_rejoiners(core)
     if t >= core.config.duration_s:
         core.note(f"mission time {t:.2f} s reached the duration")
         core.finished = True
+
+
+def send_rejoiners(core: SwarmCore, leader_m: FloatArray | None = None) -> None:
+    """Members that flew and are being readied again (lost and heard again,
+    or joining again after a leave) fly to their slot beside the leader,
+    which moves on meanwhile (``ControlLoop.slot_m``); ``leader_m`` [m] is
+    the leader's position when this core does not run the law (a link
+    shard: its controller's, relayed in the controller's beats)."""
+    for sysid in (core.members & core.flown) - core.flying:
+        vp = core.vehicles[sysid]
+        if vp.phase in READYING and vp.phase is not Phase.READY:
+            vp.set_goto(core.control.slot_m(core.plans[sysid].start_m, leader_m))
 
 
 class Commanding(Protocol):

@@ -202,9 +202,13 @@ def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
 # instead of run_step, as in a shard process, without Zenoh or sockets.
 
 
-def _sharded_in_flight(mission: Mission) -> tuple[Sky, ShardSide, ControllerCore]:
+def _sharded_in_flight(
+    mission: Mission, *, beats: bool = False
+) -> tuple[Sky, ShardSide, ControllerCore]:
     """``mission`` on the harness with its step through the split, readied and
-    started as a shard and its controller start it (``runtime/shard.py``)."""
+    started as a shard and its controller start it (``runtime/shard.py``);
+    with ``beats`` the controller's leader reaches the shard after each step
+    (``ShardSide.leader_at``, as the controller's beats carry it)."""
     sky = Sky(mission)
     s = mission.settings
     side = ShardSide(sky.core, 0, s.stale_timeout)
@@ -220,6 +224,8 @@ def _sharded_in_flight(mission: Mission) -> tuple[Sky, ShardSide, ControllerCore
         if ctl.step_wanted:
             for reply in ctl.control_step(now):
                 side.apply(decode_reply(encode_reply(reply)), now, write)
+            if beats:
+                side.leader_at(ctl.control.controller.leader_pos_m.copy())
         if ctl.finished:
             sky.core.finished = True
 
@@ -391,3 +397,63 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
     assert one.answered == skies[0].answered + skies[1].answered
     # The leaver ended (the mission's end: hold) on its shard, as in one station.
     assert skies[0].core.vehicles[2].phase is one.core.vehicles[2].phase is Phase.ENDED
+
+
+# A leader that moves at 0.25 m/s along x ((D + k) v = 2.5 N), so that a
+# slot beside it is away from the mission's start points by the time a
+# vehicle comes back (slower than the start's 0.3 m/s speed tolerance: a
+# vehicle readied again must come to READY at its moving slot).
+_MOVING = """\
+mission: {name: rejoin, duration: 10, rate: 50, end: hold}
+emulator: {dynamics: ideal}
+leader: {start: [0, 0, 0], force: [2.5, 0, 0]}
+vehicles:
+  - {sysid: 1, start: [2, 1, 2]}
+  - {sysid: 2, start: [-1, -1, -1]}
+  - {sysid: 3, start: [3, 4, 2]}
+  - {sysid: 4, start: [4, 2, 2]}
+"""
+
+
+def _lose_and_hear_again(sky: Sky) -> float:
+    """Vehicle 3 silent from t = 1 s until the core calls it lost, then heard
+    again; the mission time [s] at which its core flies it again."""
+    sky.advance(1.0)
+    sky.set_silent(3)
+    sky.run_until(lambda: 3 not in sky.core.flying, 3.0)
+    sky.set_silent(3, False)
+    sky.run_until(lambda: 3 in sky.core.flying or sky.core.finished, 10.0)
+    assert 3 in sky.core.flying, sky.phases()
+    return sky.core.control.t_s
+
+
+def test_a_vehicle_heard_again_on_its_shard_rejoins_at_its_slot_beside_the_leader() -> None:
+    """One station sends a vehicle readied again mid-flight to its slot,
+    its start carried along with the leader (``ControlLoop.slot_m``); a shard
+    runs no law, so the controller's leader reaches it in the beats
+    (``ShardSide.leader_at``): the split flies the station's numbers. Without
+    them the vehicle would rejoin at its mission start, behind."""
+    mission = parse_mission(_MOVING)
+    one = Sky(mission)
+    one.ready()
+    one.start()
+    t_one = _lose_and_hear_again(one)
+    split, _, ctl = _sharded_in_flight(mission, beats=True)
+    t_split = _lose_and_hear_again(split)
+    assert t_split == t_one
+    one.advance(0.1)
+    split.advance(0.1)
+    a, b = one.core.control.last, ctl.control.last
+    assert a is not None and b is not None and a.ids == b.ids == (1, 2, 3, 4)
+    assert a.pos_m.tobytes() == b.pos_m.tobytes()  # the same floats: bit for bit
+    slot = np.array([3.0, 4.0, 2.0]) + b.law.leader_pos_m  # its start beside the leader
+    start_gap = float(np.linalg.norm(b.pos_m[2] - (3.0, 4.0, 2.0)))
+    # READY within the start tolerance (0.3 m) of the slot, the leader ~1.2 m on.
+    assert float(np.linalg.norm(b.pos_m[2] - slot)) < 0.35 < 0.9 < start_gap, start_gap
+    # Without the leader the shard sends it to its mission start.
+    blind, _, ctl2 = _sharded_in_flight(mission)
+    _lose_and_hear_again(blind)
+    blind.advance(0.1)
+    c = ctl2.control.last
+    assert c is not None and c.ids == (1, 2, 3, 4)
+    assert float(np.linalg.norm(c.pos_m[2] - (3.0, 4.0, 2.0))) < 0.35
