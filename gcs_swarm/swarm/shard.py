@@ -26,7 +26,8 @@ the shard's. The controller sees a leaving vehicle vanish from the batch
 shaped from hover), as ``ControlLoop`` does in one process.
 
 The controller's silence is watched here too (``controller_silent``): once
-nothing has come from it for ``stale_timeout_s`` the shell ends every
+nothing has come from it for ``stale_timeout_s`` (``STARTUP_SILENCE_S``
+before the formation starts) the shell ends every
 vehicle of the shard (``SwarmCore.finish_all``: zero acceleration, then the
 end action), as a vehicle's own GCS failsafe would once the shard stopped.
 """
@@ -44,7 +45,14 @@ from gcs_swarm.swarm.step import Write, answer, flying_states, send_rejoiners
 if TYPE_CHECKING:
     from gcs_swarm.swarm.core import SwarmCore
 
-__all__ = ["ShardSide"]
+__all__ = ["STARTUP_SILENCE_S", "ShardSide"]
+
+STARTUP_SILENCE_S = 5.0
+"""How long a shard waits on a silent controller before the formation has
+started [s] (the stale timeout once it flies). Nothing the vehicles do
+then depends on the controller, and on a loaded machine a busy controller
+process was measured silent for 1 s during start-up (1 run in about 15),
+which the 1 s stale timeout turned into a failed start-up."""
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -61,6 +69,8 @@ class ShardSide:
         """The last state batch's number (the reply names the one it used)."""
         self.heard_at: float | None = None
         """When the controller was last heard (None: not yet)."""
+        self.flying = False
+        """The formation has started (``begin``)."""
         self.replies = 0
         self.states = 0
         self._vel: dict[int, FloatArray] = {}
@@ -129,11 +139,23 @@ class ShardSide:
         """Something came from the controller at ``now``."""
         self.heard_at = now
 
+    def begin(self) -> None:
+        """The formation has started: from now on the vehicles' setpoints
+        come from the controller, and its silence is judged on the stale
+        timeout (``STARTUP_SILENCE_S`` until then)."""
+        self.flying = True
+
+    def silence_s(self) -> float:
+        """How long the controller may say nothing [s]: the stale timeout in
+        flight, at least ``STARTUP_SILENCE_S`` before the formation starts."""
+        return self.stale_timeout_s if self.flying else max(self.stale_timeout_s,
+                                                            STARTUP_SILENCE_S)  # fmt: skip
+
     def get_timer(self) -> float | None:
-        """When the controller's silence would reach the stale timeout [s]."""
-        return None if self.heard_at is None else self.heard_at + self.stale_timeout_s
+        """When the controller's silence would reach ``silence_s`` [s]."""
+        return None if self.heard_at is None else self.heard_at + self.silence_s()
 
     def controller_silent(self, now: float) -> bool:
-        """The controller has said nothing for ``stale_timeout_s`` at ``now``."""
+        """The controller has said nothing for ``silence_s`` at ``now``."""
         due = self.get_timer()
         return due is not None and now >= due

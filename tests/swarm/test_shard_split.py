@@ -19,7 +19,7 @@ from gcs_swarm.errors import LinkError
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.swarm.controller import ControllerCore
-from gcs_swarm.swarm.shard import ShardSide
+from gcs_swarm.swarm.shard import STARTUP_SILENCE_S, ShardSide
 from gcs_swarm.swarm.shard_wire import (
     HEADER_BYTES,
     REPLY_BYTES_PER_VEHICLE,
@@ -189,7 +189,11 @@ def test_a_vehicle_its_shard_stops_reporting_leaves_the_law() -> None:
 def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
     side = ShardSide(core=None, index=0, stale_timeout_s=STALE_S)  # type: ignore[arg-type]
     assert side.get_timer() is None and not side.controller_silent(100.0)
-    side.heard(5.0)
+    side.heard(5.0)  # before the formation starts: STARTUP_SILENCE_S
+    assert side.get_timer() == 5.0 + STARTUP_SILENCE_S
+    assert not side.controller_silent(5.0 + STARTUP_SILENCE_S - 0.01)
+    assert side.controller_silent(5.0 + STARTUP_SILENCE_S)
+    side.begin()  # in flight: the stale timeout
     assert side.get_timer() == 6.0
     assert not side.controller_silent(5.99)
     assert side.controller_silent(6.0)
@@ -233,6 +237,7 @@ def _sharded_in_flight(
     sky.ready()
     ctl.set_envelope(sky.core.apply_envelope())
     sky.start()
+    side.begin()
     ctl.start(sky.now, {0: len(sky.core.flying)})
     return sky, side, ctl
 
