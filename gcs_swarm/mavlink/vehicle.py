@@ -276,7 +276,9 @@ class VehicleProtocol(_Startup, _Ending):
         self._hb_at = now
         phase = self.phase
         if phase in (Phase.CONNECTING, Phase.LOST):
-            if self.enabled:
+            if phase is Phase.LOST and self._end_on_return:
+                self._end_returned(now)
+            elif self.enabled:
                 self._start_configuring(now)
         elif phase is Phase.SETTING_GUIDED and "mode_confirm" in self._timers:
             if hb.custom_mode == self.personality.ready_mode:
