@@ -15,6 +15,7 @@ Phases follow the start-up sequence of mavlink-protocol.md:
       -> ENDING (zero acceleration + end mode) -> ENDED
     WAITING_ARMABLE..GOING_TO_START -> SETTING_GUIDED (the autopilot left GUIDED)
     any -> LOST (heartbeat or telemetry stale) -> CONFIGURING on the next heartbeat
+      (-> ENDING instead when it was lost while, or before, the station ended it)
     any -> FAILED (refused too often, or someone else took the vehicle)
 
 GUIDED is confirmed by HEARTBEAT before arming and asked again (at most
