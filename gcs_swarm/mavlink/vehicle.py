@@ -15,6 +15,7 @@ Phases follow the start-up sequence of mavlink-protocol.md:
       -> ENDING (zero acceleration + end mode) -> ENDED
     WAITING_ARMABLE..GOING_TO_START -> SETTING_GUIDED (the autopilot left GUIDED)
     any -> LOST (heartbeat or telemetry stale) -> CONFIGURING on the next heartbeat
+      (-> ENDING instead when it was lost while, or before, the station ended it)
     any -> FAILED (refused too often, or someone else took the vehicle)
 
 GUIDED is confirmed by HEARTBEAT before arming and asked again (at most
@@ -276,7 +277,9 @@ class VehicleProtocol(_Startup, _Ending):
         self._hb_at = now
         phase = self.phase
         if phase in (Phase.CONNECTING, Phase.LOST):
-            if self.enabled:
+            if phase is Phase.LOST and self._end_on_return:
+                self._end_returned(now)
+            elif self.enabled:
                 self._start_configuring(now)
         elif phase is Phase.SETTING_GUIDED and "mode_confirm" in self._timers:
             if hb.custom_mode == self.personality.ready_mode:

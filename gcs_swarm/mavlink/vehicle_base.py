@@ -118,6 +118,9 @@ class _VehicleBase:
         self._yielded = False
         """Someone else took the vehicle in flight: the station leaves it alone."""
         self._disarming = False
+        self._end_on_return = False
+        """Lost while (or before) the station ended it: heard again, it is
+        ended (``_Ending.finish``), never readied."""
         self._out: list[MessageSpec] = []
         self._events: list[ProtocolEvent] = []
         self._commands = CommandQueue(
@@ -321,6 +324,7 @@ class _VehicleBase:
         self._disarming = False
 
     def _lose(self, now: float, why: str) -> None:
+        self._end_on_return = self._end_on_return or self.phase is Phase.ENDING
         self._reset()
         self.failure = why
         self._set_phase(Phase.LOST, now)

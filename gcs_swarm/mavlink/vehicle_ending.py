@@ -32,17 +32,34 @@ class _Ending(_VehicleBase):
         if self.phase in (Phase.ENDING, Phase.ENDED) or self._yielded:
             return
         self._end_mode = self.personality.end_mode(self.config.end_mode if mode is None else mode)
-        ground, where = self._ground()
+        ground, _ = self._ground()
         undo = self.armed or self._arm_sent
         if self.phase is Phase.LOST:
             # Best effort, not awaited: it may still hear us. Otherwise its own
-            # GUID_TIMEOUT (set short at start-up) brakes it to a hover.
+            # GUID_TIMEOUT (set short at start-up) brakes it to a hover. Heard
+            # again, it is ended then (``_end_returned``), not readied.
+            self._end_on_return = True
             if undo and ground:
                 self._out.append(b.arm(self.sysid, self.compid, armed=False))
             elif self.armed:
                 self._out.append(self.accel_setpoint((0.0, 0.0, 0.0)))
                 self._out.append(self.personality.set_mode(self.sysid, self.compid, self._end_mode))
             return
+        self._end(now)
+
+    def _end_returned(self, now: float) -> None:
+        """A HEARTBEAT of a vehicle lost while (or before) the station ended it:
+        ended now as ``finish`` ends one, with the end mode it was given."""
+        self._end_on_return = False
+        self._event("warning", f"vehicle {self.label} heard again while the station ends it: "
+                    "ending it")  # fmt: skip
+        self._end(now)
+
+    def _end(self, now: float) -> None:
+        """``finish`` of a vehicle that is heard: disarm on the ground, else
+        zero acceleration and the end mode."""
+        ground, where = self._ground()
+        undo = self.armed or self._arm_sent
         self._reset()
         if ground and not undo:
             if self.phase is not Phase.FAILED:

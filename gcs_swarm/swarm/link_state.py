@@ -100,6 +100,7 @@ class LinkStats:
     spoofed: int = 0
     signature_rejected: int = 0
     unencodable: int = 0
+    reports_superseded: int = 0  # not flying, dropped unread: a newer one followed (receive)
     peers: set[str] = field(default_factory=set)
 
 
@@ -205,28 +206,20 @@ class LinkState:
         return "tcp" if peer in self._held else str(peer)
 
     # ---------------------------------------------------------- receiving
-    def receive(self, data: bytes, peer: Peer, now: float, *, datagram: bool) -> list[Any]:
+    def receive(self, data: bytes, peer: Peer, now: float, *, datagram: bool,
+                decoded: tuple[Codec, list[Any]] | None = None,
+                superseded: Collection[int] = ()) -> list[Any]:  # fmt: skip
         """Decode ``data`` from ``peer`` (arrived at ``now``) and keep what
         its peer may say: pymavlink messages, in order; flying vehicles'
         reports the telemetry table took are not among them (counted in
-        ``positions_written``)."""
+        ``positions_written``). ``decoded``: ``decode``'s answer for ``data``
+        (read ahead); ``superseded``: the ids of its ``RawPosition`` that a
+        newer report of the same vehicle follows: dropped unless it flies."""
         self.rx_time_s = now
         self.positions_written = 0
-        codec = self._codecs.get(peer)
-        if codec is None:
-            # An address not bound to any vehicle: the shared decoder, no state
-            # kept (``_bound`` gives it a codec once one of its frames binds it).
-            if self._stranger is None:
-                self._stranger = self._codec()
-            codec = self._stranger
-        cs = codec.stats
-        bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
-        table = self._table
-        msgs = codec.decode(data, datagram=datagram, raw_positions=table is not None)
-        stats = self.stats
-        stats.bad_packets += cs.bad_packets - bad
-        stats.unknown_messages += cs.unknown_messages - unknown
-        stats.signature_rejected += cs.signature_rejected - rejected
+        codec, msgs = self.decode(data, peer, datagram) if decoded is None else decoded
+        table, stats = self._table, self.stats
+        owners = None if table is None else table.owners
         on_frame = self._on_frame
         out: list[Any] = []
         rows = self._rows
@@ -258,6 +251,10 @@ class LinkState:
                             continue
                     elif beat is not None and beat(k, compid, seq, values, now):
                         continue  # a flying vehicle's unchanged HEARTBEAT: its liveness only
+                if superseded and id(msg) in superseded and (k is None or owners is None
+                                                             or owners[k] is None):  # fmt: skip
+                    stats.reports_superseded += 1
+                    continue
                 msg = codec.message(msg)  # pymavlink's own decoder, off the hot path
             elif on_frame is not None:
                 on_frame(bytes(msg.get_msgbuf()), "in")
@@ -266,6 +263,25 @@ class LinkState:
         stats.received += received
         self.positions_written = written
         return out
+
+    def decode(self, data: bytes, peer: Peer, datagram: bool = True) -> tuple[Codec, list[Any]]:
+        """(codec, frames) of ``data`` from ``peer``; ``knows(peer)``: its own codec."""
+        codec = self._codecs.get(peer)
+        if codec is None:  # not bound: the shared decoder, no state kept (``_bound``)
+            if self._stranger is None:
+                self._stranger = self._codec()
+            codec = self._stranger
+        cs, stats = codec.stats, self.stats
+        bad, unknown, rejected = cs.bad_packets, cs.unknown_messages, cs.signature_rejected
+        msgs = codec.decode(data, datagram=datagram, raw_positions=self._table is not None)
+        stats.bad_packets += cs.bad_packets - bad
+        stats.unknown_messages += cs.unknown_messages - unknown
+        stats.signature_rejected += cs.signature_rejected - rejected
+        return codec, msgs
+
+    def knows(self, peer: Peer) -> bool:
+        """``peer`` is bound to a vehicle (has a codec of its own)."""
+        return peer in self._codecs
 
     def _bound(self, sysid: int, peer: Peer, now: float) -> bool:
         """True if ``peer`` may speak for ``sysid`` (binding it on first contact)

@@ -137,3 +137,26 @@ def test_a_vehicle_that_stops_answering_leaves_and_the_rest_go_on() -> None:
     assert sky.answered[3] == heard[3]
     sky.end()
     assert sky.core.outcome() == "degraded"
+
+
+def test_a_vehicle_lost_while_it_ends_is_ended_when_heard_again_not_readied() -> None:
+    """Measured on a stalled shard at its ending (benchmarks/README.md): 196 of
+    500 vehicles heard nothing for the heartbeat timeout, went LOST, and when
+    heard again were readied from scratch (CONFIGURING: streams, parameters,
+    then GUIDED) instead of ended. A vehicle the station is ending that comes
+    back gets its end mode, confirmed (BRAKE here: ArduCopter mode 17)."""
+    sky = Sky(_tetrahedron(30.0))
+    sky.ready()
+    sky.start()
+    sky.advance(1.0)
+    sky.set_silent(3)
+    sky.core.finish_all(sky.now)
+    sky.transfer()
+    vp = sky.core.vehicles[3]
+    sky.run_until(lambda: vp.phase is Phase.LOST, 5.0)
+    assert vp.phase is Phase.LOST
+    sky.set_silent(3, False)
+    sky.run_until(lambda: vp.phase in (Phase.ENDED, Phase.FAILED), 5.0)
+    assert vp.phase is Phase.ENDED, (vp.phase, vp.failure)
+    assert sky.vehicles[3].ap.mode == 17  # BRAKE, as the others
+    assert {v.phase for v in sky.core.vehicles.values()} == {Phase.ENDED}
