@@ -89,18 +89,40 @@ def live_view(
             frame["ended_by"] = request.action
             return frame
 
-        def command(msg: dict[str, Any]) -> dict[str, Any]:
-            return end_command(msg, request, ending=station.ending)
-
-        async with ViewServer(frames, host=host, port=port, rate_hz=rate_hz, token=token,
-                              on_command=command, hello=live_hello(mission),
-                              write_limit=write_limit,
-                              send_buffer=send_buffer) as server:  # fmt: skip
+        async with live_server(mission, frames, request, lambda: station.ending,
+                               host=host, port=port, rate_hz=rate_hz, token=token,
+                               on_url=on_url, on_server=on_server, write_limit=write_limit,
+                               send_buffer=send_buffer) as server:  # fmt: skip
             station.on_step = server.step_done
-            if on_url is not None:
-                on_url(server.url)
-            if on_server is not None:
-                on_server(server)
             yield server
 
     return lifetime
+
+
+@contextlib.asynccontextmanager
+async def live_server(
+    mission: Mission,
+    frames: Callable[[], dict[str, Any]],
+    request: EndRequest,
+    ending: Callable[[], bool],
+    *,
+    on_url: Callable[[str], None] | None = None,
+    on_server: Callable[[ViewServer], None] | None = None,
+    **server: Any,
+) -> AsyncIterator[ViewServer]:
+    """A live page of ``mission`` serving ``frames``, its end buttons filling
+    ``request`` unless ``ending()`` (``end_command``); ``on_url`` and
+    ``on_server`` told once it listens; ``server``: ``ViewServer``'s options.
+    The one-station view (``live_view``) and the sharded one
+    (``view.sharded``) differ only in their frames."""
+
+    def command(msg: dict[str, Any]) -> dict[str, Any]:
+        return end_command(msg, request, ending=ending())
+
+    async with ViewServer(frames, on_command=command, hello=live_hello(mission),
+                          **server) as view:  # fmt: skip
+        if on_url is not None:
+            on_url(view.url)
+        if on_server is not None:
+            on_server(view)
+        yield view

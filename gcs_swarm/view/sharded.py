@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gcs_swarm.control.obstacles import Ellipsoids
-from gcs_swarm.view.live import end_command, live_hello
+from gcs_swarm.view.live import live_server
 from gcs_swarm.view.server import ViewServer
 from gcs_swarm.view.snapshot import (
     SnapshotBuilder,
@@ -151,15 +151,9 @@ def sharded_view(
         def frames() -> dict[str, Any]:
             return builder.frame(run, ended_by=request.action)
 
-        def command(msg: dict[str, Any]) -> dict[str, Any]:
-            return end_command(msg, request, ending=run.core.finished)
-
-        async with ViewServer(frames, host=host, port=port, rate_hz=rate_hz, token=token,
-                              on_command=command, hello=live_hello(mission)) as server:  # fmt: skip
-            if on_url is not None:
-                on_url(server.url)
-            if on_server is not None:
-                on_server(server)
+        async with live_server(mission, frames, request, lambda: run.core.finished,
+                               host=host, port=port, rate_hz=rate_hz, token=token,
+                               on_url=on_url, on_server=on_server) as server:  # fmt: skip
             yield server
 
     return lifetime
