@@ -145,7 +145,10 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
 
     bus.subscribe("down/all", on_down)
     bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
-    waited = await _relayed_origin(cfg, full, relayed, ended)
+    # Without ``mission.origin`` the mission frame is the first vehicle's EKF
+    # origin; a shard that does not own that vehicle is told it (``_relayed_origin``).
+    relay = full.mission_origin is None and cfg.vehicles[0].sysid != full.vehicles[0].sysid
+    waited = await _relayed_origin(cfg, relayed, ended) if relay else None
     if waited is not None:
         cfg = replace(cfg, mission_origin=waited)
 
@@ -182,7 +185,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
     """Setpoints dropped (a newer one queued first) before the ending began."""
     stack = contextlib.AsyncExitStack()
     try:
-        if cfg.mission_origin is None and cfg.vehicles[0].sysid != full.vehicles[0].sysid:
+        if relay and waited is None:
             first = mission.label(full.vehicles[0].sysid)
             raise LinkError(f"no mission origin came from the controller in "
                             f"{cfg.ready_timeout_s:g} s (the EKF origin of {first}, "
@@ -268,23 +271,15 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
 
 
 async def _relayed_origin(
-    cfg: StationConfig,
-    full: StationConfig,
-    relayed: asyncio.Future[GeoOrigin],
-    ended: asyncio.Event,
+    cfg: StationConfig, relayed: asyncio.Future[GeoOrigin], ended: asyncio.Event
 ) -> GeoOrigin | None:
-    """The mission origin this shard must wait for, or None when it needs
-    none: a mission without ``mission.origin`` is flown in its first
-    vehicle's EKF-origin frame, and when another shard owns that vehicle
-    the origin comes with the controller's beats (float64 through JSON: the
-    owner's numbers). Until it has come this shard does not talk to its
-    vehicles: it could not place them, and a lockstep emulator (as SITL)
-    waits for its station's first datagram. None too after
-    ``ready_timeout_s`` or once the run ends (the caller then fails)."""
-    if full.mission_origin is not None or not cfg.vehicles:
-        return None
-    if cfg.vehicles[0].sysid == full.vehicles[0].sysid:
-        return None  # this shard owns the first vehicle: it learns the origin itself
+    """The mission origin of a mission without ``mission.origin`` (its first
+    vehicle's EKF origin) when another shard owns that vehicle: it comes
+    with the controller's beats (float64 through JSON: the owner's
+    numbers). Until it has come this shard does not talk to its vehicles:
+    it could not place them, and a lockstep emulator (as SITL) waits for its
+    station's first datagram. None after ``ready_timeout_s`` or once the run
+    ends (the caller then fails)."""
     with contextlib.suppress(TimeoutError):
         async with asyncio.timeout(cfg.ready_timeout_s):
             await _until(asyncio.shield(relayed), ended)
