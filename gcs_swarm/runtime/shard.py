@@ -245,7 +245,6 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                     if start.is_set() and not ended.is_set():
                         station.begin()
                         station.release()
-                        side.begin()
                         side.heard(station.now())
                         await ended.wait()
         finally:

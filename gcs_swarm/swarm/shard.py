@@ -69,8 +69,6 @@ class ShardSide:
         """The last state batch's number (the reply names the one it used)."""
         self.heard_at: float | None = None
         """When the controller was last heard (None: not yet)."""
-        self.flying = False
-        """The formation has started (``begin``)."""
         self.replies = 0
         self.states = 0
         self._vel: dict[int, FloatArray] = {}
@@ -139,17 +137,12 @@ class ShardSide:
         """Something came from the controller at ``now``."""
         self.heard_at = now
 
-    def begin(self) -> None:
-        """The formation has started: from now on the vehicles' setpoints
-        come from the controller, and its silence is judged on the stale
-        timeout (``STARTUP_SILENCE_S`` until then)."""
-        self.flying = True
-
     def silence_s(self) -> float:
         """How long the controller may say nothing [s]: the stale timeout in
         flight, at least ``STARTUP_SILENCE_S`` before the formation starts."""
-        return self.stale_timeout_s if self.flying else max(self.stale_timeout_s,
-                                                            STARTUP_SILENCE_S)  # fmt: skip
+        if self.core.started:  # the formation flies: its setpoints come from the controller
+            return self.stale_timeout_s
+        return max(self.stale_timeout_s, STARTUP_SILENCE_S)
 
     def get_timer(self) -> float | None:
         """When the controller's silence would reach ``silence_s`` [s]."""

@@ -187,13 +187,15 @@ def test_a_vehicle_its_shard_stops_reporting_leaves_the_law() -> None:
 
 
 def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
-    side = ShardSide(core=None, index=0, stale_timeout_s=STALE_S)  # type: ignore[arg-type]
+    sky = Sky(mission_from("example1_octahedron.yaml", duration=6.0))
+    side = ShardSide(sky.core, index=0, stale_timeout_s=STALE_S)
     assert side.get_timer() is None and not side.controller_silent(100.0)
     side.heard(5.0)  # before the formation starts: STARTUP_SILENCE_S
     assert side.get_timer() == 5.0 + STARTUP_SILENCE_S
     assert not side.controller_silent(5.0 + STARTUP_SILENCE_S - 0.01)
     assert side.controller_silent(5.0 + STARTUP_SILENCE_S)
-    side.begin()  # in flight: the stale timeout
+    sky.ready()
+    sky.start()  # in flight: the stale timeout
     assert side.get_timer() == 6.0
     assert not side.controller_silent(5.99)
     assert side.controller_silent(6.0)
@@ -237,7 +239,6 @@ def _sharded_in_flight(
     sky.ready()
     ctl.set_envelope(sky.core.apply_envelope())
     sky.start()
-    side.begin()
     ctl.start(sky.now, {0: len(sky.core.flying)})
     return sky, side, ctl
 
