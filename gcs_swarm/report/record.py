@@ -43,11 +43,12 @@ def _t_us(t_s: float) -> float:
 class LinkCounts:
     """Inbound MAVLink traffic of one system id (whole run, every message).
 
-    ``lost`` is the number of sequence numbers skipped (MAVLink's per-sender
-    ``seq`` counts every message it sends, per component); ``duplicates``
-    repeated numbers; ``late`` frames more than half the sequence space
-    behind (reordered, not counted as loss); ``local_position`` the
-    LOCAL_POSITION_NED messages among ``received``."""
+    ``lost`` is the number of sequence numbers skipped and never heard
+    (MAVLink's per-sender ``seq`` counts every message it sends, per
+    component); ``duplicates`` numbers heard again; ``late`` frames that
+    came after a newer one (reordered: up to half the sequence space behind,
+    taken back out of ``lost``); ``local_position`` the LOCAL_POSITION_NED
+    messages among ``received``."""
 
     received: int = 0
     lost: int = 0
@@ -62,6 +63,8 @@ class LinkCounts:
 
 
 _MSG_LOCAL_POSITION_NED = 32
+_WINDOW = (1 << 128) - 1
+"""Sequence numbers remembered behind the newest: half of MAVLink's 256."""
 
 
 class TelemetryCounter:
@@ -70,6 +73,8 @@ class TelemetryCounter:
     def __init__(self) -> None:
         self.counts: dict[int, LinkCounts] = {}
         self._last_seq: dict[tuple[int, int], int] = {}
+        self._heard: dict[tuple[int, int], int] = {}
+        """Per sender, bit d set: sequence number ``last - d`` was heard (d < 128)."""
 
     def add(self, sysid: int, compid: int, seq: int, msgid: int) -> None:
         c = self.counts.setdefault(sysid, LinkCounts())
@@ -78,16 +83,24 @@ class TelemetryCounter:
             c.local_position += 1
         key = (sysid, compid)
         last = self._last_seq.get(key)
-        if last is not None:
-            gap = (seq - last - 1) % 256
-            if gap == 255:  # seq == last
+        if last is None:
+            self._last_seq[key], self._heard[key] = seq, 1
+            return
+        ahead = (seq - last) % 256
+        if ahead == 0 or ahead >= 128:  # the newest again, or one behind it
+            behind = (last - seq) % 256
+            bit = 1 << behind
+            if self._heard[key] & bit:
                 c.duplicates += 1
-                return
-            if gap >= 128:
+            else:  # skipped when a newer one came (counted lost then): reordered
+                self._heard[key] |= bit
                 c.late += 1
-                return
-            c.lost += gap
+                if behind < 128 and c.lost > 0:  # 128 behind: outside the window
+                    c.lost -= 1
+            return
+        c.lost += ahead - 1
         self._last_seq[key] = seq
+        self._heard[key] = ((self._heard[key] << ahead) | 1) & _WINDOW
 
 
 @dataclass(frozen=True, eq=False)

@@ -108,6 +108,8 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
     up = f"up/{index}"
     start = asyncio.Event()
     ended = asyncio.Event()
+    entered = asyncio.Event()
+    """The station is open: its clock runs and its core takes work."""
     end_mode: list[int | None] = [None]
     station: Station | None = None
     side: ShardSide | None = None
@@ -119,7 +121,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
             bus.put(f"{up}/state", encode_state(batch))
 
     def on_reply(key: str, data: bytes) -> None:
-        if station is None or side is None:
+        if station is None or side is None or not entered.is_set():
             return
         reply, shard = decode_reply(data), side
         station.apply(lambda now, write: shard.apply(reply, now, write))
@@ -134,14 +136,14 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         if msg["kind"] == "end":
             end_mode[0] = msg.get("mode")
             ended.set()
-        if station is None or side is None:
-            return
+        if msg["kind"] == "start":
+            start.set()
+        if station is None or side is None or not entered.is_set():
+            return  # the station's clock and core are not running yet (beats repeat)
         side.heard(station.now())
         if msg.get("leader") is not None:
             leader, shard = np.array(msg["leader"], dtype=np.float64), side
             station.apply(lambda now, write: shard.leader_at(leader))
-        if msg["kind"] == "start":
-            start.set()
 
     bus.subscribe("down/all", on_down)
     bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead
@@ -200,6 +202,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         await asyncio.sleep(0.3)  # the report's way out before the session closes
         return 1
     async with stack:
+        entered.set()
         side.heard(station.now())
 
         async def beat() -> None:  # heartbeats out; the controller's silence watched

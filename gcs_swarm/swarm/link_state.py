@@ -61,6 +61,7 @@ import numpy.typing as npt
 
 from gcs_swarm.mavlink.builders import (
     MAV_FRAME_LOCAL_NED,
+    MSG_ID_LOCAL_POSITION_NED,
     TYPE_MASK_ACCEL,
     TYPE_MASK_VEL_ACCEL,
 )
@@ -254,6 +255,9 @@ class LinkState:
                 if superseded and id(msg) in superseded and (k is None or owners is None
                                                              or owners[k] is None):  # fmt: skip
                     stats.reports_superseded += 1
+                    if table is not None and table.on_inbound is not None:
+                        # Received, not lost: the flight recorder counts it by its sequence.
+                        table.on_inbound(sysid + self.base, compid, seq, MSG_ID_LOCAL_POSITION_NED)
                     continue
                 msg = codec.message(msg)  # pymavlink's own decoder, off the hot path
             elif on_frame is not None:

@@ -151,12 +151,27 @@ def test_telemetry_loss_from_sequence_numbers() -> None:
     for s in seqs:
         if s not in (253, 3, 4):  # three lost
             tc.add(1, 1, s, 32)
-    tc.add(1, 1, 9, 32)  # a duplicate
-    tc.add(1, 1, 2, 0)  # late (reordered), not a loss
+    tc.add(1, 1, 9, 32)  # a duplicate of the newest
+    tc.add(1, 1, 2, 0)  # a duplicate of an older one (heard before)
+    tc.add(1, 1, 4, 0)  # late (reordered): skipped when 5 came, so no longer lost
+    tc.add(1, 1, 4, 0)  # and now a duplicate
     tc.add(1, 2, 0, 0)  # another component has its own sequence
     c = tc.counts[1]
-    assert (c.received, c.lost, c.duplicates, c.late, c.local_position) == (16, 3, 1, 1, 14)
-    assert c.loss_fraction == pytest.approx(3 / 19)
+    assert (c.received, c.lost, c.duplicates, c.late, c.local_position) == (18, 2, 3, 1, 14)
+    assert c.loss_fraction == pytest.approx(2 / 20)
+
+
+def test_reordered_frames_are_not_lost_and_far_gaps_are() -> None:
+    """Frames recorded out of wire order (a station handing a datagram's
+    frames on in two passes, or a network that reorders) are late, not lost;
+    a real gap is still lost."""
+    tc = TelemetryCounter()
+    for s in (10, 14, 11, 12, 13, 15):
+        tc.add(7, 1, s, 32)
+    c = tc.counts[7]
+    assert (c.received, c.lost, c.late, c.duplicates) == (6, 0, 3, 0)
+    tc.add(7, 1, 15 + 100, 32)  # 99 skipped
+    assert c.lost == 99
 
 
 def test_json_has_no_nan_or_infinity(tmp_path: Path) -> None:

@@ -12,17 +12,27 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.report.record import TelemetryCounter
 from gcs_swarm.runtime.links import Link
+
+_SENDERS: dict[int, Any] = {}
+
+
+def _frame(sysid: int, make: str, *fields: Any) -> bytes:
+    """One frame of vehicle ``sysid``, numbered after its last (pymavlink's
+    ``pack`` leaves the sequence to ``send``)."""
+    mav = _SENDERS.setdefault(sysid, dialect.MAVLink(None, sysid, 1))
+    data = bytes(getattr(mav, make)(*fields).pack(mav))
+    mav.seq = (mav.seq + 1) % 256
+    return data
 
 
 def _report(sysid: int, t_ms: int) -> bytes:
-    mav = dialect.MAVLink(None, sysid, 1)
-    return bytes(mav.local_position_ned_encode(t_ms, 1.0, 2.0, 3.0, 0, 0, 0).pack(mav))
+    return _frame(sysid, "local_position_ned_encode", t_ms, 1.0, 2.0, 3.0, 0, 0, 0)
 
 
 def _ack(sysid: int) -> bytes:
-    mav = dialect.MAVLink(None, sysid, 1)
-    return bytes(mav.command_ack_encode(dialect.MAV_CMD_DO_SET_MODE, 0).pack(mav))
+    return _frame(sysid, "command_ack_encode", dialect.MAV_CMD_DO_SET_MODE, 0)
 
 
 def test_a_backlog_is_read_at_once_and_only_each_vehicles_newest_report_goes_on() -> None:
@@ -30,18 +40,24 @@ def test_a_backlog_is_read_at_once_and_only_each_vehicles_newest_report_goes_on(
     a stall): the command answer and each vehicle's newest report come out,
     in order; the three older reports are dropped unread and counted. Before
     the read-ahead, every report went through its vehicle's protocol, one
-    datagram per loop turn, while the answer waited behind them."""
+    datagram per loop turn, while the answer waited behind them. The flight
+    recorder's counts still hear every frame: the dropped reports are
+    received, not lost."""
+    _SENDERS.clear()
+    counter = TelemetryCounter()
 
     async def main() -> tuple[list[Any], int]:
         got: list[Any] = []
         heard = asyncio.Event()
 
-        def on_message(msg: Any, lk: Link) -> None:
+        def on_message(msg: Any, lk: Link) -> None:  # what a station records (SwarmCore.receive)
+            counter.add(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq(), msg.get_msgId())
             got.append(msg)
             heard.set()
 
-        link = Link("udpin:127.0.0.1:0", on_message,
-                    telemetry=TelemetryTable([1, 2]), sysids=[1, 2])  # fmt: skip
+        table = TelemetryTable([1, 2])
+        table.on_inbound = counter.add
+        link = Link("udpin:127.0.0.1:0", on_message, telemetry=table, sysids=[1, 2])
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             async with asyncio.timeout(5), link:
@@ -68,3 +84,5 @@ def test_a_backlog_is_read_at_once_and_only_each_vehicles_newest_report_goes_on(
         ("LOCAL_POSITION_NED", 2, 3),
     ]
     assert superseded == 3
+    one, two = counter.counts[1], counter.counts[2]
+    assert (one.received, one.lost, one.late, two.received, two.lost) == (5, 0, 0, 2, 0)

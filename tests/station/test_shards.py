@@ -157,9 +157,16 @@ def _same_run_folders(one: RunFolder, two: RunFolder) -> None:
         assert s2["vehicles"][label]["final_radius_m"] == pytest.approx(
             v["final_radius_m"], abs=1e-9)  # fmt: skip
         assert s2["vehicles"][label]["setpoints"]["sent"] == v["setpoints"]["sent"] == 401
-        # Inbound counts from the shards' recorders; the ending's last reports may differ.
-        assert abs(s2["vehicles"][label]["telemetry"]["received"]
-                   - v["telemetry"]["received"]) <= 10  # fmt: skip
+        # Inbound counts come from the shards' recorders. Totals are not compared:
+        # start-up and the ending run on the wall clock (the emulators at 20 x it
+        # while ending), so their HEARTBEATs and last reports vary run to run
+        # (measured: totals 0-11 apart). What lockstep fixes is compared: no
+        # frame lost (a shard reads ahead and records a datagram's frames in two
+        # passes: late, not lost), and every one of the 401 steps answered a report.
+        for s in (s1, s2):
+            tm = s["vehicles"][label]["telemetry"]
+            assert tm["lost"] == 0
+            assert tm["local_position_received"] >= 401
     params = json.loads(two.vehicle_params.read_text())["vehicles"]
     assert [p["vehicle"] for p in params] == ["blue:1", "blue:2", "blue:3",
                                               "red:1", "red:2", "red:3"]  # fmt: skip
