@@ -22,7 +22,10 @@ keeps its own clock, so their reports arrive at different phases of the
 period; a step waits for every network's (or half a period), so the
 latency includes that wait and there can be more steps than the rate
 (each vehicle still answered once per report), as with unsynchronised
-real vehicles.
+real vehicles. "in shm": the share of the samples the controller received
+(state batches, beats, reports) that came in Zenoh's shared memory; a
+shard's batch does from 51 vehicles on (``gcs_swarm.runtime.zbus``).
+``--no-shm`` turns shared memory off for comparison.
 
     .venv/bin/python benchmarks/bench_shards.py --realtime 500 --networks 4 --shards 1,2,4
 
@@ -85,7 +88,7 @@ def _rt_mission(n: int, nets: int, rate: float, duration: float) -> Mission:
 
 
 async def _realtime(
-    n: int, nets: int, shards: int, rate: float, seconds: float
+    n: int, nets: int, shards: int, rate: float, seconds: float, shm: bool = True
 ) -> dict[str, float]:
     import logging
 
@@ -101,7 +104,7 @@ async def _realtime(
         mission = _rt_mission(n, nets, rate, seconds)
         links = {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}" for v in mission.vehicles}
         runs: list[ShardedRun] = []
-        summary = await run_sharded(mission, shards, links=links, lockstep=False,
+        summary = await run_sharded(mission, shards, links=links, lockstep=False, shm=shm,
                                     end_timeout_s=10.0, on_run=runs.append)  # fmt: skip
     finally:
         child.stdin.close()
@@ -118,20 +121,24 @@ async def _realtime(
         "p99_ms": max((x.get("p99", math.nan) for x in lat), default=math.nan),
         "max_ms": max((x.get("max", math.nan) for x in lat), default=math.nan),
         "setpoints": sum(x.get("count", 0.0) for x in lat),
+        "shm_share": run.bus.shm_in / max(run.bus.samples_in, 1),
     }
 
 
 def realtime_main(args: argparse.Namespace) -> None:
+    shm = "off (--no-shm)" if args.no_shm else "on"
     print(f"link shards in real time: N = {args.realtime} as {args.networks} networks, "
-          f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0")  # fmt: skip
+          f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0; "
+          f"Zenoh shared memory {shm}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
-          f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8}")  # fmt: skip
+          f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'in shm':>6}")  # fmt: skip
     for k in (int(x) for x in args.shards.split(",")):
-        r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds))
+        r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds,
+                                  shm=not args.no_shm))  # fmt: skip
         ok = "ok" if r["outcome_ok"] else "degraded"
         print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
               f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "
-              f"{r['setpoints']:8.0f}", flush=True)  # fmt: skip
+              f"{r['setpoints']:8.0f} {100 * r['shm_share']:5.0f}%", flush=True)  # fmt: skip
 
 
 def main() -> None:
@@ -144,6 +151,8 @@ def main() -> None:
     ap.add_argument("--shards", default="1,2,4", help="--realtime: shard counts (default 1,2,4)")
     ap.add_argument("--rate", type=float, default=50.0, help="--realtime: control rate [Hz]")
     ap.add_argument("--seconds", type=float, default=10.0, help="--realtime: formation [s]")
+    ap.add_argument("--no-shm", action="store_true",
+                    help="--realtime: every batch as bytes over TCP")  # fmt: skip
     args = ap.parse_args()
     if args.realtime is not None:
         realtime_main(args)

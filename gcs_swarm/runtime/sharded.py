@@ -227,7 +227,7 @@ class ShardedRun:
             for reply in core.control_step(self.now()):
                 data = encode_reply(reply)
                 self.bytes_per_step["reply"] += len(data)
-                self.bus.put(f"down/{reply.shard}/reply", data)
+                self.bus.put(f"down/{reply.shard}/reply", data, droppable=True)
             self.bytes_per_step["steps"] += 1
         if core.timer_moved:
             core.timer_moved = False
@@ -348,14 +348,17 @@ async def run_sharded(
     on_run: Callable[[ShardedRun], None] | None = None,
     on_status: Callable[[str], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
+    shm: bool = True,
 ) -> RunSummary:
     """Fly ``mission`` with ``shards`` link shards (module docstring) and
     return its summary. ``links`` and ``lockstep`` as ``run_mission``'s;
     ``endpoint`` where the controller listens (default: a free TCP port on
-    127.0.0.1); ``on_run`` gets the live run (its core, its processes) once
-    the shards are started; ``on_status`` a status line every second in
-    flight; ``on_summary`` the summary, also when the run is cancelled or
-    its start-up fails (the exception then propagates). With ``log_dir``
+    127.0.0.1); ``shm`` False sends every batch as bytes even to shards on
+    this host (default: large ones in shared memory, ``zbus``); ``on_run``
+    gets the live run (its core, its processes) once the shards are started;
+    ``on_status`` a status line every second in flight; ``on_summary`` the
+    summary, also when the run is cancelled or its start-up fails (the
+    exception then propagates). With ``log_dir``
     the run gets a folder there as ``run_mission``'s (``on_folder`` gets it
     at once): each shard writes its networks' ``flight-<network>.tlog``,
     the controller its annotations (``controller.tlog``), the summary,
@@ -412,7 +415,7 @@ async def run_sharded(
              "tlogs": log.tlogs(nets[i::shards])}
             for i in range(shards)
         ]  # fmt: skip
-        bus = await stack.enter_async_context(Bus(listen=[endpoint]))
+        bus = await stack.enter_async_context(Bus(listen=[endpoint], shm=shm))
         run = ShardedRun(bus, core, assignment)
         run.endpoint = endpoint
         run.emulators = emulators

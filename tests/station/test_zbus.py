@@ -1,0 +1,140 @@
+"""The shards' Zenoh bus between two sessions on 127.0.0.1 (gcs_swarm.runtime.zbus):
+a control message is never dropped, even behind a burst of large batches;
+large payloads cross in shared memory on one host, and with shared memory
+off on either side none does."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from gcs_swarm.runtime.sharded import free_endpoint
+from gcs_swarm.runtime.zbus import SHM_THRESHOLD_BYTES, Bus
+
+BIG = 84 * 1000 + 24
+"""A state batch of 1,000 vehicles [bytes] (24 + 60 per vehicle)."""
+
+PACE_S = 0.02
+"""One batch a control step at 50 Hz."""
+
+
+class _Pair:
+    """A listening session (the controller) and a connecting one (a shard)."""
+
+    def __init__(self, *, ctl_shm: bool = True, shard_shm: bool = True) -> None:
+        endpoint = free_endpoint()
+        self.ctl = Bus(listen=[endpoint], shm=ctl_shm)
+        self.shard = Bus(connect=[endpoint], shm=shard_shm)
+        self.got: dict[str, list[bytes]] = {"state": [], "msg": []}
+        self.arrived = asyncio.Event()
+
+    async def open(self) -> None:
+        await self.ctl.__aenter__()
+        await self.shard.__aenter__()
+        self.ctl.subscribe("up/0/state", lambda key, data: self._on("state", data))
+        self.ctl.subscribe("up/0/msg", lambda key, data: self._on("msg", data))
+        # A subscription reaches the other session through the link's
+        # declarations: say hello until one arrives.
+        async with asyncio.timeout(20):  # ~0.1 s on an idle machine
+            while not self.got["msg"]:
+                self.shard.put_json("up/0/msg", {"kind": "hello"})
+                await asyncio.sleep(0.05)
+        self.got["msg"].clear()
+        self.ctl.samples_in = self.ctl.shm_in = 0
+
+    async def close(self) -> None:
+        await self.shard.__aexit__(None, None, None)
+        await self.ctl.__aexit__(None, None, None)
+
+    def _on(self, what: str, data: bytes) -> None:
+        self.got[what].append(data)
+        self.arrived.set()
+
+    async def wait(self, what: str, n: int, timeout_s: float = 20.0) -> None:
+        async with asyncio.timeout(timeout_s):
+            while len(self.got[what]) < n:
+                self.arrived.clear()
+                await self.arrived.wait()
+
+
+def test_control_messages_are_never_dropped_behind_a_burst_of_batches() -> None:
+    """Fifty 84 kB batches at once (a stalled shard catching up), then twenty
+    control messages: every control message arrives, in order; batches may
+    be dropped (a newer one follows each step), any that arrive are intact
+    and in order. Shared memory off, so the batches fill the TCP queue."""
+
+    async def main() -> tuple[list[bytes], list[bytes]]:
+        pair = _Pair(ctl_shm=False, shard_shm=False)
+        await pair.open()
+        try:
+            for i in range(50):
+                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
+            for i in range(20):
+                pair.shard.put_json("up/0/msg", {"kind": "beat", "n": i})
+            await pair.wait("msg", 20)
+            await asyncio.sleep(0.2)  # any batch still under way
+        finally:
+            await pair.close()
+        return pair.got["state"], pair.got["msg"]
+
+    states, msgs = asyncio.run(main())
+    assert [m.decode() for m in msgs] == [f'{{"kind": "beat", "n": {i}}}' for i in range(20)]
+    marks = [s[0] for s in states]
+    assert marks == sorted(marks) and all(s == bytes([s[0]]) * BIG for s in states)
+
+
+def test_paced_large_batches_cross_in_shared_memory_small_ones_as_bytes() -> None:
+    """Batches one step apart, as a shard sends them: after the first few
+    (the pool is set up meanwhile), large ones come in shared memory;
+    batches a byte under the threshold never do (measured: from 3,072 bytes on)."""
+
+    async def main() -> tuple[int, int, int]:
+        pair = _Pair()
+        await pair.open()
+        try:
+            for i in range(10):
+                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
+                await asyncio.sleep(PACE_S)
+            await pair.wait("state", 10)
+            first = pair.ctl.shm_in
+            for i in range(10, 30):
+                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
+                await asyncio.sleep(PACE_S)
+            await pair.wait("state", 30)
+            steady = pair.ctl.shm_in - first
+            for i in range(30, 40):
+                pair.shard.put("up/0/state", bytes([i]) * (SHM_THRESHOLD_BYTES - 1),
+                               droppable=True)  # fmt: skip
+                await asyncio.sleep(PACE_S)
+            await pair.wait("state", 40)
+            small = pair.ctl.shm_in - first - steady
+        finally:
+            await pair.close()
+        assert [s[0] for s in pair.got["state"]] == list(range(40))
+        return first, steady, small
+
+    first, steady, small = asyncio.run(main())
+    assert steady == 20, f"{steady} of 20 large batches in shared memory (first 10: {first})"
+    assert small == 0
+
+
+@pytest.mark.parametrize(("ctl_shm", "shard_shm"), [(False, True), (True, False)])
+def test_shared_memory_off_on_either_side_sends_bytes(ctl_shm: bool, shard_shm: bool) -> None:
+    """Shared memory is agreed per link: one side without it (a shard on
+    another host has none to share) and every batch crosses as bytes."""
+
+    async def main() -> Bus:
+        pair = _Pair(ctl_shm=ctl_shm, shard_shm=shard_shm)
+        await pair.open()
+        try:
+            for i in range(10):
+                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
+                await asyncio.sleep(PACE_S)
+            await pair.wait("state", 10)
+        finally:
+            await pair.close()
+        return pair.ctl
+
+    ctl = asyncio.run(main())
+    assert (ctl.samples_in, ctl.shm_in) == (10, 0)
