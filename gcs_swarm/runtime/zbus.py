@@ -50,6 +50,12 @@ SHM_POOL_BYTES = 16 * 1024 * 1024
 """Each publishing session's shared-memory pool [bytes] (Zenoh 1.10's default):
 about 4 steps of 1,500 vehicles' state batches would fill a tenth of it."""
 
+BLOCK_WAIT_S = 1.0
+"""How long a control message waits for room on a congested link before
+Zenoh closes the link [s]: the stale timeout, after which the other side
+has ended its vehicles anyway (docs/architecture.md, "Shared memory and
+congestion"); Zenoh's own default is 5 s, a 5 s stall of this loop."""
+
 Handler = Callable[[str, bytes], None]
 
 
@@ -78,6 +84,8 @@ def _config(listen: Sequence[str], connect: Sequence[str], shm: bool = True) -> 
     cfg.insert_json5(f"{opt}/message_size_threshold", str(SHM_THRESHOLD_BYTES))
     cfg.insert_json5(f"{opt}/pool_size", str(SHM_POOL_BYTES))
     cfg.insert_json5("transport/shared_memory/mode", json.dumps("init"))
+    block = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+    cfg.insert_json5(block, str(round(BLOCK_WAIT_S * 1e6)))  # [us]
     return cfg
 
 
