@@ -59,12 +59,8 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.mavlink.builders import (
-    MAV_FRAME_LOCAL_NED,
-    MSG_ID_LOCAL_POSITION_NED,
-    TYPE_MASK_ACCEL,
-    TYPE_MASK_VEL_ACCEL,
-)
+from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
+from gcs_swarm.mavlink.builders import MSG_ID_LOCAL_POSITION_NED as LPN_ID
 from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawHeartbeat, RawPosition
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
@@ -215,12 +211,14 @@ class LinkState:
         reports the telemetry table took are not among them (counted in
         ``positions_written``). ``decoded``: ``decode``'s answer for ``data``
         (read ahead); ``superseded``: the ids of its ``RawPosition`` that a
-        newer report of the same vehicle follows: dropped unless it flies."""
+        newer report of the same vehicle follows: dropped unless it flies
+        (still told to ``on_inbound``: received, not lost)."""
         self.rx_time_s = now
         self.positions_written = 0
         codec, msgs = self.decode(data, peer, datagram) if decoded is None else decoded
         table, stats = self._table, self.stats
         owners = None if table is None else table.owners
+        inbound = None if table is None else table.on_inbound
         on_frame = self._on_frame
         out: list[Any] = []
         rows = self._rows
@@ -255,9 +253,8 @@ class LinkState:
                 if superseded and id(msg) in superseded and (k is None or owners is None
                                                              or owners[k] is None):  # fmt: skip
                     stats.reports_superseded += 1
-                    if table is not None and table.on_inbound is not None:
-                        # Received, not lost: the flight recorder counts it by its sequence.
-                        table.on_inbound(sysid + self.base, compid, seq, MSG_ID_LOCAL_POSITION_NED)
+                    if inbound is not None:
+                        inbound(sysid + self.base, compid, seq, LPN_ID)
                     continue
                 msg = codec.message(msg)  # pymavlink's own decoder, off the hot path
             elif on_frame is not None:
