@@ -41,6 +41,7 @@ from gcs_swarm.errors import LinkError, UsageError
 
 __all__ = [
     "ENDPOINT_RE",
+    "OPEN_TIMEOUT_MS",
     "PREFIX",
     "TLS_SCHEMES",
     "Bus",
@@ -61,6 +62,14 @@ TLS_SCHEMES = ("quic", "tls")
 
 TLS_OPTIONS = ("--tls-ca", "--tls-cert", "--tls-key")
 """The command line's names of ``TlsFiles``' three fields, in their order."""
+
+OPEN_TIMEOUT_MS = 3000
+"""How long Zenoh may take to open a link, its TLS and its own handshakes
+included [ms] (``transport/unicast/open_timeout``; Zenoh's default 10 s):
+0.1 s measured on 127.0.0.1, a few round trips between hosts. It also bounds
+a shard's exit once its controller has gone: the shard's session is then
+reconnecting, a QUIC attempt at a closed port is not refused as a TCP one
+is (it times out), and closing the session waits for it (measured: 10 s)."""
 
 Handler = Callable[[str, bytes], None]
 
@@ -142,7 +151,7 @@ def check_tls(
     if missing:
         raise UsageError(
             f"{option} {endpoint}: quic/ and tls/ are mutual TLS and need --tls-ca, --tls-cert"
-            f" and --tls-key; missing {', '.join(missing)} FILE (docs/architecture.md)"
+            f" and --tls-key; missing {', '.join(missing)} (docs/architecture.md)"
         )
     ca_p, cert_p, key_p = (_pem_file(o, given[o]) for o in TLS_OPTIONS)
     return TlsFiles(ca=ca_p, cert=cert_p, key=key_p)
@@ -155,6 +164,7 @@ def _config(listen: Sequence[str], connect: Sequence[str], tls: TlsFiles | None)
     cfg.insert_json5("scouting/gossip/enabled", "false")
     cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
     cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    cfg.insert_json5("transport/unicast/open_timeout", str(OPEN_TIMEOUT_MS))
     if tls is not None:
         # Zenoh 1.10's keys (its DEFAULT_CONFIG.json5, transport/link/tls). The
         # same certificate serves a listener (the controller) and a connector
