@@ -117,8 +117,9 @@ _PEM = {"--tls-ca": b"-----BEGIN CERTIFICATE-----", "--tls-cert": b"-----BEGIN C
 
 
 def _pem_file(option: str, path: str) -> Path:
-    """``path`` once it reads as a PEM file of ``option``'s kind; one-line
-    ``UsageError`` naming the option and the file otherwise."""
+    """``path`` made absolute (Zenoh reads it later, wherever it runs) once
+    it reads as a PEM file of ``option``'s kind; one-line ``UsageError``
+    naming the option and the file otherwise."""
     try:
         data = Path(path).read_bytes()
     except FileNotFoundError:
@@ -128,7 +129,7 @@ def _pem_file(option: str, path: str) -> Path:
     if _PEM[option] not in data:
         what = "private key" if option == "--tls-key" else "certificate"
         raise UsageError(f"{option} {path}: not a PEM {what} (no {_PEM[option].decode()!r})")
-    return Path(path)
+    return Path(path).absolute()
 
 
 def check_tls(
