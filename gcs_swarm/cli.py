@@ -6,7 +6,9 @@ Subcommands (their work lives in the library modules):
 - ``run MISSION``: fly the mission over MAVLink (``gcs_swarm.runtime``);
   ``--shards N`` splits the station in N link shards (``runtime.sharded``);
 - ``shard --connect ENDPOINT``: one link shard of a sharded run
-  (``runtime.shard``);
+  (``runtime.shard``); ``quic/`` and ``tls/`` endpoints (``run --listen``,
+  ``shard --connect``) take ``--tls-ca/--tls-cert/--tls-key`` (mutual TLS,
+  ``runtime.zbus``);
 - ``simulate MISSION``: the deterministic in-process reference
   (``gcs_swarm.offline``);
 - ``check MISSION...``: validate without flying (``gcs_swarm.mission``);
@@ -207,16 +209,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         if args.shards < 1:
             raise UsageError(f"--shards: expected a whole number >= 1, got {args.shards}")
+        from gcs_swarm.runtime.zbus import check_endpoint, check_tls
+
         listen = None
         if args.listen is not None:
-            from gcs_swarm.runtime.zbus import check_endpoint
-
             listen = check_endpoint(args.listen, option="--listen")
-        return sharded_run_command(args.mission, args.shards, listen=listen,
+        tls = check_tls(listen, "--listen", args.tls_ca, args.tls_cert, args.tls_key)
+        return sharded_run_command(args.mission, args.shards, listen=listen, tls=tls,
                                    status=not args.no_status, log_dir=args.log_dir,
                                    record=not args.no_log, view=view)  # fmt: skip
     if args.listen is not None:
         raise UsageError("--listen: only with --shards N")
+    for name in ("ca", "cert", "key"):
+        if getattr(args, f"tls_{name}") is not None:
+            raise UsageError(f"--tls-{name} {getattr(args, f'tls_{name}')}: only with"
+                             " --shards N --listen quic/HOST:PORT (or tls/)")  # fmt: skip
     return run_command(
         args.mission,
         status=not args.no_status,
@@ -228,15 +235,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_shard(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import shard_command
-    from gcs_swarm.runtime.zbus import check_endpoint
+    from gcs_swarm.runtime.zbus import check_endpoint, check_tls
 
-    return shard_command(check_endpoint(args.connect, option="--connect"))
+    endpoint = check_endpoint(args.connect, option="--connect")
+    tls = check_tls(endpoint, "--connect", args.tls_ca, args.tls_cert, args.tls_key)
+    return shard_command(endpoint, tls=tls)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from gcs_swarm.commands import report_command
 
     return report_command(args.path, args.mission, force=args.force)
+
+
+def _tls_options(p: argparse.ArgumentParser, side: str) -> None:
+    """``--tls-ca/--tls-cert/--tls-key``: a ``quic/`` or ``tls/`` endpoint's
+    files (``runtime.zbus.check_tls``), ``side`` the endpoint's option."""
+    p.add_argument("--tls-ca", metavar="FILE", default=None,
+                   help=f"with a quic/ or tls/ {side}: the CA (PEM) that signed the other"
+                   " side's certificate (mutual TLS: docs/architecture.md)")  # fmt: skip
+    p.add_argument("--tls-cert", metavar="FILE", default=None,
+                   help=f"with a quic/ or tls/ {side}: this side's certificate (PEM)")  # fmt: skip
+    p.add_argument("--tls-key", metavar="FILE", default=None,
+                   help=f"with a quic/ or tls/ {side}: this side's private key (PEM)")  # fmt: skip
 
 
 def _log_options(p: argparse.ArgumentParser) -> None:
@@ -277,9 +298,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--listen",
         metavar="ENDPOINT",
         default=None,
-        help="with --shards N: listen there (e.g. tcp/0.0.0.0:7447) and wait for N shards"
-        " started elsewhere with `gcs-swarm shard --connect`, instead of starting them here",
+        help="with --shards N: listen there (e.g. quic/0.0.0.0:7447 with --tls-*, or"
+        " tcp/127.0.0.1:7447) and wait for N shards started elsewhere with"
+        " `gcs-swarm shard --connect`, instead of starting them here",
     )
+    _tls_options(p, "--listen")
     _log_options(p)
     p.set_defaults(handler=_cmd_run)
 
@@ -288,8 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--connect",
         required=True,
         metavar="ENDPOINT",
-        help="the controller's Zenoh endpoint, e.g. tcp/127.0.0.1:7447",
+        help="the controller's Zenoh endpoint, e.g. quic/HOST:7447 (with --tls-*) or"
+        " tcp/127.0.0.1:7447",
     )
+    _tls_options(p, "--connect")
     p.set_defaults(handler=_cmd_shard)
 
     p = sub.add_parser("simulate", help="run a mission in the in-process reference simulator")

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from gcs_swarm.report.artefacts import RunFolder
     from gcs_swarm.report.record import FlightRecord
     from gcs_swarm.runtime.summary import RunSummary
+    from gcs_swarm.runtime.zbus import TlsFiles
 
 __all__ = [
     "check_command",
@@ -183,6 +184,7 @@ def sharded_run_command(
     shards: int,
     *,
     listen: str | None = None,
+    tls: TlsFiles | None = None,
     status: bool = True,
     log_dir: str | None = None,
     record: bool = True,
@@ -190,8 +192,9 @@ def sharded_run_command(
 ) -> int:
     """``gcs-swarm run PATH --shards N [--listen ENDPOINT]``: the mission
     flown by N link shards (``gcs_swarm.runtime.sharded``): started on this
-    machine, or with ``listen`` awaited there from ``gcs-swarm shard
-    --connect ENDPOINT`` elsewhere; its summary printed; the run folder, the
+    machine, or with ``listen`` (and ``tls`` for ``quic/`` and ``tls/``)
+    awaited there from ``gcs-swarm shard --connect ENDPOINT`` elsewhere; its
+    summary printed; the run folder, the
     status line, the operator view (``view``: host, port) and the exit
     codes as ``run_command``'s. Ctrl-C or SIGTERM ends every vehicle (the
     end action) through its shard."""
@@ -204,7 +207,8 @@ def sharded_run_command(
 
     async def main() -> int:
         if listen is not None:
-            print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}",
+            how = "" if tls is None else " --tls-ca CA --tls-cert CERT --tls-key KEY"
+            print(f"waiting for {shards} shards: gcs-swarm shard --connect {listen}{how}",
                   file=sys.stderr, flush=True)  # fmt: skip
         lines = _StatusLines()
         folders: list[RunFolder] = []
@@ -228,7 +232,7 @@ def sharded_run_command(
             shown = sharded_view(mission, host=view[0], port=view[1], on_url=url)
 
         flight = run_sharded(
-            mission, shards, endpoint=listen, spawn=listen is None, log_dir=base,
+            mission, shards, endpoint=listen, tls=tls, spawn=listen is None, log_dir=base,
             on_folder=announce, on_status=lines.show if status else None, on_summary=report,
             view=shown,
         )  # fmt: skip
@@ -241,12 +245,12 @@ def sharded_run_command(
     return asyncio.run(main())
 
 
-def shard_command(endpoint: str) -> int:
+def shard_command(endpoint: str, tls: TlsFiles | None = None) -> int:
     """``gcs-swarm shard --connect ENDPOINT`` (``gcs_swarm.runtime.shard``)."""
     from gcs_swarm.runtime.shard import shard_command as serve
     from gcs_swarm.view.sharded import shard_frames
 
-    return serve(endpoint, frames=shard_frames)
+    return serve(endpoint, frames=shard_frames, tls=tls)
 
 
 def report_command(

@@ -48,7 +48,7 @@ from gcs_swarm.runtime.plans import shard_config, station_config
 from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
 from gcs_swarm.runtime.tlog import TlogWriter
-from gcs_swarm.runtime.zbus import Bus
+from gcs_swarm.runtime.zbus import Bus, TlsFiles
 from gcs_swarm.swarm.shard import ShardSide
 from gcs_swarm.swarm.shard_wire import decode_reply, encode_state
 
@@ -69,16 +69,21 @@ command line: the runtime does not import the view)."""
 
 
 async def run_shard(
-    endpoint: str, *, token: str | None = None, frames: FrameSource | None = None
+    endpoint: str,
+    *,
+    tls: TlsFiles | None = None,
+    token: str | None = None,
+    frames: FrameSource | None = None,
 ) -> int:
-    """Serve as one link shard of the controller at ``endpoint`` until the
-    run ends; 0 when every vehicle that flew ended, 1 otherwise. With
+    """Serve as one link shard of the controller at ``endpoint`` (with
+    ``tls`` for ``quic/`` and ``tls/``: ``runtime.zbus``) until the run
+    ends; 0 when every vehicle that flew ended, 1 otherwise. With
     ``frames``, a run that has the operator view open gets this shard's
     frames (its vehicles) at the view's rate.
     ``LinkError`` when the controller cannot be reached."""
     token = token or secrets.token_hex(8)
     loop = asyncio.get_running_loop()
-    async with Bus(connect=[endpoint]) as bus:
+    async with Bus(connect=[endpoint], tls=tls) as bus:
         assigned: asyncio.Future[dict[str, Any]] = loop.create_future()
 
         def on_assign(key: str, data: bytes) -> None:
@@ -93,7 +98,7 @@ async def run_shard(
                     await asyncio.wait([assigned], timeout=0.2)
         except TimeoutError:
             raise LinkError(
-                f"shard: no controller answered at {endpoint} in {HELLO_TIMEOUT_S:g} s"
+                f"shard: no controller answered at {endpoint} in {HELLO_TIMEOUT_S:g} s" + bus.hint()
             ) from None
         return await _serve(bus, assigned.result(), frames)
 
@@ -369,9 +374,12 @@ def _latency_ms(station: Station) -> dict[str, float]:
     }
 
 
-def shard_command(endpoint: str, frames: FrameSource | None = None) -> int:
-    """``gcs-swarm shard --connect ENDPOINT``: SIGINT/SIGTERM end every
-    vehicle of the shard (the end action), then the process exits."""
+def shard_command(
+    endpoint: str, frames: FrameSource | None = None, tls: TlsFiles | None = None
+) -> int:
+    """``gcs-swarm shard --connect ENDPOINT [--tls-ca/--tls-cert/--tls-key]``:
+    SIGINT/SIGTERM end every vehicle of the shard (the end action), then the
+    process exits."""
 
     async def main() -> int:
         loop = asyncio.get_running_loop()
@@ -380,7 +388,7 @@ def shard_command(endpoint: str, frames: FrameSource | None = None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, task.cancel)
         try:
-            return await run_shard(endpoint, frames=frames)
+            return await run_shard(endpoint, tls=tls, frames=frames)
         except asyncio.CancelledError:
             return 130
 

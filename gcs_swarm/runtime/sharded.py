@@ -34,7 +34,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import socket
 import sys
 import time
 from collections import deque
@@ -54,7 +53,7 @@ from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_conf
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
-from gcs_swarm.runtime.zbus import Bus, check_endpoint
+from gcs_swarm.runtime.zbus import Bus, TlsFiles, check_endpoint, free_endpoint
 from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
 from sim_vehicle import Emulator
@@ -65,6 +64,7 @@ __all__ = [
     "ShardedRun",
     "ShardedView",
     "check_shards",
+    "free_endpoint",
     "run_sharded",
 ]
 
@@ -103,14 +103,6 @@ def check_shards(mission: Mission, shards: int) -> None:
             " (name more networks: docs/mission-format.md, networks)"
         )
     check_shard_events(mission, shards)
-
-
-def free_endpoint() -> str:
-    """``tcp/127.0.0.1:<port>`` on a port free now (the OS's pick)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
 
 
 class ShardedRun:
@@ -297,7 +289,7 @@ class ShardedRun:
         if not await self.wait_for(lambda: len(self.tokens) == shards or bool(self.exited()),
                                    hello_s):  # fmt: skip
             raise StartupError(f"{len(self.tokens)} of {shards} shards said hello at "
-                               f"{endpoint} in {hello_s:g} s")  # fmt: skip
+                               f"{endpoint} in {hello_s:g} s{self.bus.hint()}")  # fmt: skip
         ready_s = ready_timeout_s + 10.0
         if not await self.wait_for(
             lambda: len(self.ready) + len(self.failed) == shards or bool(self.exited()), ready_s
@@ -339,6 +331,7 @@ async def run_sharded(
     links: Mapping[int, str] | None = None,
     lockstep: bool | None = None,
     endpoint: str | None = None,
+    tls: TlsFiles | None = None,
     spawn: bool = True,
     end_timeout_s: float = 15.0,
     log_dir: str | Path | None = None,
@@ -353,7 +346,8 @@ async def run_sharded(
     """Fly ``mission`` with ``shards`` link shards (module docstring) and
     return its summary. ``links`` and ``lockstep`` as ``run_mission``'s;
     ``endpoint`` where the controller listens (default: a free TCP port on
-    127.0.0.1); ``shm`` False sends every batch as bytes even to shards on
+    127.0.0.1), with ``tls`` for a ``quic/`` or ``tls/`` one (``runtime.zbus``:
+    mutual TLS); ``shm`` False sends every batch as bytes even to shards on
     this host (default: large ones in shared memory, ``zbus``); ``on_run``
     gets the live run (its core, its processes) once the shards are started;
     ``on_status`` a status line every second in flight; ``on_summary`` the
@@ -415,7 +409,7 @@ async def run_sharded(
              "tlogs": log.tlogs(nets[i::shards])}
             for i in range(shards)
         ]  # fmt: skip
-        bus = await stack.enter_async_context(Bus(listen=[endpoint], shm=shm))
+        bus = await stack.enter_async_context(Bus(listen=[endpoint], tls=tls, shm=shm))
         run = ShardedRun(bus, core, assignment)
         run.endpoint = endpoint
         run.emulators = emulators

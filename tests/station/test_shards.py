@@ -19,13 +19,15 @@ controller over a real Zenoh session.
   other shard's fly on to the mission's end;
 - the controller gone from the wire (its Zenoh session closed, the emulators
   flying on): every shard sends its vehicles the end action (BRAKE) itself;
-- shards started on their own join a controller that listens; a shard whose
+- shards started on their own join a controller that listens, over tcp/ and
+  over quic/ with mutual TLS (tests/station/test_shards_tls.py); a shard whose
   links do not open fails the start-up at once, with its reason;
 - Ctrl-C (SIGINT to the process group) on ``gcs-swarm run --shards 2``:
   every vehicle ends (BRAKE), exit 130;
-- bad ``--shards`` / ``--connect`` / ``--listen`` arguments, and the events a
-  shard cannot run (a rejoin, a join while its shard has nobody flying):
-  one line, exit 2;
+- bad ``--shards`` / ``--connect`` / ``--listen`` arguments, TLS files missing
+  for a quic/ or tls/ endpoint, not there, unreadable, not PEM or given for
+  tcp/, and the events a shard cannot run (a rejoin, a join while its shard
+  has nobody flying): one line, exit 2;
 - the operator view of a sharded run: both shards' vehicles with the law's
   columns, and its Hold button ends them all.
 """
@@ -375,6 +377,45 @@ def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action(
         (["shard", "--connect", "tcp/127.0.0.1:99999"], "expected a Zenoh endpoint"),
         (["run", "{two}", "--listen", "tcp/127.0.0.1:7447"], "--listen: only with --shards N"),
         (["run", "{two}", "--shards", "2", "--listen", "7447"], "--listen '7447': expected a"),
+        # quic/ and tls/ endpoints need the three TLS files, and only they take them:
+        (
+            "shard --connect quic/127.0.0.1:7447".split(),
+            "--connect quic/127.0.0.1:7447: quic/ and tls/ are mutual TLS and need --tls-ca,"
+            " --tls-cert and --tls-key; missing --tls-ca, --tls-cert, --tls-key",
+        ),
+        (
+            "run {two} --shards 2 --listen tls/127.0.0.1:7447"
+            " --tls-ca {ca} --tls-cert {cert}".split(),
+            "--listen tls/127.0.0.1:7447: quic/ and tls/ are mutual TLS and need --tls-ca,"
+            " --tls-cert and --tls-key; missing --tls-key (docs/architecture.md)",
+        ),
+        (
+            "shard --connect quic/127.0.0.1:7447 --tls-ca {tmp}/no-ca.pem --tls-cert {cert}"
+            " --tls-key {key}".split(),
+            "--tls-ca {tmp}/no-ca.pem: no such file",
+        ),
+        (
+            "run {two} --shards 2 --listen quic/127.0.0.1:7447 --tls-ca {ca} --tls-cert {cert}"
+            " --tls-key {tmp}".split(),  # a folder: unreadable as a file, also for root
+            "--tls-key {tmp}: cannot read it: Is a directory",
+        ),
+        (
+            "shard --connect quic/127.0.0.1:7447"
+            " --tls-ca {ca} --tls-cert {key} --tls-key {key}".split(),
+            "--tls-cert {key}: not a PEM certificate",
+        ),
+        (
+            "shard --connect tcp/127.0.0.1:7447 --tls-ca {ca}".split(),
+            "--tls-ca {ca}: only with a quic/ or tls/ --connect endpoint, not tcp/127.0.0.1:7447",
+        ),
+        (
+            "run {two} --shards 2 --tls-cert {cert}".split(),
+            "--tls-cert {cert}: only with a quic/ or tls/ --listen endpoint, and no --listen",
+        ),
+        (
+            "run {two} --tls-key {key}".split(),
+            "--tls-key {key}: only with --shards N --listen quic/HOST:PORT",
+        ),
         # What of the events a shard cannot run as one station would (check_shard_events):
         (
             ["run", "{rejoin}", "--shards", "2"],
@@ -406,25 +447,38 @@ def test_bad_shard_arguments_are_one_line_errors(
         events="events:\n" + "".join(f"  - {{t: 1, leave: {i}, network: red}}\n" for i in (1, 2, 3))
         + "  - {t: 2, join: 4, network: red}\n",
     ).text)  # fmt: skip
-    code = main([a.format(two=two, one=one, rejoin=rejoin, alone=alone) for a in argv])
+    from tests.station.tls_harness import make_pki
+
+    shard = make_pki(tmp_path / "pki").shard  # real PEM files, for the TLS options
+    names = {"two": two, "one": one, "rejoin": rejoin, "alone": alone, "tmp": tmp_path,
+             "ca": shard.ca, "cert": shard.cert, "key": shard.key}  # fmt: skip
+    code = main([a.format(**names) for a in argv])
     err = capsys.readouterr().err
     assert code == EXIT_REFUSED
+    expected = expected.format(**names)
     assert err.count("\n") == 1 and err.startswith("gcs-swarm: ") and expected in err, err
 
 
-def test_shards_started_elsewhere_join_a_controller_that_listens() -> None:
+@pytest.mark.parametrize("scheme", ["tcp", "quic"])
+def test_shards_started_elsewhere_join_a_controller_that_listens(
+    scheme: str, tmp_path: Path
+) -> None:
     """``gcs-swarm run --shards 2 --listen ENDPOINT`` and two ``gcs-swarm shard
     --connect ENDPOINT`` started on their own (here: before the controller
     listens, as separate processes over 127.0.0.1): they keep saying hello
-    until it answers, then fly the mission with it."""
+    until it answers, then fly the mission with it. Over ``quic/`` each side
+    has its TLS files (mutual TLS; tests/station/test_shards_tls.py)."""
     import subprocess
     import sys
 
     from gcs_swarm.runtime.sharded import free_endpoint
+    from tests.station.tls_harness import cli_options, make_pki
 
     mission = _two_networks(3.0, "dynamics: ideal, mode: lockstep, spawn: air")
-    endpoint = free_endpoint()
+    endpoint = free_endpoint(scheme)
+    pki = make_pki(tmp_path / "pki") if scheme == "quic" else None
     argv = [sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint]
+    argv += cli_options(pki.shard) if pki is not None else []
     shards = [subprocess.Popen(argv, stdin=subprocess.DEVNULL) for _ in range(2)]
     try:
         time.sleep(1.0)  # the shards are up first, and wait
@@ -432,6 +486,7 @@ def test_shards_started_elsewhere_join_a_controller_that_listens() -> None:
         async def fly() -> RunSummary:
             async with asyncio.timeout(120):
                 return await run_sharded(mission, 2, endpoint=endpoint, spawn=False,
+                                         tls=pki.controller if pki is not None else None,
                                          end_timeout_s=5.0)  # fmt: skip
 
         summary = asyncio.run(fly())
