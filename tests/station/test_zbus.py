@@ -9,8 +9,7 @@ import asyncio
 
 import pytest
 
-from gcs_swarm.runtime.sharded import free_endpoint
-from gcs_swarm.runtime.zbus import SHM_THRESHOLD_BYTES, Bus
+from gcs_swarm.runtime.zbus import SHM_THRESHOLD_BYTES, Bus, free_endpoint
 
 BIG = 84 * 1000 + 24
 """A state batch of 1,000 vehicles [bytes] (24 + 60 per vehicle)."""
@@ -46,6 +45,14 @@ class _Pair:
     async def close(self) -> None:
         await self.shard.__aexit__(None, None, None)
         await self.ctl.__aexit__(None, None, None)
+
+    async def paced(self, marks: range, size: int) -> None:
+        """Batches ``size`` bytes long, marked ``marks``, one step apart;
+        return when all have come in."""
+        for i in marks:
+            self.shard.put("up/0/state", bytes([i]) * size, droppable=True)
+            await asyncio.sleep(PACE_S)
+        await self.wait("state", marks.stop)
 
     def _on(self, what: str, data: bytes) -> None:
         self.got[what].append(data)
@@ -86,28 +93,18 @@ def test_control_messages_are_never_dropped_behind_a_burst_of_batches() -> None:
 
 def test_paced_large_batches_cross_in_shared_memory_small_ones_as_bytes() -> None:
     """Batches one step apart, as a shard sends them: after the first few
-    (the pool is set up meanwhile), large ones come in shared memory;
+    (a new link), large ones come in shared memory;
     batches a byte under the threshold never do (measured: from 3,072 bytes on)."""
 
     async def main() -> tuple[int, int, int]:
         pair = _Pair()
         await pair.open()
         try:
-            for i in range(10):
-                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
-                await asyncio.sleep(PACE_S)
-            await pair.wait("state", 10)
+            await pair.paced(range(10), BIG)
             first = pair.ctl.shm_in
-            for i in range(10, 30):
-                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
-                await asyncio.sleep(PACE_S)
-            await pair.wait("state", 30)
+            await pair.paced(range(10, 30), BIG)
             steady = pair.ctl.shm_in - first
-            for i in range(30, 40):
-                pair.shard.put("up/0/state", bytes([i]) * (SHM_THRESHOLD_BYTES - 1),
-                               droppable=True)  # fmt: skip
-                await asyncio.sleep(PACE_S)
-            await pair.wait("state", 40)
+            await pair.paced(range(30, 40), SHM_THRESHOLD_BYTES - 1)
             small = pair.ctl.shm_in - first - steady
         finally:
             await pair.close()
@@ -128,10 +125,7 @@ def test_shared_memory_off_on_either_side_sends_bytes(ctl_shm: bool, shard_shm: 
         pair = _Pair(ctl_shm=ctl_shm, shard_shm=shard_shm)
         await pair.open()
         try:
-            for i in range(10):
-                pair.shard.put("up/0/state", bytes([i]) * BIG, droppable=True)
-                await asyncio.sleep(PACE_S)
-            await pair.wait("state", 10)
+            await pair.paced(range(10), BIG)
         finally:
             await pair.close()
         return pair.ctl
