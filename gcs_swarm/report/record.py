@@ -72,9 +72,9 @@ class TelemetryCounter:
 
     def __init__(self) -> None:
         self.counts: dict[int, LinkCounts] = {}
-        self._last_seq: dict[tuple[int, int], int] = {}
-        self._heard: dict[tuple[int, int], int] = {}
-        """Per sender, bit d set: sequence number ``last - d`` was heard (d < 128)."""
+        self._seen: dict[tuple[int, int], tuple[int, int]] = {}
+        """Per sender (sysid, compid): its newest sequence number ``last`` and a
+        mask whose bit d says ``last - d`` was heard (d < 128)."""
 
     def add(self, sysid: int, compid: int, seq: int, msgid: int) -> None:
         c = self.counts.setdefault(sysid, LinkCounts())
@@ -82,25 +82,25 @@ class TelemetryCounter:
         if msgid == _MSG_LOCAL_POSITION_NED:
             c.local_position += 1
         key = (sysid, compid)
-        last = self._last_seq.get(key)
-        if last is None:
-            self._last_seq[key], self._heard[key] = seq, 1
+        seen = self._seen.get(key)
+        if seen is None:
+            self._seen[key] = (seq, 1)
             return
+        last, heard = seen
         ahead = (seq - last) % 256
         if ahead == 0 or ahead >= 128:  # the newest again, or one behind it
             behind = (last - seq) % 256
             bit = 1 << behind
-            if self._heard[key] & bit:
+            if heard & bit:
                 c.duplicates += 1
             else:  # skipped when a newer one came (counted lost then): reordered
-                self._heard[key] |= bit
+                self._seen[key] = (last, heard | bit)
                 c.late += 1
                 if behind < 128 and c.lost > 0:  # 128 behind: outside the window
                     c.lost -= 1
             return
         c.lost += ahead - 1
-        self._last_seq[key] = seq
-        self._heard[key] = ((self._heard[key] << ahead) | 1) & _WINDOW
+        self._seen[key] = (seq, ((heard << ahead) | 1) & _WINDOW)
 
 
 @dataclass(frozen=True, eq=False)
