@@ -123,7 +123,8 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         assert side is not None
         batch = side.take_state(now)
         if batch is not None:
-            bus.put(f"{up}/state", encode_state(batch), droppable=True)
+            # Real time: the next step brings a newer batch; lockstep waits for this one.
+            bus.put(f"{up}/state", encode_state(batch), droppable=not cfg.lockstep)
 
     def on_reply(key: str, data: bytes) -> None:
         if station is None or side is None or not entered.is_set():
@@ -233,7 +234,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                 assert station is not None
                 while True:
                     await asyncio.sleep(1.0 / view_hz)
-                    bus.put_json(f"{up}/view", frame_at(station.now()), droppable=True)
+                    bus.put_json(f"{up}/view", frame_at(station.now()))
 
             showing = asyncio.ensure_future(show())
             stack.callback(showing.cancel)

@@ -126,6 +126,9 @@ class ShardedRun:
         """Loop time [s] each shard reported its vehicles READY."""
         self.failed: dict[int, str] = {}
         self.done: dict[int, dict[str, Any]] = {}
+        self.droppable = True
+        """Replies may be dropped on a congested link (real time: the next step
+        brings one); never in lockstep, where nothing follows a lost one."""
         self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
         """Bytes of state batches in, replies out, and the steps they made."""
         self.flight_s: tuple[float, float] | None = None
@@ -219,7 +222,7 @@ class ShardedRun:
             for reply in core.control_step(self.now()):
                 data = encode_reply(reply)
                 self.bytes_per_step["reply"] += len(data)
-                self.bus.put(f"down/{reply.shard}/reply", data, droppable=True)
+                self.bus.put(f"down/{reply.shard}/reply", data, droppable=self.droppable)
             self.bytes_per_step["steps"] += 1
         if core.timer_moved:
             core.timer_moved = False
@@ -411,6 +414,7 @@ async def run_sharded(
         ]  # fmt: skip
         bus = await stack.enter_async_context(Bus(listen=[endpoint], tls=tls, shm=shm))
         run = ShardedRun(bus, core, assignment)
+        run.droppable = not lockstep
         run.endpoint = endpoint
         run.emulators = emulators
         run.listen()

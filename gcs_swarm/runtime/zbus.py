@@ -315,10 +315,11 @@ class Bus:
 
         A key's first put sets its policy when the link is congested (its
         queue, 2 batches of 64 KiB, full: the peer does not read fast enough).
-        ``droppable`` (a step's batch, a view frame: a newer one follows
+        ``droppable`` (a step's batch in real time: a newer one follows
         within a step) is dropped after Zenoh waits 1 ms (50 ms for a
         fragmented one), so a slow peer never stalls this loop. Otherwise
-        (handshakes, beats, ends, reports) the put waits for room: measured
+        (handshakes, beats, ends, reports, view frames, lockstep batches)
+        the put waits for room: measured
         on 127.0.0.1, behind a burst of fifty 84 kB batches, 1-49 of the
         batches were dropped and no control message was
         (tests/station/test_zbus.py)."""
