@@ -15,7 +15,7 @@ Flat earth (protocol sheet, "Frames and origins"; R = 6378137 m)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
@@ -29,9 +29,9 @@ EARTH_RADIUS_M = 6378137.0
 Vec3 = tuple[float, float, float]
 
 
-@dataclass(frozen=True)
-class Kin:
-    """One vehicle's kinematics snapshot (local NED, m, m/s, m/s^2)."""
+class Kin(NamedTuple):
+    """One vehicle's kinematics snapshot (local NED, m, m/s, m/s^2). Immutable: a
+    named tuple, built for every vehicle every step (cheaper than a frozen dataclass)."""
 
     pos: Vec3
     vel: Vec3
