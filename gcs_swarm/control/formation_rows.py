@@ -40,7 +40,9 @@ F64 = NDArray[np.float64]
 
 SMALL_N = 10
 """Below this many vehicles ``law_accelerations`` flies formation through
-``formation_accelerations``; from it on, the vectorised reference is cheaper."""
+``formation_accelerations``; from it on, the vectorised reference is cheaper.
+The control step's other float paths take the same threshold: the input
+check of ``law.as_states`` and the minimum separation of ``loop``."""
 
 
 def formation_accelerations(

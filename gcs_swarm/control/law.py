@@ -20,6 +20,7 @@ any limits or safety filter (the caller applies those).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -122,7 +123,13 @@ def as_states(
         )
     if len(set(key)) != n:
         raise ValueError(f"vehicle ids repeat: {key}")
-    if np.isfinite(p).all() and np.isfinite(v).all() and np.isfinite(q).all():
+    if n < SMALL_N:  # plain floats: cheaper than six numpy calls for a few rows
+        # Every value is finite when their sum is (a NaN or an infinity makes it NaN
+        # or infinite); a sum that overflows only sends finite values the long way.
+        total = sum(p.ravel().tolist()) + sum(v.ravel().tolist()) + sum(q.tolist())
+        if math.isfinite(total):
+            return key, p, v, q
+    elif np.isfinite(p).all() and np.isfinite(v).all() and np.isfinite(q).all():
         return key, p, v, q
     bad = ~(np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1) & np.isfinite(q))
     if bad.any():

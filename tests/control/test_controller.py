@@ -19,6 +19,7 @@ from gcs_swarm.control import (
     repulsion_force,
     rho,
 )
+from gcs_swarm.control.law import as_states
 from gcs_swarm.control.obstacles import Ellipsoids
 from gcs_swarm.integrator import SimResult, integrate
 
@@ -178,6 +179,26 @@ def test_bad_inputs_are_rejected() -> None:
         ctl.step(0.0, [1, 1], p, p, np.ones(2))
     with pytest.raises(ValueError, match=r"non-finite state for vehicle ids \[2\]"):
         ctl.step(0.0, [1, 2], np.array([[0, 0, 0], [np.nan, 0, 0]]), p, np.ones(2))
+
+
+@pytest.mark.parametrize("n", [3, 40])  # below SMALL_N (floats) and above it (numpy)
+def test_the_finite_check_names_each_bad_vehicle_and_passes_huge_finite_values(n: int) -> None:
+    """``as_states`` checks finiteness on the sum of every value: a NaN or an
+    infinity anywhere (position, velocity or charge) is named, and finite
+    values whose sum overflows are still accepted."""
+    ids = list(range(1, n + 1))
+    zeros, ones = np.zeros((n, 3)), np.ones(n)
+    for field, value in (("pos", np.inf), ("vel", -np.inf), ("charge", np.nan)):
+        p, v, q = zeros.copy(), zeros.copy(), ones.copy()
+        if field == "charge":
+            q[1] = value
+        else:
+            (p if field == "pos" else v)[1, 2] = value
+        with pytest.raises(ValueError, match=r"non-finite state for vehicle ids \[2\]"):
+            as_states(ids, p, v, q)
+    huge = np.full((n, 3), 1.0e308)  # the sum overflows; every value is finite
+    key, p, _, _ = as_states(ids, huge, zeros, ones)
+    assert key == tuple(ids) and p[0, 0] == 1.0e308
 
 
 def test_time_going_backwards_does_not_move_the_leader() -> None:

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from gcs_swarm.control.formation_rows import SMALL_N
 from gcs_swarm.control.loop import (
     _CELLS_FROM_N,
     _GRAM_FROM_N,
@@ -63,3 +64,23 @@ def test_a_sphere_and_a_clump_on_the_cell_list_give_the_direct_minimum() -> None
     assert _min_separation_cells(clump) is None  # the Gram product did
     for pos in (shell, clump):
         assert _min_separation(pos) == _direct(pos)
+
+
+def test_a_few_vehicles_in_floats_give_the_direct_minimum_bit_for_bit() -> None:
+    """Below ``SMALL_N`` the search runs pair by pair in Python floats;
+    it must give the direct search's float (its squares summed in einsum's
+    order), also far from the origin, with ties and coincident vehicles, and
+    NaN where a position is NaN, as numpy gives."""
+    rng = np.random.default_rng(61)
+    for n in range(2, SMALL_N):
+        for scale, offset in ((1e-3, 0.0), (1.0, 0.0), (50.0, 3.0), (0.1, 1.0e5)):
+            for _ in range(200):
+                pos = rng.normal(0.0, scale, (n, 3)) + offset
+                assert _min_separation(pos) == _direct(pos)
+        grid = _grid(n, 3.0)  # tied pairs
+        assert _min_separation(grid) == _direct(grid) == 3.0
+        same = np.repeat(rng.normal(0.0, 5.0, (1, 3)), n, axis=0)  # all on one point
+        assert _min_separation(same) == _direct(same) == 0.0
+        bad = rng.normal(0.0, 5.0, (n, 3))
+        bad[n - 1, 1] = math.nan
+        assert math.isnan(_min_separation(bad)) and math.isnan(_direct(bad))
