@@ -220,6 +220,34 @@ class ControlLoop:
         leader = self.controller.leader_pos_m if leader_m is None else leader_m
         return start - leader0 + leader
 
+    def formation_radius_m(self) -> float:
+        """The farthest member's distance [m] from the leader at the last step
+        (0 before one, or with nobody flying)."""
+        last = self.last
+        return float(last.radii_m.max()) if last is not None and len(last.ids) else 0.0
+
+    def rejoin_m(
+        self,
+        start_m: Sequence[float],
+        leader_m: FloatArray | None = None,
+        radius_m: float | None = None,
+    ) -> FloatArray:
+        """Where a vehicle readied again mid-mission flies before it rejoins
+        [m]: on the ray from the leader through its slot (``slot_m``), at the
+        safety separation (``Safety.separation``) beyond the farther of its
+        slot and the farthest member (``radius_m``, by default
+        ``formation_radius_m``; a link shard's is its controller's). Every
+        member is then at least that separation from the point (triangle
+        inequality), though its old slot may be taken: the others re-formed
+        without it. The law pulls it in from there (docs/formation-law.md
+        section 9)."""
+        leader = self.controller.leader_pos_m if leader_m is None else leader_m
+        offset = self.slot_m(start_m, leader) - leader
+        dist = float(np.linalg.norm(offset))
+        ray = offset / dist if dist > 1e-9 else np.array([0.0, 0.0, 1.0])
+        radius = self.formation_radius_m() if radius_m is None else radius_m
+        return leader + ray * (max(dist, radius) + self.config.safety.separation)
+
 
 _GRAM_FROM_N = 48
 """From this many vehicles the minimum separation is searched with one Gram

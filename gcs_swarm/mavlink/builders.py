@@ -29,6 +29,7 @@ __all__ = [
     "MSG_ID_SYS_STATUS",
     "TYPE_MASK_ACCEL",
     "TYPE_MASK_POSITION",
+    "TYPE_MASK_POS_VEL",
     "TYPE_MASK_VEL_ACCEL",
     "accel_setpoint",
     "arm",
@@ -37,6 +38,7 @@ __all__ = [
     "param_request_read",
     "param_set",
     "position_setpoint",
+    "posvel_setpoint",
     "request_message",
     "set_message_interval",
     "set_mode",
@@ -81,6 +83,13 @@ its guided velocity sub-mode, and echoes 3079."""
 TYPE_MASK_POSITION = 3576
 """0x0DF8: position only; ignore velocity (8|16|32), acceleration
 (64|128|256), yaw (1024) and yaw rate (2048)."""
+
+TYPE_MASK_POS_VEL = 3520
+"""0x0DC0: position with the velocity as its feed-forward; ignore
+acceleration (64|128|256), yaw (1024) and yaw rate (2048). ArduCopter 4.5
+flies it as its guided pos-vel-accel sub-mode (acceleration zero), PX4
+v1.14 as a position setpoint with a velocity feed-forward: a vehicle can
+track a moving point with no steady lag (docs/mavlink-protocol.md)."""
 
 COPTER_MODES: dict[str, int] = {
     "STABILIZE": 0,
@@ -335,4 +344,25 @@ def position_setpoint(
         TYPE_MASK_POSITION,
         pos_ned_m,
         (0.0, 0.0, 0.0),
+    )
+
+
+def posvel_setpoint(
+    target_system: int,
+    target_component: int,
+    time_boot_ms: int,
+    pos_ned_m: tuple[float, float, float],
+    vel_ned_mps: tuple[float, float, float],
+) -> MessageSpec:
+    """Position SET_POSITION_TARGET_LOCAL_NED with the velocity [m/s] of the
+    point as its feed-forward (type_mask 3520): fly to (x, y, z) [m], NED,
+    relative to the vehicle's EKF origin, moving at (vx, vy, vz) there."""
+    return _local_ned_target(
+        target_system,
+        target_component,
+        time_boot_ms,
+        TYPE_MASK_POS_VEL,
+        pos_ned_m,
+        (0.0, 0.0, 0.0),
+        vel_ned_mps,
     )

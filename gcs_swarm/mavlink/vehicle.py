@@ -98,7 +98,8 @@ class VehicleProtocol(_Startup, _Ending):
     """The protocol state of one vehicle (system id ``sysid``).
 
     ``goto_m`` is where the vehicle goes after take-off, in the mission frame
-    [m]; the station may move it with ``set_goto`` (joiners chase the leader).
+    [m]; the station may move it with ``set_goto`` (a vehicle readied again
+    flies to its rejoin point beside the moving leader, at its velocity).
     """
 
     def enable(self, now: float) -> None:
@@ -117,9 +118,19 @@ class VehicleProtocol(_Startup, _Ending):
         self.reference = reference
         self._update_offset()
 
-    def set_goto(self, goto_m: tuple[float, float, float] | FloatArray) -> None:
-        """Move the mission-frame point [m] the vehicle flies to before the law."""
+    def set_goto(
+        self,
+        goto_m: tuple[float, float, float] | FloatArray,
+        vel_mps: tuple[float, float, float] | FloatArray | None = None,
+    ) -> None:
+        """Move the mission-frame point [m] the vehicle flies to before the law;
+        ``vel_mps`` [m/s]: the point's own velocity (a rejoin point carried
+        by the moving leader), None at rest. A moving point is flown with its
+        velocity as the feed-forward (``builders.posvel_setpoint``), and the
+        vehicle is READY at it when its velocity matches the point's within
+        the speed tolerance, so a vehicle rejoins a moving formation."""
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
+        self._goto_vel = None if vel_mps is None else np.asarray(vel_mps, dtype=np.float64)
 
     def begin_flying(self, now: float, table: TelemetryTable | None = None) -> None:
         """READY -> FLYING: from now on the station streams acceleration

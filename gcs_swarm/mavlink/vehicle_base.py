@@ -106,6 +106,9 @@ class _VehicleBase:
         self._rate_n = 0
         self._rate_lows = 0
         self._goto_m = np.asarray(goto_m, dtype=np.float64)
+        self._goto_vel: FloatArray | None = None
+        """The goto point's velocity [m/s], mission frame (``set_goto``): None
+        for a point at rest."""
         self._hb_at = -math.inf
         self._heard_at = -math.inf
         """Last message of any kind: the link watchdog (a lost HEARTBEAT with

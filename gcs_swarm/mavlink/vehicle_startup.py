@@ -17,7 +17,7 @@ import numpy as np
 
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES
-from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned
+from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned, vector_mission_to_ned
 from gcs_swarm.mavlink.inbound import GpsGlobalOrigin
 from gcs_swarm.mavlink.states import READYING_PHASES, Phase
 from gcs_swarm.mavlink.vehicle_base import _vec, _VehicleBase
@@ -273,6 +273,8 @@ class _Startup(_VehicleBase):
                 self._arm_fly_mode(now)
             pos, vel = self.state_mission()
             cfg = self.config
+            if self._goto_vel is not None:  # a moving point: its velocity, not rest
+                vel = vel - self._goto_vel
             if (
                 np.linalg.norm(pos - self._goto_m) <= cfg.goto_tolerance_m
                 and np.linalg.norm(vel) <= cfg.goto_speed_tolerance_mps
@@ -315,9 +317,15 @@ class _Startup(_VehicleBase):
             self._timers["offboard"] = now + 2 * self.config.command_timeout_s
 
     def _answer_hold(self) -> None:
-        """Position setpoint to the goto point, sent in answer to each telemetry."""
+        """Position setpoint to the goto point, sent in answer to each telemetry
+        (with the point's velocity as the feed-forward when it moves)."""
         if self.offset_m is not None:
             ned = mission_to_ned(self._goto_m, self.offset_m)
             self.last_accel_ned = np.zeros(3)
-            spec = b.position_setpoint(self.sysid, self.compid, self.boot_ms(), _vec(ned))
+            if self._goto_vel is None:
+                spec = b.position_setpoint(self.sysid, self.compid, self.boot_ms(), _vec(ned))
+            else:
+                vel = vector_mission_to_ned(self._goto_vel)
+                spec = b.posvel_setpoint(self.sysid, self.compid, self.boot_ms(), _vec(ned),
+                                         _vec(vel))  # fmt: skip
             self._out.append(spec)

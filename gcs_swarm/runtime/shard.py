@@ -149,7 +149,11 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
         side.heard(station.now())
         if msg.get("leader") is not None:
             leader, shard = np.array(msg["leader"], dtype=np.float64), side
-            station.apply(lambda now, write: shard.leader_at(leader))
+            vel = msg.get("leader_vel")
+            vel = None if vel is None else np.array(vel, dtype=np.float64)
+            radius = msg.get("radius")
+            radius = None if radius is None else float(radius)
+            station.apply(lambda now, write: shard.leader_at(leader, vel, radius))
 
     bus.subscribe("down/all", on_down)
     bus.subscribe(f"down/{index}/ctl", on_down)  # to this shard alone: ended once declared dead

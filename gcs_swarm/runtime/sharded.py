@@ -278,9 +278,13 @@ class ShardedRun:
     async def beat(self) -> None:
         while True:
             core = self.core
-            leader = core.control.controller.leader_pos_m.tolist() if core.started else None
+            ctl = core.control.controller
+            leader = ctl.leader_pos_m.tolist() if core.started else None
+            vel = ctl.leader_vel_mps.tolist() if core.started else None
+            radius = core.control.formation_radius_m() if core.started else None
             self.bus.put_json("down/all", {"kind": "beat", "origin": self.origin,
-                                           "leader": leader})  # fmt: skip
+                                           "leader": leader, "leader_vel": vel,
+                                           "radius": radius})  # fmt: skip
             await asyncio.sleep(BEAT_S)
 
     async def start(self, shards: int, hello_s: float, ready_timeout_s: float) -> None:

@@ -125,13 +125,19 @@ class ShardSide:
         v = np.array([vel[s] for s in ids], dtype=np.float64).reshape(len(ids), 3)
         answer(core, ids, ks, accel, now, reply.t_s, v, write)
 
-    def leader_at(self, leader_m: FloatArray) -> None:
-        """The controller's leader is at ``leader_m`` [m] (its beats, 10 a
-        second, also while this shard has nobody flying): members being
-        readied again fly to their slot beside it, as in one station
-        (``swarm.step.send_rejoiners``), not to their mission start."""
+    def leader_at(
+        self,
+        leader_m: FloatArray,
+        leader_vel: FloatArray | None = None,
+        radius_m: float | None = None,
+    ) -> None:
+        """The controller's leader is at ``leader_m`` [m], moving at
+        ``leader_vel`` [m/s], its farthest member ``radius_m`` [m] from it (its
+        beats, 10 a second, also while this shard has nobody flying): members
+        being readied again fly to their rejoin point beside it, as in one
+        station (``swarm.step.send_rejoiners``), not to their mission start."""
         if self.core.started and not self.core.ending:
-            send_rejoiners(self.core, leader_m)
+            send_rejoiners(self.core, leader_m, leader_vel, radius_m)
 
     def heard(self, now: float) -> None:
         """Something came from the controller at ``now``."""

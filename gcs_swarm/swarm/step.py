@@ -100,16 +100,33 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         core.finished = True
 
 
-def send_rejoiners(core: SwarmCore, leader_m: FloatArray | None = None) -> None:
+def send_rejoiners(
+    core: SwarmCore,
+    leader_m: FloatArray | None = None,
+    leader_vel: FloatArray | None = None,
+    radius_m: float | None = None,
+) -> None:
     """Members that flew and are being readied again (lost and heard again,
-    or joining again after a leave) fly to their slot beside the leader,
-    which moves on meanwhile (``ControlLoop.slot_m``); ``leader_m`` [m] is
-    the leader's position when this core does not run the law (a link
-    shard: its controller's, relayed in the controller's beats)."""
-    for sysid in (core.members & core.flown) - core.flying:
+    or joining again after a leave) fly to their rejoin point beside the
+    leader, which moves on meanwhile: outside the formation on the ray
+    through their slot (``ControlLoop.rejoin_m``), at the leader's velocity,
+    given as the setpoint's feed-forward and matched before the vehicle is
+    READY (``VehicleProtocol.set_goto``), so it rejoins a moving formation;
+    a leader at rest gives a point at rest. ``leader_m`` [m], ``leader_vel``
+    [m/s], ``radius_m`` [m] (the farthest member from the leader): the
+    controller's, when this core does not run the law (a link shard, from
+    the controller's beats)."""
+    rejoining = (core.members & core.flown) - core.flying
+    if not rejoining:
+        return
+    if leader_m is None:
+        leader_vel = core.control.controller.leader_vel_mps
+    moving = leader_vel is not None and bool(np.any(leader_vel != 0.0))
+    for sysid in rejoining:
         vp = core.vehicles[sysid]
         if vp.phase in READYING and vp.phase is not Phase.READY:
-            vp.set_goto(core.control.slot_m(core.plans[sysid].start_m, leader_m))
+            point = core.control.rejoin_m(core.plans[sysid].start_m, leader_m, radius_m)
+            vp.set_goto(point, leader_vel if moving else None)
 
 
 class Commanding(Protocol):

@@ -81,6 +81,12 @@ def test_builders_match_the_protocol_sheet() -> None:
     hb = b.heartbeat()
     assert (hb["type"], hb["autopilot"]) == (6, 8)  # a GCS, no autopilot
     assert b.position_setpoint(1, 1, 0, (1.0, 2.0, -3.0))["type_mask"] == 3576
+    # Position with the velocity as its feed-forward: acceleration, yaw and yaw
+    # rate ignored (64|128|256|1024|2048), as ArduCopter's pos-vel-accel branch takes it.
+    posvel = b.posvel_setpoint(1, 1, 0, (1.0, 2.0, -3.0), (0.5, -0.25, 0.125))
+    assert posvel["type_mask"] == 3520 == 64 | 128 | 256 | 1024 | 2048
+    assert (posvel["x"], posvel["vx"], posvel["vy"], posvel["vz"]) == (1.0, 0.5, -0.25, 0.125)
+    assert (posvel["afx"], posvel["afy"], posvel["afz"]) == (0.0, 0.0, 0.0)
 
 
 def test_origin_offset_flat_earth() -> None:

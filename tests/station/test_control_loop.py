@@ -68,3 +68,30 @@ def test_slot_of_a_returning_vehicle_moves_with_the_leader() -> None:
         loop.step([1], np.array([[1.0, 1.0, 1.0]]), np.zeros((1, 3)))
     slot = loop.slot_m((2.0, 1.0, 1.0))
     np.testing.assert_allclose(slot - loop.controller.leader_pos_m, [1.0, 0.0, 0.0])
+
+
+def test_the_rejoin_point_is_a_separation_outside_every_member() -> None:
+    """``ControlLoop.rejoin_m``: on the ray from the leader through the slot,
+    the separation beyond the farther of the slot and the farthest member,
+    so every member is at least the separation from it (here with the slot
+    taken: a member sits on it)."""
+    from gcs_swarm.control.params import Safety
+
+    law = LawConfig(safety=Safety(separation=6.0))
+    loop = ControlLoop(law, {i: 10.0 for i in range(1, 5)}, 50.0)
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        start = rng.normal(0.0, 10.0, 3)
+        members = rng.normal(0.0, 12.0, (3, 3))
+        members[0] = start  # the others re-formed onto its slot
+        radius = float(np.linalg.norm(members, axis=1).max())
+        point = loop.rejoin_m(start, np.zeros(3), radius)
+        assert np.linalg.norm(members - point, axis=1).min() >= 6.0 - 1e-9
+        ray = point / np.linalg.norm(point)
+        np.testing.assert_allclose(ray, start / np.linalg.norm(start), atol=1e-12)
+        assert np.linalg.norm(point) == pytest.approx(max(np.linalg.norm(start), radius) + 6.0)
+    # Moved with the leader: the same point beside a leader elsewhere.
+    lead = np.array([100.0, -50.0, 30.0])
+    np.testing.assert_allclose(
+        loop.rejoin_m((3.0, 4.0, 0.0), lead, 2.0), lead + np.array([3.0, 4.0, 0.0]) * 11 / 5
+    )

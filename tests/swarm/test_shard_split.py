@@ -213,8 +213,9 @@ def _sharded_in_flight(
 ) -> tuple[Sky, ShardSide, ControllerCore]:
     """``mission`` on the harness with its step through the split, readied and
     started as a shard and its controller start it (``runtime/shard.py``);
-    with ``beats`` the controller's leader reaches the shard after each step
-    (``ShardSide.leader_at``, as the controller's beats carry it)."""
+    with ``beats`` the controller's leader (position and velocity) and its
+    farthest member's distance reach the shard after each step
+    (``ShardSide.leader_at``, as the controller's beats carry them)."""
     sky = Sky(mission)
     s = mission.settings
     side = ShardSide(sky.core, 0, s.stale_timeout)
@@ -231,7 +232,9 @@ def _sharded_in_flight(
             for reply in ctl.control_step(now):
                 side.apply(decode_reply(encode_reply(reply)), now, write)
             if beats:
-                side.leader_at(ctl.control.controller.leader_pos_m.copy())
+                law = ctl.control.controller
+                side.leader_at(law.leader_pos_m.copy(), law.leader_vel_mps.copy(),
+                               ctl.control.formation_radius_m())  # fmt: skip
         if ctl.finished:
             sky.core.finished = True
 
@@ -434,9 +437,10 @@ def _lose_and_hear_again(sky: Sky) -> float:
 
 
 def test_a_vehicle_heard_again_on_its_shard_rejoins_at_its_slot_beside_the_leader() -> None:
-    """One station sends a vehicle readied again mid-flight to its slot,
-    its start carried along with the leader (``ControlLoop.slot_m``); a shard
-    runs no law, so the controller's leader reaches it in the beats
+    """One station sends a vehicle readied again mid-flight to its rejoin
+    point: its start carried along with the leader, pushed out on that ray
+    by the safety separation (``ControlLoop.rejoin_m``); a shard runs no law,
+    so the controller's leader reaches it in the beats
     (``ShardSide.leader_at``): the split flies the station's numbers. Without
     them the vehicle would rejoin at its mission start, behind."""
     mission = parse_mission(_MOVING)
@@ -452,10 +456,14 @@ def test_a_vehicle_heard_again_on_its_shard_rejoins_at_its_slot_beside_the_leade
     a, b = one.core.control.last, ctl.control.last
     assert a is not None and b is not None and a.ids == b.ids == (1, 2, 3, 4)
     assert a.pos_m.tobytes() == b.pos_m.tobytes()  # the same floats: bit for bit
-    slot = np.array([3.0, 4.0, 2.0]) + b.law.leader_pos_m  # its start beside the leader
+    # Its start (3, 4, 2) is 5.39 m from the leader's, farther than the three
+    # members (the point would be farther out otherwise, and this one missed):
+    # the point is 1 m (the default separation) beyond it on the same ray.
+    off = np.array([3.0, 4.0, 2.0])
+    point = b.law.leader_pos_m + off * (1.0 + 1.0 / np.linalg.norm(off))
     start_gap = float(np.linalg.norm(b.pos_m[2] - (3.0, 4.0, 2.0)))
-    # READY within the start tolerance (0.3 m) of the slot, the leader ~1.2 m on.
-    assert float(np.linalg.norm(b.pos_m[2] - slot)) < 0.35 < 0.9 < start_gap, start_gap
+    # READY within the start tolerance (0.3 m) of the point, the leader ~1.2 m on.
+    assert float(np.linalg.norm(b.pos_m[2] - point)) < 0.35 < 0.9 < start_gap, start_gap
     # Without the leader the shard sends it to its mission start.
     blind, _, ctl2 = _sharded_in_flight(mission)
     _lose_and_hear_again(blind)
