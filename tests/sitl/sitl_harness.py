@@ -127,7 +127,17 @@ class SitlSwarm:
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=10)
 
+    def pause(self, k: int, on: bool) -> None:
+        """SIGSTOP (``on``) or SIGCONT instance ``k``: a vehicle whose link goes
+        quiet and comes back (its simulation is frozen meanwhile)."""
+        proc = self.procs.get(k)
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(signal.SIGSTOP if on else signal.SIGCONT)
+
     def stop(self) -> None:
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGCONT)  # a paused one hears its SIGTERM
         for proc in self.procs.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)

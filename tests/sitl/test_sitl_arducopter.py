@@ -24,6 +24,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -210,6 +211,29 @@ def test_scenario3_safety_filter_holds_on_the_vehicle(tmp_path: Path) -> None:
     assert o["min_separation_m"] >= mission.law.safety.separation
 
 
+async def _fly_acting(
+    mission: Mission, runs: Path, at_s: float, act: Callable[[], Awaitable[None]]
+) -> dict[str, Any]:
+    """Fly ``mission`` in this process (``run_mission``), ``act`` once the
+    status line says ``at_s`` [s] of formation flight, and return the run's
+    summary.json."""
+    holder: list[Any] = []
+    flying = asyncio.Event()
+
+    def status(line: str) -> None:
+        # "t=  61.20s | ... formation ...": that much formation flight
+        if line.startswith("t=") and float(line[2:].split("s", 1)[0]) >= at_s:
+            flying.set()
+
+    task = asyncio.create_task(
+        run_mission(mission, log_dir=runs, picture=False, on_folder=holder.append, on_status=status)
+    )
+    await flying.wait()
+    await act()
+    await task
+    return summary_of(holder[0].path)
+
+
 def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
     """SIGKILL one SITL instance in flight: it leaves, the other three re-form
     (equal radii within 1 %)."""
@@ -218,30 +242,10 @@ def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
         # instances 10-13 (ports 5860-5890), so it can run beside the others
         mission = with_links(load("sitl_arducopter.yaml"), swarm.links_from_one())
 
-        async def fly() -> dict[str, Any]:
-            holder: list[Any] = []
-            flying = asyncio.Event()
-
-            def status(line: str) -> None:
-                # "t=  61.20s | ... formation ...": 60 s of formation flight
-                if line.startswith("t=") and float(line[2:].split("s", 1)[0]) >= 60.0:
-                    flying.set()
-
-            task = asyncio.create_task(
-                run_mission(
-                    mission,
-                    log_dir=tmp_path / "runs",
-                    picture=False,
-                    on_folder=holder.append,
-                    on_status=status,
-                )
-            )
-            await flying.wait()
+        async def kill() -> None:
             swarm.kill(3)
-            await task
-            return summary_of(holder[0].path)
 
-        s = asyncio.run(fly())
+        s = asyncio.run(_fly_acting(mission, tmp_path / "runs", 60.0, kill))
     v = s["vehicles"]
     left = v["4"]["left_at_s"]
     radii = [v[k]["final_radius_m"] for k in ("1", "2", "3")]
@@ -251,6 +255,48 @@ def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
     )
     assert s["overall"]["vehicles_final"] == [1, 2, 3]
     np.testing.assert_allclose(radii, np.mean(radii), rtol=0.01)
+
+
+def test_paused_vehicle_rejoins_the_moving_formation(tmp_path: Path) -> None:
+    """SIGSTOP one SITL instance for 3 s at 20 s of formation flight (its link
+    quiet, shorter than FS_GCS_TIMEOUT), then SIGCONT: it leaves after the
+    stale timeout, is taken over in the air when heard again, flies to its
+    rejoin point beside the leader (3 m/s on the square until about 70 s)
+    with the leader's velocity as the feed-forward and rejoins while the
+    formation still moves; four at the end, equal radii within 1 %,
+    separation kept."""
+    binary_or_skip()
+    with sitl_swarm(4, tmp_path / "sitl", first=30) as swarm:
+        # instances 30-33 (ports 6060-6090), so it can run beside the others
+        mission = with_links(load("sitl_arducopter.yaml"), swarm.links_from_one())
+
+        async def pause() -> None:
+            swarm.pause(3, True)
+            await asyncio.sleep(3.0)
+            swarm.pause(3, False)
+
+        s = asyncio.run(_fly_acting(mission, tmp_path / "runs", 20.0, pause))
+    v = s["vehicles"]
+    radii = [v[k]["final_radius_m"] for k in ("1", "2", "3", "4")]
+    left, joins = v["4"]["left_at_s"], v["4"]["joined_at_s"]
+    write_figures(tmp_path, "sitl_vehicle_paused", {
+        "left_at_s": left, "joined_at_s": joins, "radii_m": radii,
+        "min_separation_m": s["overall"]["min_separation_m"],
+        "final": s["overall"]["vehicles_final"],
+    })  # fmt: skip
+    # left_at_s ends with the mission's end (everyone leaves then); before it,
+    # one leave (the pause) and a join after it.
+    end = mission.settings.duration
+    lost = [t for t in left if t < end]
+    assert len(lost) == 1 and lost[0] < joins[-1] < end, (left, joins)
+    # Back while the formation moves: the leader reaches the square's last
+    # corner at about 70 s. Measured 17.75 s after the leave (21.1 -> 38.85 s);
+    # the code that asked for rest at the slot itself rejoined at 70.5 s, 49.4 s
+    # after it. Bound 30 s.
+    assert joins[-1] - lost[0] < 30.0, (left, joins)
+    assert s["overall"]["vehicles_final"] == [1, 2, 3, 4]
+    np.testing.assert_allclose(radii, np.mean(radii), rtol=0.01)
+    assert s["overall"]["min_separation_m"] >= mission.law.safety.separation
 
 
 def test_killed_station_leaves_every_vehicle_landing(tmp_path: Path) -> None:
