@@ -242,7 +242,8 @@ class ControlLoop:
         without it. The law pulls it in from there (docs/formation-law.md
         section 9)."""
         leader = self.controller.leader_pos_m if leader_m is None else leader_m
-        offset = self.slot_m(start_m, leader) - leader
+        leader0 = np.asarray(self.config.leader.start, dtype=np.float64)
+        offset = np.asarray(start_m, dtype=np.float64) - leader0  # slot_m less the leader
         dist = float(np.linalg.norm(offset))
         ray = offset / dist if dist > 1e-9 else np.array([0.0, 0.0, 1.0])
         radius = self.formation_radius_m() if radius_m is None else radius_m
