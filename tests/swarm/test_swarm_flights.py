@@ -164,41 +164,52 @@ def test_a_vehicle_lost_while_it_ends_is_ended_when_heard_again_not_readied() ->
     assert {v.phase for v in sky.core.vehicles.values()} == {Phase.ENDED}
 
 
+def _silent_then_rejoined(
+    sky: Sky, sysid: int, silent_s: float, limit_s: float
+) -> tuple[float, set[str]]:
+    """Vehicle ``sysid`` silent until the core calls it lost and ``silent_s``
+    [s] more, then heard again; fly until it is in the formation again
+    (fail after ``limit_s`` [s]). Returns the mission time it was heard
+    again at [s] and the controls its autopilot flew meanwhile
+    (``Autopilot.control``)."""
+    core = sky.core
+    sky.set_silent(sysid)
+    sky.run_until(lambda: sysid not in core.flying, 3.0)
+    sky.advance(silent_s)
+    assert sysid not in core.flying and not core.finished
+    sky.set_silent(sysid, False)
+    t_back = core.control.t_s
+    ap, controls = sky.vehicles[sysid].ap, set()
+
+    def rejoined() -> bool:
+        controls.add(ap.control)
+        return sysid in core.flying
+
+    sky.run_until(rejoined, limit_s)
+    return t_back, controls
+
+
 def test_a_vehicle_heard_again_rejoins_a_moving_formation() -> None:
     """Scenario 3 with the safety filter, its leader moving at 1-1.4 m/s:
     vehicle 3 goes silent for 6 s. Heard again, it is taken over in the air
-    and flies to its slot beside the leader with the leader's velocity as
-    the setpoint's feed-forward (GUIDED pos-vel, type_mask 3520), to its
-    rejoin point (the safety separation outside the formation on its slot's
-    ray); READY asks for the leader's velocity, not rest, so it rejoins
-    (before, READY asked for 0.3 m/s absolute and it chased its slot to the
-    mission's end). Measured: heard again at 26.0 s, in the formation 5.7 s
-    later."""
+    and flies to its rejoin point (the safety separation outside the
+    formation on its slot's ray) with the leader's velocity as the
+    setpoint's feed-forward (GUIDED pos-vel, type_mask 3520); READY asks for
+    the leader's velocity, not rest, so it rejoins (before, READY asked for
+    0.3 m/s absolute and it chased its slot to the mission's end). Measured:
+    heard again at 26.0 s, in the formation 5.7 s later."""
     sky = Sky(mission_from("scenario3_safety.yaml", duration=60.0))
     core = sky.core
     sky.ready()
     sky.start()
     sky.run_until(lambda: core.control.t_s >= 20.0, 30.0)
-    sky.set_silent(3)
-    sky.run_until(lambda: 3 not in core.flying, 3.0)
-    sky.advance(5.0)
-    assert 3 not in core.flying and not core.finished
-    sky.set_silent(3, False)
-    t_back = core.control.t_s
-    vp, ap = core.vehicles[3], sky.vehicles[3].ap
-    controls = set()
-
-    def rejoined() -> bool:
-        controls.add(ap.control)
-        return 3 in core.flying
-
     # Bound 10 s: 1.75 times the measured 5.7 s (the hand clock repeats it
     # exactly; the margin is for changes in the take-over's reads).
-    sky.run_until(rejoined, 10.0)
+    t_back, controls = _silent_then_rejoined(sky, 3, 5.0, 10.0)
     assert "posvel" in controls, controls  # it chased a moving point, not a fixed one
     speed = float(np.linalg.norm(core.control.controller.leader_vel_mps))
     assert speed > 0.9  # the formation was moving when it came back
-    assert f"vehicle {vp.label} joins the formation (4 flying)" in "\n".join(core.log)
+    assert f"vehicle {core.vehicles[3].label} joins the formation (4 flying)" in "\n".join(core.log)
     assert core.control.t_s - t_back < 10.0
     sky.run_until(lambda: core.finished, 40.0)
     assert core.flying == {1, 2, 3, 4}
@@ -221,17 +232,7 @@ def test_an_emulated_px4_heard_again_rejoins_a_moving_formation() -> None:
     sky.start()
     sky.run_until(lambda: core.control.t_s >= 15.0, 30.0)
     assert float(np.linalg.norm(core.control.controller.leader_vel_mps)) > 0.6
-    sky.set_silent(3)
-    sky.run_until(lambda: 3 not in core.flying, 3.0)
-    sky.advance(3.0)
-    sky.set_silent(3, False)
-    ap, controls = sky.vehicles[3].ap, set()
-
-    def rejoined() -> bool:
-        controls.add(ap.control)
-        return 3 in core.flying
-
-    sky.run_until(rejoined, 15.0)
+    _, controls = _silent_then_rejoined(sky, 3, 3.0, 15.0)
     assert "posvel" in controls, controls
     sky.run_until(lambda: core.finished, 60.0)
     assert core.flying == {1, 2, 3, 4}
