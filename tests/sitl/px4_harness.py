@@ -124,6 +124,14 @@ class Px4Swarm:
         out = self.instances[i].folder / "out.log"
         return out.read_text(errors="replace") if out.is_file() else ""
 
+    def pause(self, i: int, on: bool) -> None:
+        """SIGSTOP (``on``) or SIGCONT instance ``i``'s process group: a vehicle
+        whose link goes quiet and comes back (its simulation, SIH in the same
+        process, is frozen meanwhile)."""
+        p = self.instances[i].proc
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGSTOP if on else signal.SIGCONT)
+
     def kill(self, i: int) -> None:
         """Stop instance ``i`` (SIGKILL to the process started here)."""
         p = self.instances[i].proc

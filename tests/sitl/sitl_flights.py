@@ -15,13 +15,14 @@ temporary folder) as one JSON file per test, and are printed (``-s``).
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import json
 import math
 import os
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.report.replay import record_from_tlog
 from gcs_swarm.report.tlog import read_tlog
+from gcs_swarm.runtime import run_mission
 from sim_vehicle import EmulatorConfig
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -264,6 +266,29 @@ def held_radii(summary: dict[str, Any], r_eq: float) -> dict[str, Any]:
             None if m is None else 100 * (m - r_eq) / r_eq for m in means
         ],
     }
+
+
+async def fly_acting(
+    mission: Mission, runs: Path, at_s: float, act: Callable[[], Awaitable[None]]
+) -> dict[str, Any]:
+    """Fly ``mission`` in this process (``run_mission``), ``act`` once the
+    status line says ``at_s`` [s] of formation flight, and return the run's
+    summary.json."""
+    holder: list[Any] = []
+    flying = asyncio.Event()
+
+    def status(line: str) -> None:
+        # "t=  61.20s | ... formation ...": that much formation flight
+        if line.startswith("t=") and float(line[2:].split("s", 1)[0]) >= at_s:
+            flying.set()
+
+    task = asyncio.create_task(
+        run_mission(mission, log_dir=runs, picture=False, on_folder=holder.append, on_status=status)
+    )
+    await flying.wait()
+    await act()
+    await task
+    return summary_of(holder[0].path)
 
 
 def load(name: str) -> Mission:

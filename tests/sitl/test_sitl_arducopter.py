@@ -24,7 +24,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +43,7 @@ from tests.sitl.sitl_flights import (
     curve_difference,
     emulator_replay_twin,
     error_curve,
+    fly_acting,
     formation_series,
     gcs_swarm_run,
     load,
@@ -211,29 +211,6 @@ def test_scenario3_safety_filter_holds_on_the_vehicle(tmp_path: Path) -> None:
     assert o["min_separation_m"] >= mission.law.safety.separation
 
 
-async def _fly_acting(
-    mission: Mission, runs: Path, at_s: float, act: Callable[[], Awaitable[None]]
-) -> dict[str, Any]:
-    """Fly ``mission`` in this process (``run_mission``), ``act`` once the
-    status line says ``at_s`` [s] of formation flight, and return the run's
-    summary.json."""
-    holder: list[Any] = []
-    flying = asyncio.Event()
-
-    def status(line: str) -> None:
-        # "t=  61.20s | ... formation ...": that much formation flight
-        if line.startswith("t=") and float(line[2:].split("s", 1)[0]) >= at_s:
-            flying.set()
-
-    task = asyncio.create_task(
-        run_mission(mission, log_dir=runs, picture=False, on_folder=holder.append, on_status=status)
-    )
-    await flying.wait()
-    await act()
-    await task
-    return summary_of(holder[0].path)
-
-
 def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
     """SIGKILL one SITL instance in flight: it leaves, the other three re-form
     (equal radii within 1 %)."""
@@ -245,7 +222,7 @@ def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
         async def kill() -> None:
             swarm.kill(3)
 
-        s = asyncio.run(_fly_acting(mission, tmp_path / "runs", 60.0, kill))
+        s = asyncio.run(fly_acting(mission, tmp_path / "runs", 60.0, kill))
     v = s["vehicles"]
     left = v["4"]["left_at_s"]
     radii = [v[k]["final_radius_m"] for k in ("1", "2", "3")]
@@ -275,7 +252,7 @@ def test_paused_vehicle_rejoins_the_moving_formation(tmp_path: Path) -> None:
             await asyncio.sleep(3.0)
             swarm.pause(3, False)
 
-        s = asyncio.run(_fly_acting(mission, tmp_path / "runs", 20.0, pause))
+        s = asyncio.run(fly_acting(mission, tmp_path / "runs", 20.0, pause))
     v = s["vehicles"]
     radii = [v[k]["final_radius_m"] for k in ("1", "2", "3", "4")]
     left, joins = v["4"]["left_at_s"], v["4"]["joined_at_s"]
