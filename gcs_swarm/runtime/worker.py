@@ -1,0 +1,51 @@
+"""CPU-bound pure jobs (the plane look-ahead) in a worker thread, without
+stalling the setpoint stream.
+
+A worker thread holding the GIL delays the event loop each time the loop
+gets it back: after every socket call (which releases it) the loop thread
+waits up to the interpreter's switch interval (5 ms by default) before
+the worker is made to drop it. A control step makes several such calls,
+so at the avoidance switch, with the look-ahead (~0.15-0.25 s of Python)
+running beside the loop, one setpoint interval stretched to 1.5-1.7
+periods at 50 Hz (``benchmarks/bench_lookahead.py``, target <= 1.5).
+While at least one such job runs, the switch interval is
+``JOB_SWITCH_INTERVAL_S`` (0.5 ms) and the previous value is put back
+when the last one ends (benchmarks/README.md, "Look-ahead gap"). The
+setting is the interpreter's, so it changes for the whole process while
+a job runs, then is restored.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+from collections.abc import Callable
+from typing import TypeVar
+
+__all__ = ["JOB_SWITCH_INTERVAL_S", "run_cpu_job"]
+
+T = TypeVar("T")
+
+JOB_SWITCH_INTERVAL_S = 0.0005
+"""The interpreter's switch interval [s] while a CPU-bound job runs in a
+worker thread (``sys.setswitchinterval``)."""
+
+_running = 0
+_saved = 0.0
+
+
+async def run_cpu_job(job: Callable[[], T]) -> T:
+    """``job()`` in a worker thread (``asyncio.to_thread``), the switch
+    interval shortened meanwhile (module docstring)."""
+    global _running, _saved
+    if _running == 0:
+        _saved = sys.getswitchinterval()
+        if _saved > JOB_SWITCH_INTERVAL_S:  # a shorter one is left alone
+            sys.setswitchinterval(JOB_SWITCH_INTERVAL_S)
+    _running += 1
+    try:
+        return await asyncio.to_thread(job)
+    finally:
+        _running -= 1
+        if _running == 0 and _saved > JOB_SWITCH_INTERVAL_S:
+            sys.setswitchinterval(_saved)
