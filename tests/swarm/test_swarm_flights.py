@@ -142,11 +142,12 @@ def test_a_vehicle_that_stops_answering_leaves_and_the_rest_go_on() -> None:
 
 
 def test_a_vehicle_lost_while_it_ends_is_ended_when_heard_again_not_readied() -> None:
-    """Measured on a stalled shard at its ending (benchmarks/README.md): 196 of
-    500 vehicles heard nothing for the heartbeat timeout, went LOST, and when
-    heard again were readied from scratch (CONFIGURING: streams, parameters,
-    then GUIDED) instead of ended. A vehicle the station is ending that comes
-    back gets its end mode, confirmed (BRAKE here: ArduCopter mode 17)."""
+    """Measured on a stalled shard at its ending (CHANGELOG.md, "Benchmark
+    history"): 196 of 500 vehicles heard nothing for the heartbeat timeout,
+    went LOST, and when heard again were readied from scratch (CONFIGURING:
+    streams, parameters, then GUIDED) instead of ended. A vehicle the
+    station is ending that comes back gets its end mode, confirmed (BRAKE
+    here: ArduCopter mode 17)."""
     sky = Sky(_tetrahedron(30.0))
     sky.ready()
     sky.start()
