@@ -43,16 +43,19 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
+from gcs_swarm.runtime.lifetime import reap
 from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
+from gcs_swarm.runtime.worker import run_cpu_job
 from gcs_swarm.runtime.zbus import Bus, TlsFiles, check_endpoint, free_endpoint
 from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
@@ -146,6 +149,8 @@ class ShardedRun:
         self._loop = asyncio.get_running_loop()
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
+        self.jobs: set[asyncio.Task[None]] = set()
+        """Plane look-aheads running off the step (real time)."""
 
     def now(self) -> float:
         return self._loop.time()
@@ -224,12 +229,23 @@ class ShardedRun:
                 self.bytes_per_step["reply"] += len(data)
                 self.bus.put(f"down/{reply.shard}/reply", data, droppable=self.droppable)
             self.bytes_per_step["steps"] += 1
+        for job in core.lookahead:
+            task = asyncio.ensure_future(self._lookahead(job))
+            self.jobs.add(task)
+            task.add_done_callback(self.jobs.discard)
+        core.lookahead.clear()
         if core.timer_moved:
             core.timer_moved = False
             self._arm()
         if core.finished:
             self.finished.set()
         self.changed.set()  # wait_for looks again (a step, a dead shard)
+
+    async def _lookahead(self, job: LookaheadJob) -> None:
+        """The plane look-ahead in a worker thread: the replies keep flowing."""
+        t0 = self.now()
+        result = await run_cpu_job(job)
+        self.core.resolve_lookahead(job, result, self.now() - t0)
 
     def _arm(self) -> None:
         due = self.core.get_timer()
@@ -422,13 +438,14 @@ async def run_sharded(
         run.endpoint = endpoint
         run.emulators = emulators
         run.listen()
+        stack.callback(lambda: [job.cancel() for job in run.jobs])
         beating = asyncio.ensure_future(run.beat())
         stack.callback(beating.cancel)
         if on_status is not None:
             showing = asyncio.ensure_future(run.status(on_status))
             stack.callback(showing.cancel)
         if spawn:
-            stack.push_async_callback(_reap, run.processes, end_timeout_s + 5.0)
+            stack.push_async_callback(reap, run.processes, end_timeout_s + 5.0)
             for _ in range(shards):
                 proc = await asyncio.create_subprocess_exec(
                     sys.executable, "-m", "gcs_swarm", "shard", "--connect", endpoint,
@@ -478,21 +495,3 @@ async def run_sharded(
                 on_summary(summary)
     assert summary is not None  # the ending above ran
     return summary
-
-
-async def _reap(processes: list[asyncio.subprocess.Process], wait_s: float) -> None:
-    """Wait for the shard processes this run started (they exit once they
-    sent their report); one still there after 2 s gets SIGTERM (it ends its
-    vehicles, then exits: ``runtime.shard``), after ``wait_s`` more SIGKILL."""
-    for grace, stop in ((2.0, "terminate"), (wait_s, "kill"), (None, "")):
-        live = [p for p in processes if p.returncode is None]
-        if not live:
-            return
-        try:
-            async with asyncio.timeout(grace):
-                for proc in live:
-                    await proc.wait()
-        except TimeoutError:
-            for proc in live:
-                if proc.returncode is None:
-                    getattr(proc, stop)()

@@ -36,10 +36,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope, LawConfig
 from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
-from gcs_swarm.swarm.step import command
+from gcs_swarm.swarm.step import command, resolve_lookahead
 
 if TYPE_CHECKING:
     from gcs_swarm.report.record import FlightRecorder
@@ -85,8 +86,12 @@ class ControllerCore:
         """``recorder`` (a run with a folder) gets every step of the law and
         every vehicle that comes into or goes out of it, as one station's
         (``SwarmCore``) does; its annotations go to the controller's log."""
-        # The plane look-ahead runs inline at its step: no worker thread here.
-        self.control = ControlLoop(law, charges, rate_hz, defer=False)
+        # The plane look-ahead: in real time off the step, as one station runs it
+        # (``lookahead``, ``resolve_lookahead``); in lockstep inline at its step,
+        # where the emulators wait for it and the run stays repeatable.
+        self.control = ControlLoop(law, charges, rate_hz, defer=not lockstep)
+        self.lookahead: list[LookaheadJob] = []
+        """Plane look-aheads to run off the step; the shell empties it."""
         self.rate_hz = rate_hz
         self.duration_s = duration_s
         self.stale_timeout_s = stale_timeout_s
@@ -229,6 +234,9 @@ class ControllerCore:
                 return []
             out, accel, report = commanded
             self.control.account(ids, pos, out, accel, report)
+            job = self.control.pending_lookahead()
+            if job is not None:
+                self.lookahead.append(job)
             row = {s: i for i, s in enumerate(ids)}
             for v in live:
                 if not v.delivered:
@@ -277,6 +285,10 @@ class ControllerCore:
 
     def dead_shards(self) -> list[int]:
         return [v.index for v in self.shards.values() if not v.alive]
+
+    def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult, took_s: float) -> None:
+        """A look-ahead's ``result``, computed off the step in ``took_s`` [s]."""
+        self.note(resolve_lookahead(self.control, job, result, took_s))
 
     def note(self, text: str, *, level: int = logging.INFO) -> None:
         _log.log(level, "%s", text)

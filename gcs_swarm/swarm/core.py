@@ -53,7 +53,7 @@ from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import Phase, ProtocolEvent
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
-from gcs_swarm.swarm.step import READYING, Write, run_step
+from gcs_swarm.swarm.step import READYING, Write, resolve_lookahead, run_step
 
 if TYPE_CHECKING:  # plain data of the layer above, for the types only
     from gcs_swarm.report.record import FlightRecorder
@@ -427,12 +427,7 @@ class SwarmCore:
 
     def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult, took_s: float) -> None:
         """A look-ahead's ``result``, computed off the step in ``took_s`` [s]."""
-        self.control.resolve_lookahead(job, result)
-        n_vertical = int(result.vertical.sum())
-        self.note(
-            f"look-ahead for episode {job.episode}: vertical plane for {n_vertical} of "
-            f"{len(result.ids)} vehicles ({1e3 * took_s:.0f} ms in a worker thread)"
-        )
+        self.note(resolve_lookahead(self.control, job, result, took_s))
 
     # --------------------------------------------------------------- ending
     def abort(self, why: str) -> None:

@@ -26,6 +26,7 @@ from gcs_swarm.mavlink.states import Phase
 
 if TYPE_CHECKING:
     from gcs_swarm.control.law import ControlOutput
+    from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
     from gcs_swarm.control.loop import ControlLoop
     from gcs_swarm.control.safety_stats import SafetyReport
     from gcs_swarm.report.record import FlightRecorder
@@ -40,6 +41,7 @@ __all__ = [
     "answer",
     "command",
     "flying_states",
+    "resolve_lookahead",
     "run_step",
     "send_rejoiners",
 ]
@@ -258,3 +260,17 @@ def answer(
     if core.delay is not None:
         for k, sysid in enumerate(sysids):
             core.delay.sent(sysid, now, accel[k])
+
+
+def resolve_lookahead(
+    control: ControlLoop, job: LookaheadJob, result: LookaheadResult, took_s: float
+) -> str:
+    """Apply a plane look-ahead's ``result``, computed off the step in
+    ``took_s`` [s] (in a worker thread: ``runtime.worker``); the note that
+    says what it chose."""
+    control.resolve_lookahead(job, result)
+    n_vertical = int(result.vertical.sum())
+    return (
+        f"look-ahead for episode {job.episode}: vertical plane for {n_vertical} of "
+        f"{len(result.ids)} vehicles ({1e3 * took_s:.0f} ms in a worker thread)"
+    )

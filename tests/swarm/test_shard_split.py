@@ -209,7 +209,7 @@ def test_the_shard_side_watches_its_controller_on_the_hand_clock() -> None:
 
 
 def _sharded_in_flight(
-    mission: Mission, *, beats: bool = False
+    mission: Mission, *, beats: bool = False, lockstep: bool = False
 ) -> tuple[Sky, ShardSide, ControllerCore]:
     """``mission`` on the harness with its step through the split, readied and
     started as a shard and its controller start it (``runtime/shard.py``);
@@ -221,7 +221,7 @@ def _sharded_in_flight(
     side = ShardSide(sky.core, 0, s.stale_timeout)
     ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=1,
                          duration_s=s.duration, stale_timeout_s=s.stale_timeout,
-                         lockstep=False)  # fmt: skip
+                         lockstep=lockstep)  # fmt: skip
 
     def step(now: float, write: Write) -> None:
         batch = side.take_state(now)
@@ -262,6 +262,40 @@ def test_the_split_flies_the_station_s_numbers_on_the_hand_clock() -> None:
     assert a.accel_mps2.tobytes() == b.accel_mps2.tobytes()
     assert one.core.control.steps == ctl.control.steps
     assert one.answered == split.answered and side.replies == ctl.control.steps
+
+
+def test_the_controller_runs_the_plane_look_ahead_off_its_step_in_real_time() -> None:
+    """Scenario 3 (``plane: auto``) through the split. In real time the
+    controller hands the look-ahead out (``ControllerCore.lookahead``, run by
+    its shell in a worker thread: ``runtime.sharded``) and answers the step
+    the episode starts at, as one station does; before, it ran the 0.15-0.25 s
+    job inline, and no shard had a reply meanwhile. In lockstep it stays
+    inline (the emulators wait for it; the run stays repeatable)."""
+    mission = mission_from("scenario3_obstacle.yaml", duration=30.0)
+    sky, side, ctl = _sharded_in_flight(mission)
+    before = [side.replies]
+
+    def handed_out() -> bool:
+        if ctl.lookahead:
+            return True
+        before[0] = side.replies  # the replies before the next physics step
+        return False
+
+    sky.run_until(handed_out, 25.0)
+    assert side.replies == before[0] + 1  # the step that handed the job out was answered
+    job = ctl.lookahead.pop()
+    t_job = ctl.control.t_s
+    sky.advance(0.5)  # 25 steps flown on the horizontal plane meanwhile
+    assert not ctl.lookahead  # one job per episode and obstacle
+    ctl.resolve_lookahead(job, job(), 0.5)
+    assert any(line.startswith(f"look-ahead for episode {job.episode}:") for line in ctl.log)
+    sky.run_until(lambda: sky.core.finished, 30.0)
+    assert ctl.finished and ctl.failure is None
+    # In lockstep the same episode starts with no job handed out.
+    sky2, _, ctl2 = _sharded_in_flight(mission, lockstep=True)
+    sky2.run_until(lambda: ctl2.control.t_s >= t_job + 1.0, 30.0)
+    assert not ctl2.lookahead
+    assert not any(line.startswith("look-ahead for episode") for line in ctl2.log)
 
 
 def test_a_shard_whose_controller_falls_silent_ends_its_vehicles_on_the_hand_clock() -> None:
