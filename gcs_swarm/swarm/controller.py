@@ -86,7 +86,7 @@ class ControllerCore:
         """``recorder`` (a run with a folder) gets every step of the law and
         every vehicle that comes into or goes out of it, as one station's
         (``SwarmCore``) does; its annotations go to the controller's log."""
-        # The plane look-ahead: in real time off the step, as one station runs it
+        # The plane look-ahead as one station runs it: in real time off the step
         # (``lookahead``, ``resolve_lookahead``); in lockstep inline at its step,
         # where the emulators wait for it and the run stays repeatable.
         self.control = ControlLoop(law, charges, rate_hz, defer=not lockstep)

@@ -100,8 +100,11 @@ class SwarmCore:
         """The flying vehicles' telemetry (the links write it, the step reads it)."""
         if recorder is not None:
             self.table.on_inbound = recorder.inbound
+        # The plane look-ahead: in real time off the step (``lookahead``, run by
+        # the shell in a worker thread); in lockstep inline at its step, where
+        # the emulator waits for it, so that a run with obstacles is repeatable.
         self.control = ControlLoop(config.law, {p.sysid: p.q for p in config.vehicles},
-                                   config.rate_hz)  # fmt: skip
+                                   config.rate_hz, defer=not config.lockstep)  # fmt: skip
         self.links = list(dict.fromkeys(p.link for p in config.vehicles))
         """The mission's links (connection strings), in the order first named."""
         self.link_of = {p.sysid: p.link for p in config.vehicles}
