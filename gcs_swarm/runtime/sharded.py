@@ -43,7 +43,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
@@ -55,7 +54,7 @@ from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_conf
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
-from gcs_swarm.runtime.worker import run_cpu_job
+from gcs_swarm.runtime.worker import run_lookahead
 from gcs_swarm.runtime.zbus import Bus, TlsFiles, check_endpoint, free_endpoint
 from gcs_swarm.swarm.controller import ControllerCore
 from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
@@ -230,7 +229,7 @@ class ShardedRun:
                 self.bus.put(f"down/{reply.shard}/reply", data, droppable=self.droppable)
             self.bytes_per_step["steps"] += 1
         for job in core.lookahead:
-            task = asyncio.ensure_future(self._lookahead(job))
+            task = asyncio.ensure_future(run_lookahead(core, job, self.now))
             self.jobs.add(task)
             task.add_done_callback(self.jobs.discard)
         core.lookahead.clear()
@@ -240,12 +239,6 @@ class ShardedRun:
         if core.finished:
             self.finished.set()
         self.changed.set()  # wait_for looks again (a step, a dead shard)
-
-    async def _lookahead(self, job: LookaheadJob) -> None:
-        """The plane look-ahead in a worker thread: the replies keep flowing."""
-        t0 = self.now()
-        result = await run_cpu_job(job)
-        self.core.resolve_lookahead(job, result, self.now() - t0)
 
     def _arm(self) -> None:
         due = self.core.get_timer()

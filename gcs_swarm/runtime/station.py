@@ -21,7 +21,6 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
-from gcs_swarm.control.lookahead import LookaheadJob
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
@@ -35,7 +34,7 @@ from gcs_swarm.runtime.config import StationConfig, VehiclePlan
 from gcs_swarm.runtime.delay import DelayCompensator
 from gcs_swarm.runtime.lifetime import close_task_group
 from gcs_swarm.runtime.links import Link
-from gcs_swarm.runtime.worker import run_cpu_job
+from gcs_swarm.runtime.worker import run_lookahead
 from gcs_swarm.swarm.core import SwarmCore
 from gcs_swarm.swarm.link_state import OnFrame
 from gcs_swarm.swarm.status import StatusLine
@@ -396,7 +395,7 @@ class Station:
             if self.on_step is not None:
                 self.on_step()
             for job in self.core.lookahead:
-                self._tasks.append(self._tg.create_task(self._lookahead(job)))
+                self._tasks.append(self._tg.create_task(run_lookahead(self.core, job, self.now)))
             self.core.lookahead.clear()
             self._after()
 
@@ -406,13 +405,6 @@ class Station:
             link.flush()
         else:
             link.send_accel_setpoints(*batch)
-
-    async def _lookahead(self, job: LookaheadJob) -> None:
-        """The plane look-ahead in a worker thread: setpoints keep flowing
-        (``runtime.worker``: the GIL handed back within 0.5 ms meanwhile)."""
-        t0 = self.now()
-        result = await run_cpu_job(job)
-        self.core.resolve_lookahead(job, result, self.now() - t0)
 
     # ------------------------------------------------------ periodic tasks
     async def _timesync_task(self) -> None:

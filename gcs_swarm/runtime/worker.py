@@ -20,9 +20,12 @@ from __future__ import annotations
 import asyncio
 import sys
 from collections.abc import Callable
-from typing import TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
-__all__ = ["JOB_SWITCH_INTERVAL_S", "run_cpu_job"]
+if TYPE_CHECKING:
+    from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
+
+__all__ = ["JOB_SWITCH_INTERVAL_S", "run_cpu_job", "run_lookahead"]
 
 T = TypeVar("T")
 
@@ -49,3 +52,20 @@ async def run_cpu_job(job: Callable[[], T]) -> T:
         _running -= 1
         if _running == 0 and _saved > JOB_SWITCH_INTERVAL_S:
             sys.setswitchinterval(_saved)
+
+
+class _Resolving(Protocol):
+    """What takes a look-ahead's result: ``SwarmCore`` and ``ControllerCore``."""
+
+    def resolve_lookahead(
+        self, job: LookaheadJob, result: LookaheadResult, took_s: float
+    ) -> None: ...
+
+
+async def run_lookahead(core: _Resolving, job: LookaheadJob, now: Callable[[], float]) -> None:
+    """The plane look-ahead ``job`` off the step (``run_cpu_job``: the setpoints
+    keep flowing), its result handed to ``core`` with the time it took [s] on
+    the shell's clock ``now``."""
+    t0 = now()
+    result = await run_cpu_job(job)
+    core.resolve_lookahead(job, result, now() - t0)
