@@ -381,7 +381,7 @@ async def run_sharded(
     when a shard cannot ready its vehicles (every shard then lands its
     airborne ones)."""
     check_shards(mission, shards)
-    endpoint = check_endpoint(endpoint) if endpoint else free_endpoint()
+    endpoint = check_endpoint(endpoint) if endpoint else None
     wall0 = time.monotonic()
     given = dict(links or {})
     sims = [v for v in mission.vehicles if v.is_sim and v.key not in given]
@@ -425,7 +425,12 @@ async def run_sharded(
              "tlogs": log.tlogs(nets[i::shards])}
             for i in range(shards)
         ]  # fmt: skip
-        bus = await stack.enter_async_context(Bus(listen=[endpoint], tls=tls, shm=shm))
+        bus = await stack.enter_async_context(
+            Bus(listen=[endpoint], tls=tls, shm=shm)
+            if endpoint
+            else Bus.on_free_port(tls=tls, shm=shm)  # a port taken meanwhile: another one
+        )
+        endpoint = bus.listen[0]
         run = ShardedRun(bus, core, assignment)
         run.droppable = not lockstep
         run.endpoint = endpoint

@@ -98,6 +98,11 @@ Zenoh closes the link [s]: the stale timeout, after which the other side
 has ended its vehicles anyway (docs/architecture.md, "Shared memory and
 congestion"); Zenoh's own default is 5 s, a 5 s stall of this loop."""
 
+PICK_ATTEMPTS = 5
+"""How many ports ``Bus.on_free_port`` tries before it gives up (each a
+fresh pick of the OS; one taken in between is a rare race, five in a row
+is a machine out of ports)."""
+
 Handler = Callable[[str, bytes], None]
 
 
@@ -115,7 +120,9 @@ def check_endpoint(text: str, option: str = "--connect") -> str:
 
 def free_endpoint(scheme: str = "tcp") -> str:
     """``SCHEME/127.0.0.1:<port>`` on a port free now (the OS's pick; a UDP
-    port for ``quic/``, which runs over UDP, a TCP port otherwise)."""
+    port for ``quic/``, which runs over UDP, a TCP port otherwise). Another
+    socket may take it before Zenoh binds it: ``Bus.on_free_port`` then
+    picks again."""
     kind = socket.SOCK_DGRAM if scheme == "quic" else socket.SOCK_STREAM
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
@@ -243,6 +250,7 @@ class Bus:
             raise UsageError("TLS files are for quic/ and tls/ endpoints only")
         self.tls = tls
         self.shm = shm
+        self._pick: Callable[[], str] | None = None
         self._session: Any = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._subs: list[Any] = []
@@ -253,15 +261,37 @@ class Bus:
         self.shm_in = 0
         """Samples in, and those of them that came in shared memory (module docstring)."""
 
+    @classmethod
+    def on_free_port(
+        cls,
+        scheme: str = "tcp",
+        *,
+        tls: TlsFiles | None = None,
+        shm: bool = True,
+        pick: Callable[[str], str] = free_endpoint,
+    ) -> Bus:
+        """A session listening on a free 127.0.0.1 port of ``scheme``
+        (``pick(scheme)``, ``free_endpoint`` by default; ``listen[0]`` once
+        entered): a port taken between the pick and Zenoh's bind is picked
+        again, up to ``PICK_ATTEMPTS`` times."""
+        bus = cls(listen=[pick(scheme)], tls=tls, shm=shm)
+        bus._pick = lambda: pick(scheme)
+        return bus
+
     async def __aenter__(self) -> Bus:
         self._loop = asyncio.get_running_loop()
-        cfg = _config(self.listen, self.connect, self.tls, self.shm)
-        where = ", ".join(self.listen + self.connect)
-        try:
-            self._session = await asyncio.to_thread(zenoh.open, cfg)
-        except Exception as err:  # zenoh.ZError: the locator did not open
-            raise LinkError(f"zenoh session on {where}: {err}") from None
-        return self
+        for attempt in range(1, PICK_ATTEMPTS + 1):
+            cfg = _config(self.listen, self.connect, self.tls, self.shm)
+            try:
+                self._session = await asyncio.to_thread(zenoh.open, cfg)
+                return self
+            except Exception as err:  # zenoh.ZError: the locator did not open
+                where = ", ".join(self.listen + self.connect)
+                if self._pick is None or "in use" not in str(err) or attempt == PICK_ATTEMPTS:
+                    raise LinkError(f"zenoh session on {where}: {err}") from None
+                _log.info("%s was taken before zenoh bound it; picking another port", where)
+                self.listen = (self._pick(),)
+        raise AssertionError("unreachable")  # pragma: no cover
 
     def hint(self) -> str:
         """What a timed-out handshake may mean on this bus: with TLS, a peer

@@ -24,7 +24,7 @@ from collections.abc import Callable
 import pytest
 
 from gcs_swarm.errors import UsageError
-from gcs_swarm.runtime.zbus import Bus, free_endpoint
+from gcs_swarm.runtime.zbus import Bus
 from tests.station.tls_harness import Pki, make_pki
 
 EXCHANGE_S = 20.0
@@ -53,14 +53,13 @@ def foreign(tmp_path_factory: pytest.TempPathFactory) -> Pki:
 def test_a_shard_with_the_ca_s_files_exchanges_messages_with_its_controller(
     scheme: str, pki: Pki
 ) -> None:
-    endpoint = free_endpoint(scheme)
     up: list[bytes] = []
     down: list[bytes] = []
 
     async def main() -> None:
         async with (
-            Bus(listen=[endpoint], tls=pki.controller) as controller,
-            Bus(connect=[endpoint], tls=pki.shard) as shard,
+            Bus.on_free_port(scheme, tls=pki.controller) as controller,
+            Bus(connect=[controller.listen[0]], tls=pki.shard) as shard,
         ):
             controller.subscribe("t/up", lambda key, data: up.append(data))
             shard.subscribe("t/down", lambda key, data: down.append(data))
@@ -79,7 +78,6 @@ def test_a_shard_without_the_right_ca_or_certificate_never_joins(pki: Pki, forei
     one that trusts another CA (and has that CA's certificate) and the one
     that trusts the right CA but shows another CA's certificate (refused by
     mutual TLS) receive nothing, and nothing they send is received."""
-    endpoint = free_endpoint("quic")
     wrong_cert = dataclasses.replace(pki.shard, cert=foreign.shard.cert, key=foreign.shard.key)
     shards = {"good": pki.shard, "foreign_ca": foreign.shard, "foreign_cert": wrong_cert}
     up: dict[str, list[bytes]] = {name: [] for name in shards}
@@ -96,7 +94,8 @@ def test_a_shard_without_the_right_ca_or_certificate_never_joins(pki: Pki, forei
 
             return on
 
-        async with Bus(listen=[endpoint], tls=pki.controller) as controller:
+        async with Bus.on_free_port("quic", tls=pki.controller) as controller:
+            endpoint = controller.listen[0]
             for name in shards:
                 controller.subscribe(f"t/up/{name}", heard(up[name]))
             buses = [Bus(connect=[endpoint], tls=files) for files in shards.values()]

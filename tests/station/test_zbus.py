@@ -6,10 +6,13 @@ off on either side none does."""
 from __future__ import annotations
 
 import asyncio
+import socket
+from collections.abc import Iterator
 
 import pytest
 
-from gcs_swarm.runtime.zbus import SHM_THRESHOLD_BYTES, Bus, free_endpoint
+from gcs_swarm.errors import LinkError
+from gcs_swarm.runtime.zbus import PICK_ATTEMPTS, SHM_THRESHOLD_BYTES, Bus, free_endpoint
 
 BIG = 84 * 1000 + 24
 """A state batch of 1,000 vehicles [bytes] (24 + 60 per vehicle)."""
@@ -22,14 +25,15 @@ class _Pair:
     """A listening session (the controller) and a connecting one (a shard)."""
 
     def __init__(self, *, ctl_shm: bool = True, shard_shm: bool = True) -> None:
-        endpoint = free_endpoint()
-        self.ctl = Bus(listen=[endpoint], shm=ctl_shm)
-        self.shard = Bus(connect=[endpoint], shm=shard_shm)
+        self.ctl = Bus.on_free_port(shm=ctl_shm)
+        self.shard_shm = shard_shm
+        self.shard = Bus()
         self.got: dict[str, list[bytes]] = {"state": [], "msg": []}
         self.arrived = asyncio.Event()
 
     async def open(self) -> None:
         await self.ctl.__aenter__()
+        self.shard = Bus(connect=[self.ctl.listen[0]], shm=self.shard_shm)
         await self.shard.__aenter__()
         self.ctl.subscribe("up/0/state", lambda key, data: self._on("state", data))
         self.ctl.subscribe("up/0/msg", lambda key, data: self._on("msg", data))
@@ -132,3 +136,62 @@ def test_shared_memory_off_on_either_side_sends_bytes(ctl_shm: bool, shard_shm: 
 
     ctl = asyncio.run(main())
     assert (ctl.samples_in, ctl.shm_in) == (10, 0)
+
+
+def _taken_then_free(holder: socket.socket, taken: int) -> Iterator[str]:
+    """``taken`` ports held by ``holder``'s kind of socket, then free ones."""
+    for _ in range(taken):
+        yield f"tcp/127.0.0.1:{holder.getsockname()[1]}"
+    while True:
+        yield free_endpoint()
+
+
+def test_a_free_port_taken_before_zenoh_binds_it_is_picked_again() -> None:
+    """The race ``free_endpoint`` leaves open (its port is free when picked,
+    another socket may bind it before Zenoh does), forced: the first two
+    picks are a port a listening TCP socket holds. ``Bus.on_free_port``
+    listens on the third, and a shard connecting there is heard."""
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        picks = _taken_then_free(holder, 2)
+        tried: list[str] = []
+
+        def pick(scheme: str) -> str:
+            tried.append(next(picks))
+            return tried[-1]
+
+        async def main() -> list[bytes]:
+            got: list[bytes] = []
+            async with Bus.on_free_port(pick=pick) as ctl:
+                assert ctl.listen == (tried[-1],)
+                async with Bus(connect=[ctl.listen[0]]) as shard:
+                    ctl.subscribe("t", lambda key, data: got.append(data))
+                    async with asyncio.timeout(20):  # ~0.1 s on an idle machine
+                        while not got:
+                            shard.put("t", b"hello")
+                            await asyncio.sleep(0.05)
+            return got
+
+        assert asyncio.run(main())[0] == b"hello"
+        assert len(tried) == 3 and tried[0] == tried[1] != tried[2]
+
+
+def test_a_given_port_that_is_taken_is_an_error_and_so_are_too_many_taken_picks() -> None:
+    """An endpoint the user named is never swapped for another: taken, it is
+    a ``LinkError`` naming it; and ``on_free_port`` gives up after
+    ``PICK_ATTEMPTS`` taken picks (a machine out of ports), naming the last."""
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        endpoint = f"tcp/127.0.0.1:{holder.getsockname()[1]}"
+        picks = _taken_then_free(holder, PICK_ATTEMPTS)
+
+        async def main(bus: Bus) -> None:
+            async with bus:
+                pass
+
+        with pytest.raises(LinkError, match=f"zenoh session on {endpoint}: .*in use"):
+            asyncio.run(main(Bus(listen=[endpoint])))
+        with pytest.raises(LinkError, match=f"zenoh session on {endpoint}: .*in use"):
+            asyncio.run(main(Bus.on_free_port(pick=lambda scheme: next(picks))))
