@@ -258,7 +258,8 @@ def test_px4_paused_vehicle_rejoins_the_moving_formation(
     # Back while the formation moves (the leader moves until the end; the code
     # that asked for rest at the slot would not rejoin before it). Measured 9.7,
     # 11.0 and 20.0 s after the leave, the pos-vel chase 6.0, 5.3 and 14.5 s of
-    # it; bound 35 s, 1.75 times the slowest run.
+    # it; three more runs 9.7, 14.1 and 14.6 s (PX4 overshoots the moving point
+    # and trails back: docs/sitl.md); bound 35 s, 1.75 times the slowest run.
     assert joins[-1] - lost[0] < 35.0, (left, joins)
     assert s["overall"]["vehicles_final"] == [1, 2, 3, 4]
     assert s["overall"]["min_separation_m"] >= mission.law.safety.separation
