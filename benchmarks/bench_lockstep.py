@@ -12,6 +12,13 @@ setpoint per telemetry), as a multiple of real time (50 steps/s), and the
 emulator's lockstep timeouts (0 = every step was answered). The emulator
 alone with a minimal stand-in for the station is ``bench_emulator.py``.
 
+``--product`` times ``gcs-swarm run``'s own path instead: ``run_mission`` on
+Example 1 as shipped (the bundled emulator in the station's process and event
+loop, each vehicle on its own UDP endpoint, as SITL instances are) and the
+same with ``emulator.shared: true`` (one endpoint for all six), alternated, on
+one core; reported is the formation's speed, from the station's "formation
+started" log line to its "reached the duration" (150 s of mission time).
+
 ``--same-core`` pins the emulator to the station's core as well. The loop is
 sequential (emulator step, reports, station step, setpoints), so a second
 core buys it nothing, while every datagram then has to wake the other side
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
 import statistics
 import subprocess
 import sys
@@ -97,16 +105,76 @@ async def one_run(seconds: float, emulator_core: int = 0) -> dict[str, float]:
     }
 
 
+class _Marks(logging.Handler):
+    """The wall times of the station's "formation started" and "reached the
+    duration" lines."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.marks: dict[str, float] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        for key, words in (("start", "formation started"), ("end", "reached the duration")):
+            if words in text:
+                self.marks[key] = time.monotonic()
+
+
+def product_run(shared: bool) -> float:
+    """``run_mission`` on Example 1 (``shared``: its sim vehicles on one
+    endpoint); the formation's speed as a multiple of real time."""
+    from gcs_swarm.runtime import run_mission
+
+    m = load_mission_file()
+    m = replace(m, emulator=replace(m.emulator, shared=shared))
+    marks = _Marks()
+    log = logging.getLogger("gcs_swarm")
+    level, propagate = log.level, log.propagate
+    log.addHandler(marks)
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    try:
+        summary = asyncio.run(run_mission(m, log_dir=None))
+    finally:
+        log.removeHandler(marks)
+        log.setLevel(level)
+        log.propagate = propagate
+    return summary.mission_time_s / (marks.marks["end"] - marks.marks["start"])
+
+
+def load_mission_file():  # type: ignore[no-untyped-def]
+    from gcs_swarm.mission import load_mission
+
+    return load_mission(MISSION)
+
+
+def product(runs: int) -> None:
+    where = pin(1)
+    print(f"gcs-swarm run's path, Example 1 (N = 6, lockstep), one process on {where}")
+    got: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(runs):
+        for shared in (False, True):
+            got[shared].append(product_run(shared))
+    for shared, xs in got.items():
+        name = "emulator.shared: true" if shared else "as shipped (an endpoint per vehicle)"
+        print(f"{name}: median {statistics.median(xs):.1f}x real time "
+              f"(runs {', '.join(f'{x:.1f}' for x in xs)}; target 50x)")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--emulator", action="store_true")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--same-core", action="store_true", help="the emulator on the station's core")
+    ap.add_argument("--product", action="store_true", help="time gcs-swarm run's own path")
     ap.add_argument("--emulator-core", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.emulator:
         asyncio.run(emulator_main(args.emulator_core))
+        return
+    if args.product:
+        product(args.runs)
         return
     where = pin(1)
     emu_core = 1 if args.same_core else 0
