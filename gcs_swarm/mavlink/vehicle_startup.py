@@ -130,8 +130,11 @@ class _Startup(_VehicleBase):
             self._timers.pop(name, None)
         self._set_phase(Phase.SETTING_GUIDED, now)
         if self._guided_asks < self.config.guided_attempts:  # else _send_guided fails it
+            # The first loss is routine (ArduCopter's end-of-boot STABILIZE, on
+            # every fresh start: docs/mavlink-protocol.md): the log has it; a
+            # second one is worth the operator's attention.
             self._event(
-                "warning",
+                "info" if self._guided_asks == 1 else "warning",
                 f"vehicle {self.label}: {why}: asking for {self.personality.ready_label} again "
                 f"({self._guided_asks + 1} of at most {self.config.guided_attempts})",
             )
