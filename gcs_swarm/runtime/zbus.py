@@ -280,7 +280,8 @@ class Bus:
 
     async def __aenter__(self) -> Bus:
         self._loop = asyncio.get_running_loop()
-        for attempt in range(1, PICK_ATTEMPTS + 1):
+        attempt = 1
+        while True:
             cfg = _config(self.listen, self.connect, self.tls, self.shm)
             try:
                 self._session = await asyncio.to_thread(zenoh.open, cfg)
@@ -291,7 +292,7 @@ class Bus:
                     raise LinkError(f"zenoh session on {where}: {err}") from None
                 _log.info("%s was taken before zenoh bound it; picking another port", where)
                 self.listen = (self._pick(),)
-        raise AssertionError("unreachable")  # pragma: no cover
+                attempt += 1
 
     def hint(self) -> str:
         """What a timed-out handshake may mean on this bus: with TLS, a peer
