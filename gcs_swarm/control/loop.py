@@ -31,9 +31,10 @@ from gcs_swarm.control.cutoff import DENSE_SHARE, neighbour_pairs
 from gcs_swarm.control.envelope import CommandShaper
 from gcs_swarm.control.formation_rows import SMALL_N
 from gcs_swarm.control.law import ControlOutput, SwarmController
+from gcs_swarm.control.limits import box_signed_distance as box_distances
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.obstacles import box_signed_distance
-from gcs_swarm.control.params import Envelope, LawConfig
+from gcs_swarm.control.params import Box, Envelope, LawConfig
 from gcs_swarm.control.safety import SafetyFilter, SafetyReport, SafetyStats, filter_acts
 
 __all__ = ["ControlLoop", "StepResult"]
@@ -90,6 +91,11 @@ class ControlLoop:
         self.min_clearance_m = math.inf
         """Smallest signed distance [m] of any vehicle to any box seen at a
         step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
+        self.keep_out: dict[int, Box] = {}
+        """Keep-out columns of vehicles that left unheard, by key (``keep_out_of``)."""
+        self.min_keep_out_m = math.inf
+        """Smallest signed distance [m] of any member to a keep-out column at a
+        step (the filter keeps ``safety.separation``)."""
         self._boot_ms: dict[int, int] = {}
         """Each vehicle's last time_boot_ms."""
         self._offset_ms: dict[int, int] = {}
@@ -145,7 +151,21 @@ class ControlLoop:
         law = self.config
         self.safety = SafetyFilter(limits, law.safety, law.obstacles, dt=1.0 / self.rate_hz)
         self.shaper = CommandShaper(env, 1.0 / self.rate_hz)
+        self.safety.set_keep_out(tuple(self.keep_out.values()))
         return env
+
+    def keep_out_of(self, key: int, box: Box) -> None:
+        """Vehicle ``key`` left unheard: the members keep the safety separation
+        from ``box`` (Eq. K1, ``keep_out.lost_column``) until ``release``."""
+        self.keep_out[key] = box
+        self.safety.set_keep_out(tuple(self.keep_out.values()))
+
+    def release(self, key: int) -> bool:
+        """Vehicle ``key``'s keep-out ends (it is heard again); False if it had none."""
+        if self.keep_out.pop(key, None) is None:
+            return False
+        self.safety.set_keep_out(tuple(self.keep_out.values()))
+        return True
 
     def forget(self, sysid: int) -> None:
         """A vehicle left: its next telemetry maps its clock afresh, and its
@@ -200,6 +220,14 @@ class ControlLoop:
         if obstacles.count and len(ids):
             clearance = float(box_signed_distance(pos_m, obstacles).min())
             self.min_clearance_m = min(self.min_clearance_m, clearance)
+        if self.keep_out and len(ids):
+            kept = self.safety.keep_out
+            d, _ = box_distances(
+                pos_m,
+                np.array([b.centre for b in kept]),
+                np.array([b.half_extents for b in kept]),
+            )
+            self.min_keep_out_m = min(self.min_keep_out_m, float(d.min()))
         self.steps += 1
         self.last = StepResult(self.t_s, tuple(ids), pos_m.copy(), accel, out, report, radii, sep)
         return self.last

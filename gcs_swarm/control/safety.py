@@ -6,10 +6,12 @@ frame x east / y north / z up] that keeps
 
   (a) signed distance to every box >= ``Safety.clearance``,
   (b) distance to every other vehicle >= ``Safety.separation``,
+  (e) distance to every keep-out box >= ``Safety.separation`` (where a
+      vehicle that left the formation unheard may be: ``set_keep_out``),
   (c) z >= ``Limits.z_floor`` and the position inside the geofence,
   (d) |a| <= ``Limits.a_max`` and |v| <= ``Limits.v_max``.
 
-(a) and (b) are the filter proper (``Safety.enabled``); (c) and (d) are
+(a), (b) and (e) are the filter proper (``Safety.enabled``); (c) and (d) are
 ``Limits`` and apply always, also in the paper mode, so an infinite-limits,
 disabled filter is the identity, bit for bit.
 
@@ -144,6 +146,17 @@ class SafetyFilter:
         self.strict = strict
         self._constraints = SafetyRows(limits, safety, boxes, dt=dt, tuning=self.tuning)
         self.envelope = limits.envelope
+
+    @property
+    def keep_out(self) -> tuple[Box, ...]:
+        """The keep-out boxes in force (e)."""
+        return self._constraints.keep_out
+
+    def set_keep_out(self, boxes: Sequence[Box]) -> None:
+        """Keep every vehicle ``Safety.separation`` from each of ``boxes``
+        [m, mission frame] from the next ``filter`` on (e); empty: none.
+        Nothing with the filter off (``Safety.enabled`` False)."""
+        self._constraints.set_keep_out(boxes)
 
     def filter(
         self,

@@ -1,8 +1,10 @@
 """The safety filter's constraint set: every half-space row n.a >= b that one
 control cycle asks of each vehicle, and the distances they come from.
 
-Barriers on the box clearance (a), the pair separation (b) and the floor and
-fence planes (c) are (B1)-(B2) (``limits.braking_bound``), or within a bounded
+Barriers on the box clearance (a), the pair separation (b), the floor and
+fence planes (c) and the keep-out boxes (e: where a vehicle that left the
+formation unheard may be, Eq. K1 of ``keep_out``, kept at the separation)
+are (B1)-(B2) (``limits.braking_bound``), or within a bounded
 vehicle envelope (B1')-(B2') (``reaction.reaction_bound``); the speed rows (d)
 are ``limits.speed_rows``; the envelope's acceleration caps are
 ``reaction.cap_rows``. The readings are in ``safety``'s module docstring and
@@ -72,13 +74,17 @@ class SafetyTuning:
 class Geometry:
     """Per-cycle distances: box clearance (N, K) [m] and normals (N, K, 3),
     nearest-vehicle distance (N,) [m], pair distances (N, N) [m] (inf on the
-    diagonal and for unusable vehicles) and unit directions j -> i (N, N, 3)."""
+    diagonal and for unusable vehicles) and unit directions j -> i (N, N, 3),
+    and the keep-out boxes' signed distances (N, L) [m] and normals (N, L, 3)
+    (not obstacles: they are not in ``clearance``)."""
 
     clearance: FloatArray
     box_n: FloatArray
     separation: FloatArray
     pair_d: FloatArray
     pair_n: FloatArray
+    keep_d: FloatArray
+    keep_n: FloatArray
 
 
 class SafetyRows:
@@ -103,6 +109,7 @@ class SafetyRows:
         self.tuning = tuning
         self._centres = np.array([b.centre for b in boxes], dtype=np.float64).reshape(-1, 3)
         self._halves = np.array([b.half_extents for b in boxes], dtype=np.float64).reshape(-1, 3)
+        self.set_keep_out(())
         a_max = limits.a_max
         self._a_b = (
             tuning.brake_fraction * a_max if math.isfinite(a_max) else tuning.brake_unbounded_mps2
@@ -145,6 +152,14 @@ class SafetyRows:
             if math.isfinite(budget):
                 self._a_b = tuning.brake_fraction * budget
 
+    def set_keep_out(self, boxes: Sequence[Box]) -> None:
+        """The keep-out boxes from now on (e): each vehicle keeps the safety
+        separation from each box, with the filter on (``Safety.enabled``)."""
+        self.keep_out = tuple(boxes)
+        self._keep_centres = np.array([b.centre for b in boxes], dtype=np.float64).reshape(-1, 3)
+        halves = [b.half_extents for b in boxes]
+        self._keep_halves = np.array(halves, dtype=np.float64).reshape(-1, 3)
+
     def geometry(self, pos: FloatArray, ok: BoolArray) -> Geometry:
         """Distances and normals at the current positions (vehicles not ``ok`` have
         no pairs)."""
@@ -161,7 +176,12 @@ class SafetyRows:
         )
         other = ~np.eye(nv, dtype=bool) & ok[:, None] & ok[None, :]
         pair_d = np.where(other, dist, math.inf)
-        return Geometry(clearance, box_n, pair_d.min(axis=1, initial=math.inf), pair_d, direction)
+        if self._keep_centres.shape[0]:
+            keep_d, keep_n = box_signed_distance(pos, self._keep_centres, self._keep_halves)
+        else:  # the usual case: nobody left unheard
+            keep_d, keep_n = np.zeros((nv, 0)), np.zeros((nv, 0, 3))
+        return Geometry(clearance, box_n, pair_d.min(axis=1, initial=math.inf), pair_d, direction,
+                        keep_d, keep_n)  # fmt: skip
 
     def rows(
         self,
@@ -193,6 +213,17 @@ class SafetyRows:
             else:
                 bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
             classes += [ENV] * geo.box_n.shape[1]
+        if self.safety.enabled and self._keep_centres.shape[0]:
+            # (e) keep-out boxes: as (a), at the vehicle separation.
+            closing = -np.einsum("nkj,nj->nk", geo.keep_n, vel)
+            gap = geo.keep_d - self.safety.separation
+            normals.append(geo.keep_n)
+            if self.plan:
+                fams.append((geo.keep_n, gap, closing, -np.einsum("nkj,nj->nk", geo.keep_n, prev)))
+                bounds.append(gap)  # placeholder, replaced below
+            else:
+                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
+            classes += [ENV] * geo.keep_n.shape[1]
         if self._plane_axis.size:
             # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
             gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset

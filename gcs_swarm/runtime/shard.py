@@ -50,7 +50,7 @@ from gcs_swarm.runtime.station import Station
 from gcs_swarm.runtime.tlog import TlogWriter
 from gcs_swarm.runtime.zbus import Bus, TlsFiles
 from gcs_swarm.swarm.shard import ShardSide
-from gcs_swarm.swarm.shard_wire import decode_reply, encode_state
+from gcs_swarm.swarm.shard_wire import decode_reply, encode_state, keep_out_json
 
 __all__ = ["BEAT_S", "HELLO_TIMEOUT_S", "run_shard", "shard_command"]
 
@@ -222,7 +222,10 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                 flying = len(core.flying) if core.started else None
                 o = core.origin
                 origin = None if o is None else [o.lat_deg, o.lon_deg, o.alt_m]
-                bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying, "origin": origin})
+                # The columns of its vehicles it calls lost (Eq. K1), for the law's filter.
+                kept = keep_out_json(core.control.keep_out)
+                bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying, "origin": origin,
+                                           "keep_out": kept})  # fmt: skip
                 if side.controller_silent(station.now()) and not ended.is_set():
                     station.warn(f"controller silent for {cfg.stale_timeout_s:g} s: "
                                  "ending every vehicle of this shard")  # fmt: skip

@@ -50,14 +50,15 @@ from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.lifetime import reap
-from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config
+from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config, param_settings
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
 from gcs_swarm.runtime.worker import run_lookahead
 from gcs_swarm.runtime.zbus import Bus, TlsFiles, check_endpoint, free_endpoint
 from gcs_swarm.swarm.controller import ControllerCore
-from gcs_swarm.swarm.shard_wire import decode_state, encode_reply
+from gcs_swarm.swarm.departures import departure_terms
+from gcs_swarm.swarm.shard_wire import decode_state, encode_reply, keep_out_from_json
 from sim_vehicle import Emulator
 
 __all__ = [
@@ -208,7 +209,7 @@ class ShardedRun:
             return
         now = self.now()
         if kind == "beat":
-            self.core.heard(index, now, msg.get("flying"))
+            self.core.heard(index, now, msg.get("flying"), keep_out_from_json(msg.get("keep_out")))
             if self.origin is None and msg.get("origin") is not None:
                 self.origin = [float(x) for x in msg["origin"]]
         elif kind == "ready":
@@ -392,10 +393,14 @@ async def run_sharded(
     if folder is not None and on_folder is not None:
         on_folder(folder)
     log = ControllerLog(mission, folder)
-    core = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate,
-                          shards=shards, duration_s=s.duration,
-                          stale_timeout_s=s.stale_timeout, lockstep=lockstep,
-                          recorder=log.recorder)  # fmt: skip
+    guid_s, vs = s.startup.guid_timeout, mission.vehicles
+    departures = {
+        v.key: departure_terms(v.autopilot, param_settings(mission, v), guid_s) for v in vs
+    }
+    core = ControllerCore(mission.law, {v.key: v.q for v in vs}, s.rate, shards=shards,
+                          duration_s=s.duration, stale_timeout_s=s.stale_timeout,
+                          lockstep=lockstep, recorder=log.recorder, departures=departures,
+                          labels={v.key: mission.label(v.key) for v in vs})  # fmt: skip
     outcome = "cancelled"
     emulators: dict[int, Emulator] = {}
     summary: RunSummary | None = None

@@ -20,8 +20,12 @@ and ``heard(shard, now)`` as messages arrive, ``handle_timer(now)`` at
   its fresh vehicles only;
 - a shard silent (no state batch, no heartbeat) for ``stale_timeout_s`` is
   dead: its vehicles leave the formation (the law gets the rest, which
-  re-form: formation-law.md s9) and are never waited for again. A vehicle
-  a shard stops reporting (lost, failed, ended) leaves the same way;
+  re-form: formation-law.md s9) and are never waited for again; each is
+  kept out of as a column (Eq. K1: its last state, then its failsafe
+  brings it down) for the rest of the run. A vehicle a shard stops
+  reporting (lost, failed, ended) leaves the same way; the columns of the
+  vehicles a live shard calls lost come with its heartbeats (``heard``),
+  until it hears them again;
 - the mission ends at its duration, when the law fails (``failure``), or
   when every shard is dead.
 """
@@ -38,7 +42,9 @@ import numpy as np
 
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.loop import ControlLoop
-from gcs_swarm.control.params import Envelope, LawConfig
+from gcs_swarm.control.params import Box, Envelope, LawConfig
+from gcs_swarm.mavlink.states import ProtocolConfig
+from gcs_swarm.swarm.departures import column, describe
 from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
 from gcs_swarm.swarm.step import command, resolve_lookahead
 
@@ -65,6 +71,8 @@ class ShardView:
     """Fresh reports delivered since the last step (key -> time_boot_ms)."""
     delivered: bool = False
     died_at: float | None = None
+    kept: set[int] = field(default_factory=set)
+    """Its vehicles whose keep-out columns it sent (lost, unheard)."""
 
 
 class ControllerCore:
@@ -82,10 +90,18 @@ class ControllerCore:
         stale_timeout_s: float,
         lockstep: bool,
         recorder: FlightRecorder | None = None,
+        departures: Mapping[int, tuple[float, bool]] | None = None,
+        labels: Mapping[int, str] | None = None,
     ) -> None:
         """``recorder`` (a run with a folder) gets every step of the law and
         every vehicle that comes into or goes out of it, as one station's
-        (``SwarmCore``) does; its annotations go to the controller's log."""
+        (``SwarmCore``) does; its annotations go to the controller's log.
+        ``departures``: Eq. K1's (coast [s], climbs) per vehicle key
+        (``departures.departure_terms``), for the columns of a dead shard's
+        vehicles; a key not named coasts ``ProtocolConfig.guid_timeout_s``.
+        ``labels``: how the log names each key (``blue:7``; default the key)."""
+        self.departures = dict(departures or {})
+        self.labels = dict(labels or {})
         # The plane look-ahead as one station runs it: in real time off the step
         # (``lookahead``, ``resolve_lookahead``); in lockstep inline at its step,
         # where the emulators wait for it and the run stays repeatable.
@@ -111,13 +127,22 @@ class ControllerCore:
         self._fallback_at: float | None = None
 
     # ------------------------------------------------------------ inbound
-    def heard(self, shard: int, now: float, flying: int | None = None) -> None:
+    def heard(
+        self,
+        shard: int,
+        now: float,
+        flying: int | None = None,
+        keep_out: Mapping[int, Box] | None = None,
+    ) -> None:
         """Shard ``shard`` said something at ``now`` (a heartbeat: with its
-        flying count once it flies)."""
+        flying count once it flies, and the keep-out columns of its vehicles
+        it calls lost, by key)."""
         view = self.shards.get(shard)
         if view is None or not view.alive:
             return
         view.heard_at = now
+        if keep_out is not None:
+            self._keep(view, keep_out)
         if flying is not None:
             view.flying = flying
             self._maybe_step(now)
@@ -170,6 +195,20 @@ class ControllerCore:
         self._maybe_step(now)
         self.timer_moved = True
 
+    def _keep(self, view: ShardView, boxes: Mapping[int, Box]) -> None:
+        """A live shard's keep-out columns now: new ones kept, gone ones released."""
+        control = self.control
+        for key in sorted(view.kept - boxes.keys()):
+            if control.release(key):
+                self.note(f"vehicle {self.labels.get(key, key)} heard again: the others no "
+                          "longer keep out of its column")  # fmt: skip
+        for key, box in sorted(boxes.items()):
+            if control.keep_out.get(key) != box:
+                control.keep_out_of(key, box)
+                label, sep = str(self.labels.get(key, key)), control.config.safety.separation
+                self.note(describe(label, box, sep), level=logging.WARNING)
+        view.kept = set(boxes)
+
     def _dead(self, view: ShardView, now: float) -> None:
         view.alive = False
         view.died_at = now
@@ -178,6 +217,24 @@ class ControllerCore:
         self.note(f"t={self.control.t_s:.2f} s: shard {view.index} silent for {silent:.2f} s: "
                   f"dead; its {len(gone)} vehicles leave the formation",
                   level=logging.WARNING)  # fmt: skip
+        if gone and not self.control.config.safety.enabled:
+            self.note(f"shard {view.index}'s vehicles left unheard with the safety filter off: "
+                      "nothing keeps the others out from under them", level=logging.WARNING)  # fmt: skip
+        elif view.batch is not None:
+            # Unheard from now on, in the air: each a column (Eq. K1) for the rest of the run.
+            last = self.control.last
+            sent = {} if last is None else dict(zip(last.ids, last.accel_mps2, strict=True))
+            b = view.batch
+            for k, key in enumerate(gone):
+                terms = self.departures.get(key, (ProtocolConfig.guid_timeout_s, False))
+                box = column(
+                    self.control, b.pos_m[k], b.vel_mps[k], sent.get(key, np.zeros(3)), terms
+                )
+                self.control.keep_out_of(key, box)
+            if gone:
+                self.note(f"the others keep {self.control.config.safety.separation:g} m from "
+                          f"the columns of shard {view.index}'s {len(gone)} vehicles (Eq. K1)",
+                          level=logging.WARNING)  # fmt: skip
         view.batch, view.fresh, view.delivered, view.flying = None, {}, False, 0
 
     # --------------------------------------------------------- control step

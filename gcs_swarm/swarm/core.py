@@ -53,6 +53,7 @@ from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import Phase, ProtocolEvent
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.swarm.departures import keep_out_lost
 from gcs_swarm.swarm.step import READYING, Write, resolve_lookahead, run_step
 
 if TYPE_CHECKING:  # plain data of the layer above, for the types only
@@ -253,6 +254,9 @@ class SwarmCore:
         if event.kind not in ("phase", "lost", "failed"):
             return
         sysid = vp.sysid
+        if vp.phase is not Phase.LOST and self.control.release(sysid):
+            self.note(f"vehicle {vp.label} heard again: the others no longer keep out of "
+                      "its column")  # fmt: skip
         if sysid in self.flying and vp.phase is not Phase.FLYING:
             self.flying.discard(sysid)  # its table row was detached with the phase
             self.control.forget(sysid)
@@ -261,6 +265,12 @@ class SwarmCore:
                 self.recorder.member(self.control.t_s, sysid, False)
             self.note(f"vehicle {vp.label} out of the formation ({vp.phase.value}); "
                       f"{len(self.flying)} re-form")  # fmt: skip
+            if vp.phase is Phase.LOST:  # still in the air, unheard (Eq. K1)
+                said = keep_out_lost(
+                    vp, self.plans[sysid], self.control, self.config.guid_timeout_s
+                )
+                if said is not None:
+                    self.note(said[0], level=said[1])
             self._maybe_step(now)
             if not self.flying:
                 self.check_alive(now)

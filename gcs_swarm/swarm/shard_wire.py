@@ -15,17 +15,21 @@ per-vehicle objects, no pickling), so a step of K vehicles costs:
 Floats cross as float64 bit patterns, so a sharded flight computes exactly
 the numbers an unsharded one does (the lockstep test compares to 1e-9 m).
 Everything else (hello, assignment, ready, start, end, heartbeats, the
-shard's final report) is small JSON, sent a few times per run or at 10 Hz.
+shard's final report) is small JSON, sent a few times per run or at 10 Hz;
+a heartbeat carries the keep-out columns (Eq. K1) of the vehicles the shard
+calls lost, ``{"key": [cx, cy, cz, hx, hy, hz]}`` (``keep_out_json``).
 """
 
 from __future__ import annotations
 
 import struct
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from gcs_swarm.control.params import Box
 from gcs_swarm.errors import LinkError
 
 __all__ = [
@@ -38,6 +42,8 @@ __all__ = [
     "decode_state",
     "encode_reply",
     "encode_state",
+    "keep_out_from_json",
+    "keep_out_json",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -147,3 +153,25 @@ def decode_reply(data: bytes) -> SetpointReply:
     o += 4 * n
     accel = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
     return SetpointReply(shard, seq, float(t_s), keys, accel)
+
+
+def keep_out_json(boxes: Mapping[int, Box]) -> dict[str, list[float]]:
+    """A heartbeat's keep-out columns, by key (module docstring)."""
+    return {str(k): [*b.centre, *b.half_extents] for k, b in boxes.items()}
+
+
+def keep_out_from_json(data: Any) -> dict[int, Box] | None:
+    """``keep_out_json``'s value back (None: a heartbeat without it);
+    ``LinkError`` when it is not one."""
+    if data is None:
+        return None
+    try:
+        out = {}
+        for k, v in dict(data).items():
+            x = [float(c) for c in v]
+            if len(x) != 6:
+                raise ValueError(f"{len(x)} numbers")
+            out[int(k)] = Box(centre=(x[0], x[1], x[2]), half_extents=(x[3], x[4], x[5]))
+        return out
+    except (TypeError, ValueError) as err:
+        raise LinkError(f"shard heartbeat: keep_out is not a set of columns ({err})") from None

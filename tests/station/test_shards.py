@@ -756,3 +756,55 @@ def test_shards_fly_in_the_first_vehicle_s_frame_when_the_mission_names_no_origi
     p1 = np.array([v.position_m for v in one.vehicles], dtype=float)
     p2 = np.array([v.position_m for v in two.vehicles], dtype=float)
     np.testing.assert_allclose(p2, p1, rtol=0, atol=1e-9)
+
+
+def test_a_vehicle_lost_on_a_shard_is_kept_out_of_by_the_controller_until_heard() -> None:
+    """Safety filter on: red:1's radio goes quiet for 2.5 s. Its shard calls
+    it lost and sends its keep-out column (Eq. K1) with its heartbeats; the
+    controller's filter keeps the others out of it until the shard hears it
+    again and the column goes (docs/vehicle-safety.md)."""
+    # In the mission's text (the shards parse it), after the networks.
+    mission = _two_networks(8.0, "dynamics: ideal, mode: realtime, speedup: 2, spawn: air",
+                            ", startup: {guid_timeout: 0.5}",
+                            events="limits: {safety: {enabled: true}}\n")  # fmt: skip
+    assert mission.law.safety.enabled
+    seen: dict[str, Any] = {}
+
+    async def watch(run: ShardedRun) -> None:
+        core = run.core
+        assert await run.wait_for(lambda: core.control.t_s >= 2.0, 60.0)
+        emu = run.emulators[1]
+        last = core.control.last
+        assert last is not None
+        seen["was"] = last.pos_m[list(last.ids).index(257)].copy()
+        emu.set_silent(1)
+        assert await run.wait_for(lambda: 257 in core.control.keep_out, 10.0)
+        seen["box"] = core.control.keep_out[257]
+        await asyncio.sleep(1.0)
+        emu.set_silent(1, False)
+        assert await run.wait_for(lambda: 257 not in core.control.keep_out, 10.0)
+        seen["released"] = True
+        seen["log"] = list(core.log)
+
+    async def fly() -> RunSummary:
+        tasks: list[asyncio.Task[None]] = []
+        async with asyncio.timeout(180):
+            summary = await run_sharded(
+                mission, 2, end_timeout_s=5.0,
+                on_run=lambda run: tasks.append(asyncio.ensure_future(watch(run))),
+            )  # fmt: skip
+            await tasks[0]
+        return summary
+
+    summary = asyncio.run(fly())
+    assert summary.outcome == "completed", summary.outcome
+    assert seen.get("released"), seen
+    box = seen["box"]
+    # The column stands where the law last had red:1 (its last report came at
+    # most one step later: 20 ms of flight, well inside 0.1 m at its speeds),
+    # at least the hold drift wide (Eq. K1a).
+    assert box.half_extents[0] >= 0.5
+    assert np.hypot(box.centre[0] - seen["was"][0], box.centre[1] - seen["was"][1]) < 0.1
+    log = "\n".join(seen["log"])  # the controller's own
+    assert "vehicle red:1 left unheard, still in the air" in log
+    assert "vehicle red:1 heard again: the others no longer keep out" in log

@@ -212,7 +212,12 @@ def test_a_vehicle_heard_again_rejoins_a_moving_formation() -> None:
     assert "posvel" in controls, controls  # it chased a moving point, not a fixed one
     speed = float(np.linalg.norm(core.control.controller.leader_vel_mps))
     assert speed > 0.9  # the formation was moving when it came back
-    assert f"vehicle {core.vehicles[3].label} joins the formation (4 flying)" in "\n".join(core.log)
+    log = "\n".join(core.log)
+    assert f"vehicle {core.vehicles[3].label} joins the formation (4 flying)" in log
+    # While unheard the others kept out of its column (Eq. K1); heard, no longer.
+    assert "vehicle 3 left unheard, still in the air" in log
+    assert "vehicle 3 heard again: the others no longer keep out" in log
+    assert core.control.keep_out == {}
     assert core.control.t_s - t_back < 10.0
     sky.run_until(lambda: core.finished, 40.0)
     assert core.flying == {1, 2, 3, 4}
@@ -241,27 +246,30 @@ def test_an_emulated_px4_heard_again_rejoins_a_moving_formation() -> None:
     assert core.flying == {1, 2, 3, 4}
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "not handled yet: a vehicle that lost its link is outside the law and the "
-        "members' safety filter, and its own GCS failsafe lands it straight down "
-        "through the formation (measured: 0.068 m from the member below)"
-    ),
+@pytest.mark.parametrize(
+    ("mission", "lost_id", "lost_at_s"),
+    [
+        ("example1_octahedron.yaml", 1, 60.0),
+        ("example1_octahedron.yaml", 5, 60.0),
+        ("example1_tetrahedron.yaml", 1, 60.0),
+        ("scenario3_safety.yaml", 2, 20.0),
+    ],
 )
-def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation() -> None:
-    """Example 1 with the safety filter on (1 m separation) and the vehicles'
-    own GCS-loss failsafe set (``failsafe.gcs``, as on real vehicles: Land
-    5 s after the station's last HEARTBEAT). Vehicle 1, an upper vertex of
-    the octahedron as it formed, with vehicle 6 3.5 m below it and 0.23 m
-    aside, loses its radio after 60 s of formation; the other five re-form,
-    and 5 s later it lands, straight down onto vehicle 6. Every member must
-    stay at least the separation from it meanwhile. Measured (2026-12-04):
-    0.068 m from vehicle 6, 7.6 s after the radio went off. With the filter
-    off the same: 0.05 m; vehicle 5 as the one lost 0.56 m; the
-    tetrahedron's vehicle 1 1.33 m; Scenario 3, whose leader moves on,
-    3.2-4.6 m."""
-    m = mission_from("example1_octahedron.yaml", duration=90.0)
+def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation(
+    mission: str, lost_id: int, lost_at_s: float
+) -> None:
+    """The safety filter on (1 m separation) and the vehicles' own GCS-loss
+    failsafe set (``failsafe.gcs``, as on real vehicles: Land 5 s after the
+    station's last HEARTBEAT). One vehicle loses its radio; the others
+    re-form, and 5 s later it lands straight down, for Example 1's vehicle
+    1 onto vehicle 6 (3.5 m below it and 0.23 m aside as the octahedron
+    formed). Every member must stay at least the separation from it (the
+    emulator's truth) while it comes down: they keep out of its column
+    (Eq. K1, docs/vehicle-safety.md). Measured before the column
+    (2026-12-04): 0.068 m from vehicle 6 in Example 1 (filter off: 0.05 m),
+    vehicle 5 lost 0.56 m, the tetrahedron's vehicle 1 1.33 m; Scenario 3,
+    whose leader moves on, 3.2-4.6 m."""
+    m = mission_from(mission, duration=lost_at_s + 30.0)
     m = dataclasses.replace(
         m,
         settings=dataclasses.replace(
@@ -273,9 +281,9 @@ def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation() -> None:
     core = sky.core
     sky.ready()
     sky.start()
-    sky.run_until(lambda: core.control.t_s >= 60.0, 70.0)
-    sky.set_silent(1)
-    fleet = sky.vehicles[1].radio.emu.fleet  # type: ignore[union-attr]
+    sky.run_until(lambda: core.control.t_s >= lost_at_s, lost_at_s + 10.0)
+    sky.set_silent(lost_id)
+    fleet = sky.vehicles[lost_id].radio.emu.fleet  # type: ignore[union-attr]
     rows = {s: v.hosted.row for s, v in sky.vehicles.items()}
 
     def where(sysid: int) -> np.ndarray:  # the emulator's truth, in the mission frame
@@ -284,9 +292,14 @@ def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation() -> None:
     closest, landing = np.inf, False
     for _ in range(20 * 50):
         sky.advance(sky.dt)
-        landing = landing or sky.vehicles[1].ap.control == "land"
-        lost = where(1)
-        for s in core.flying - {1}:
+        landing = landing or sky.vehicles[lost_id].ap.control == "land"
+        lost = where(lost_id)
+        for s in core.flying - {lost_id}:
             closest = min(closest, float(np.linalg.norm(where(s) - lost)))
-    assert landing and core.vehicles[1].phase is Phase.LOST  # the scenario happened
+    assert landing and core.vehicles[lost_id].phase is Phase.LOST  # the scenario happened
+    assert lost_id in core.control.keep_out
+    print(
+        f"closest member to the lost vehicle: {closest:.3f} m; to its column "
+        f"{core.control.min_keep_out_m:.3f} m"
+    )
     assert closest >= m.law.safety.separation, closest

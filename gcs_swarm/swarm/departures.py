@@ -1,0 +1,103 @@
+"""A vehicle that leaves the formation unheard: its keep-out column (Eq. K1).
+
+``lost_keep_out`` reads what the station last knew of a vehicle that went
+LOST (its last report, its last command, its home) and what its autopilot
+will do without the station (how long it coasts on the last setpoint, how
+hard it brakes, whether its GCS failsafe climbs for RTL), and gives the box
+``gcs_swarm.control.keep_out.lost_column`` makes of them. ``SwarmCore`` hands
+it to the members' safety filter until the vehicle is heard again
+(docs/vehicle-safety.md, "One vehicle's link lost"). No I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gcs_swarm.control.keep_out import lost_column
+from gcs_swarm.control.limits import FloatArray
+from gcs_swarm.control.loop import ControlLoop
+from gcs_swarm.control.params import Box
+from gcs_swarm.mavlink.px4 import OF_LOSS_T_S
+from gcs_swarm.mavlink.vehicle import VehicleProtocol
+from gcs_swarm.mavlink.vehicle_params import ParamSettings
+
+if TYPE_CHECKING:  # the plan's type only: the runtime layer is above this one
+    from gcs_swarm.runtime.config import VehiclePlan
+
+__all__ = ["column", "departure_terms", "describe", "keep_out_lost", "lost_keep_out"]
+
+
+def departure_terms(
+    autopilot: str, params: ParamSettings, guid_timeout_s: float
+) -> tuple[float, bool]:
+    """(coast [s], climbs) of Eq. K1 for a vehicle of ``autopilot`` (the
+    mission's: ardupilot, sim or px4) with ``params`` (what the station sets
+    on it): how long its autopilot flies on the last setpoint (ArduCopter
+    GUID_TIMEOUT as the station sets it; PX4 COM_OF_LOSS_T if longer), and
+    whether its GCS failsafe climbs first (set, with the mission's ``end``
+    rtl)."""
+    coast = guid_timeout_s if autopilot != "px4" else max(guid_timeout_s, OF_LOSS_T_S)
+    return coast, params.gcs_failsafe and params.end == "rtl"
+
+
+def column(
+    control: ControlLoop,
+    pos_m: FloatArray,
+    vel_mps: FloatArray,
+    accel_mps2: FloatArray,
+    terms: tuple[float, bool],
+) -> Box:
+    """Eq. K1 for a vehicle last at ``pos_m``, ``vel_mps`` under ``accel_mps2``
+    (mission frame), braking at most as the envelope in force and
+    ``limits.a_max`` allow, with ``terms`` from ``departure_terms``."""
+    brake = min(control.envelope.accel_xy, control.config.limits.a_max)
+    accel = np.asarray(accel_mps2, dtype=np.float64)
+    if not np.isfinite(accel).all():
+        accel = np.zeros(3)
+    return lost_column(pos_m, vel_mps, accel, coast_s=terms[0], brake_mps2=brake, climbs=terms[1])
+
+
+def lost_keep_out(
+    vp: VehicleProtocol, plan: VehiclePlan, control: ControlLoop, guid_timeout_s: float
+) -> Box | None:
+    """Eq. K1's column for ``vp``, LOST now, or None when the station never
+    had its position and origin (it was never placed: nothing to keep out
+    of): from its last report in the mission frame (``state_mission``) and
+    the last acceleration sent to it (NED, turned to the mission frame)."""
+    if vp.position is None or vp.offset_m is None:
+        return None
+    pos, vel = vp.state_mission()
+    a_ned = np.asarray(vp.last_accel_ned, dtype=np.float64)
+    accel = np.array((a_ned[1], a_ned[0], -a_ned[2]))  # NED -> (e, n, up)
+    return column(control, pos, vel, accel,
+                  departure_terms(plan.autopilot, plan.params, guid_timeout_s))  # fmt: skip
+
+
+def describe(label: str, box: Box, separation_m: float) -> str:
+    """The log line of a keep-out column taken."""
+    c, h = box.centre, box.half_extents
+    return (f"vehicle {label} left unheard, still in the air: the others keep "
+            f"{separation_m:g} m from the column x {c[0]:.1f} +/- {h[0]:.1f}, "
+            f"y {c[1]:.1f} +/- {h[1]:.1f} m, up to z {c[2] + h[2]:.1f} m, "
+            "until it is heard again")  # fmt: skip
+
+
+def keep_out_lost(
+    vp: VehicleProtocol, plan: VehiclePlan, control: ControlLoop, guid_timeout_s: float
+) -> tuple[str, int] | None:
+    """``vp`` left the formation LOST: its column (``lost_keep_out``) kept by
+    the members' filter from now on (``ControlLoop.keep_out_of``; the filter
+    off: nothing, and a warning). Returns what to log and at which level, or
+    None when there is no column to keep."""
+    box = lost_keep_out(vp, plan, control, guid_timeout_s)
+    if box is None:
+        return None
+    safety = control.config.safety
+    if not safety.enabled:
+        return (f"vehicle {vp.label} lost in the air with the safety filter off: "
+                "nothing keeps the others out from under it", logging.WARNING)  # fmt: skip
+    control.keep_out_of(vp.sysid, box)
+    return describe(vp.label, box, safety.separation), logging.WARNING
