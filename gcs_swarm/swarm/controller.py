@@ -218,8 +218,9 @@ class ControllerCore:
                   f"dead; its {len(gone)} vehicles leave the formation",
                   level=logging.WARNING)  # fmt: skip
         if gone and not self.control.config.safety.enabled:
-            self.note(f"shard {view.index}'s vehicles left unheard with the safety filter off: "
-                      "nothing keeps the others out from under them", level=logging.WARNING)  # fmt: skip
+            self.note(f"shard {view.index}'s vehicles left unheard with the safety filter "
+                      "off: nothing keeps the others out from under them",
+                      level=logging.WARNING)  # fmt: skip
         elif view.batch is not None:
             # Unheard from now on, in the air: each a column (Eq. K1) for the rest of the run.
             last = self.control.last
