@@ -58,6 +58,10 @@ GROUP = 250
 """Vehicles per network or station group (``--group``; the emulator child is told it too)."""
 RATE_HZ = 50.0
 """The control rate [Hz] (``--rate``; the emulator child is told it too)."""
+CUTOFF: float | None = None
+"""``--cutoff F``: the vehicles start on their equilibrium sphere (``bench_law.
+sphere_swarm``, d_nn its mean neighbour distance) and the law's repulsion
+is cut off at F d_nn (Eq. 9c); None: the 3 m grid and the exact law."""
 
 
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
@@ -65,10 +69,19 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
     networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
     shared by all (one formation)."""
     side = math.ceil(n ** (1 / 3))
+    cut, sphere = "", None
+    if CUTOFF is not None:
+        from bench_law import sphere_swarm
+
+        from gcs_swarm.control.params import Gains
+
+        sphere, d_nn = sphere_swarm(n, Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2,
+                                             q_default=10))  # fmt: skip
+        cut = f", repulsion_cutoff: {CUTOFF * d_nn!r}"
     lines = [
         f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold}}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
-        "gains: {M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10}",
+        f"gains: {{M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10{cut}}}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
     ]
     lines.append("networks:" if networks else "vehicles:")
@@ -81,6 +94,8 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
         x, y, z = i % side, (i // side) % side, i // (side * side)
         c = (side - 1) / 2
         pos = f"[{3 * (x - c)}, {3 * (y - c)}, {3 * (z - c)}]"
+        if sphere is not None:
+            pos = "[" + ", ".join(f"{float(w)!r}" for w in sphere[i]) + "]"
         sysid = i % GROUP + 1 if networks else i + 1
         lines.append(f"{indent}- {{sysid: {sysid}, start: {pos}}}")
     return "\n".join(lines) + "\n"
@@ -196,6 +211,7 @@ async def station_run(
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
+    child += [] if CUTOFF is None else ["--cutoff", repr(CUTOFF)]
     child += ["--networks"] if networks else []
     proc = await asyncio.create_subprocess_exec(
         sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -319,9 +335,11 @@ def main() -> None:
                     help="vehicles per network or station group (default 250)")  # fmt: skip
     ap.add_argument("--networks", action="store_true",
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
+    ap.add_argument("--cutoff", type=float, default=None, metavar="F",
+                    help="start on the equilibrium sphere, repulsion cut at F x d_nn")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ, GROUP
-    RATE_HZ, GROUP = args.rate, args.group
+    global RATE_HZ, GROUP, CUTOFF
+    RATE_HZ, GROUP, CUTOFF = args.rate, args.group, args.cutoff
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return

@@ -72,6 +72,7 @@ class Autopilot:
         streams: dict[int, float] | None = None,
     ) -> None:
         self.sysid, self.compid, self.origin, self.params = sysid, compid, origin, params
+        self._guid_timeout: tuple[int, float] | None = None  # (params generation, s): _timeout_s
         params.set("SYSID_THISMAV", sysid)
         self.boot = now
         self.mode = GUIDED if airborne_at is not None else 0
@@ -309,7 +310,13 @@ class Autopilot:
         self.set_control(kind, now, kin)
 
     def _timeout_s(self) -> float:
-        return max(self.params["GUID_TIMEOUT"], 0.1)
+        """GUID_TIMEOUT [s], at least 0.1 (read again only after a parameter
+        changed: every streamed setpoint asks for it)."""
+        p = self.params
+        cached = self._guid_timeout
+        if cached is None or cached[0] != p.generation:
+            cached = self._guid_timeout = (p.generation, max(p["GUID_TIMEOUT"], 0.1))
+        return cached[1]
 
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
         """Fly ``ctl`` from ``now``: its target (``targets.TargetBuilder``) replaces the

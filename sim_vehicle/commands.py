@@ -223,6 +223,42 @@ def _rot(yaw: float, v: Vec3) -> Vec3:
     return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
 
 
+_ACCEL_ONLY = ECHO_MASK["accel"]
+"""type_mask 3135: position, velocity, yaw and yaw rate ignored (the station's stream)."""
+_NO_KIN = Kin(ZERO, ZERO, ZERO, False)
+"""What an acceleration target reads of the kinematics: nothing
+(``TargetBuilder.target``; PX4 queues it and reads its own at the due time)."""
+
+
+def stream_accel(ap: Autopilot, msg: MAVLinkMessage, now: float, landed: bool) -> bool:
+    """``dispatch`` of a streamed acceleration setpoint, the station's 50 Hz
+    message: type_mask 3135 in MAV_FRAME_LOCAL_NED for this vehicle, GUIDED,
+    armed, airborne (``landed``: its fleet row's flag, what ``Kin.landed``
+    holds) and within ``SETPOINT_LIMIT``. The same calls in the same order
+    as ``dispatch`` makes for it (``_setpoint``), without a ``Kin`` for each
+    (tests/sim_vehicle/test_stream_accel.py compares the two bit for bit).
+    False, having changed nothing, for any other message or state: then
+    ``dispatch`` takes it."""
+    if (
+        msg.type_mask != _ACCEL_ONLY
+        or msg.coordinate_frame != mav.MAV_FRAME_LOCAL_NED
+        or ap.mode != 4
+        or not ap.armed
+        or landed
+    ):
+        return False
+    ts, tc = msg.target_system, msg.target_component
+    if not (ts in (0, ap.sysid) and tc in (0, ap.compid)):
+        return False
+    ax, ay, az = msg.afx, msg.afy, msg.afz
+    lim = SETPOINT_LIMIT
+    if not (abs(ax) <= lim and abs(ay) <= lim and abs(az) <= lim):
+        return False  # dispatch counts the rejection
+    ap.setpoint_heard(now)
+    ap.apply_setpoint("accel", {"a": _rot(0.0, (ax, ay, az))}, _ACCEL_ONLY, now, _NO_KIN)
+    return True
+
+
 def _setpoint(ap: Autopilot, msg: MAVLinkMessage, now: float, kin: Kin) -> None:
     ap.setpoint_heard(now)
     if ap.mode != 4 or not ap.armed or kin.landed:

@@ -24,6 +24,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import lockstep, schedule
+from sim_vehicle.commands import stream_accel
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import DelayLine, impair
@@ -37,6 +38,7 @@ __all__ = ["MAX_PEERS", "EmulatorCore", "join_frames"]
 MAX_PEERS = 8
 """Peers one port serves at most (the oldest goes first)."""
 _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+_SETPOINT_CLASS = mav.MAVLink_set_position_target_local_ned_message
 
 
 def join_frames(frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
@@ -227,10 +229,14 @@ class EmulatorCore:
                 targets = [ep.sysids[ts]]
             else:
                 continue
+            streamed = m.__class__ is _SETPOINT_CLASS
             for key in targets:
                 v = self.vehicles[key]
                 if wall_s is not None:
                     v.ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
+                if streamed and stream_accel(v.ap, m, now, bool(self.fleet.landed[v.row])):
+                    self.sync(v, now)  # the 50 Hz case, without a Kin (commands.stream_accel)
+                    continue
                 replies = v.ap.handle(m, now, self.kin(v))
                 if replies:
                     self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
