@@ -93,6 +93,8 @@ class ControlLoop:
         step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
         self.keep_out: dict[int, Box] = {}
         """Keep-out columns of vehicles that left unheard, by key (``keep_out_of``)."""
+        self.keep_outs_taken = 0
+        """Columns taken so far (``keep_out_of``)."""
         self.min_keep_out_m = math.inf
         """Smallest signed distance [m] of any member to a keep-out column at a
         step (the filter keeps ``safety.separation``)."""
@@ -157,6 +159,8 @@ class ControlLoop:
     def keep_out_of(self, key: int, box: Box) -> None:
         """Vehicle ``key`` left unheard: the members keep the safety separation
         from ``box`` (Eq. K1, ``keep_out.lost_column``) until ``release``."""
+        if key not in self.keep_out:
+            self.keep_outs_taken += 1
         self.keep_out[key] = box
         self.safety.set_keep_out(tuple(self.keep_out.values()))
 

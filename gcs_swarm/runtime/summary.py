@@ -92,6 +92,11 @@ class RunSummary:
     failure: str | None = None
     """Why the mission ended as failed in flight (the law failed), if it did."""
     logging_error: str | None = None
+    keep_out_columns: int = 0
+    """Lost vehicles' columns the members kept out of (Eq. K1, docs/vehicle-safety.md)."""
+    min_keep_out_m: float = math.inf
+    """The closest any member came to such a column [m] (negative: inside it,
+    as when it appears around a member)."""
     """Why the run's log stopped (a write error), if it did."""
 
     @classmethod
@@ -140,6 +145,8 @@ class RunSummary:
             vehicles=vehicles,
             min_separation_m=station.control.min_separation_m,
             min_clearance_m=station.control.min_clearance_m,
+            keep_out_columns=station.control.keep_outs_taken,
+            min_keep_out_m=station.control.min_keep_out_m,
             episodes=station.control.controller.episode,
             messages_sent=sum(lk.stats.sent for lk in links),
             setpoints_dropped=sum(lk.stats.setpoints_dropped for lk in links),
@@ -226,6 +233,8 @@ class RunSummary:
             vehicles=tuple(vehicles),
             min_separation_m=core.control.min_separation_m,
             min_clearance_m=core.control.min_clearance_m,
+            keep_out_columns=core.control.keep_outs_taken,
+            min_keep_out_m=core.control.min_keep_out_m,
             episodes=core.control.controller.episode,
             messages_sent=total("messages_sent"),
             setpoints_dropped=total("setpoints_dropped"),
@@ -269,6 +278,10 @@ class RunSummary:
                 f"avoidance episodes {self.episodes}, minimum box clearance "
                 f"{self.min_clearance_m:.3f} m (negative: inside a box)"
             )
+        if self.keep_out_columns:
+            near = f"{self.min_keep_out_m:.3f} m" if math.isfinite(self.min_keep_out_m) else "-"
+            lines.append(f"lost vehicles' columns kept out of: {self.keep_out_columns}, closest "
+                         f"member {near} (the separation is kept; Eq. K1)")  # fmt: skip
         for v in self.vehicles:
             where = "-"
             if v.position_m is not None and v.radius_m is not None:

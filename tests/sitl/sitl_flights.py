@@ -273,7 +273,9 @@ async def fly_acting(
 ) -> dict[str, Any]:
     """Fly ``mission`` in this process (``run_mission``), ``act`` once the
     status line says ``at_s`` [s] of formation flight, and return the run's
-    summary.json."""
+    summary.json, with the station's own figures of the lost vehicles'
+    columns (``RunSummary.keep_out_columns``, ``min_keep_out_m``) under
+    ``"keep_out"``."""
     holder: list[Any] = []
     flying = asyncio.Event()
 
@@ -287,8 +289,10 @@ async def fly_acting(
     )
     await flying.wait()
     await act()
-    await task
-    return summary_of(holder[0].path)
+    run = await task
+    s = summary_of(holder[0].path)
+    s["keep_out"] = {"columns": run.keep_out_columns, "closest_m": run.min_keep_out_m}
+    return s
 
 
 def load(name: str) -> Mission:

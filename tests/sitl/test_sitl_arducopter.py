@@ -213,7 +213,8 @@ def test_scenario3_safety_filter_holds_on_the_vehicle(tmp_path: Path) -> None:
 
 def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
     """SIGKILL one SITL instance in flight: it leaves, the other three re-form
-    (equal radii within 1 %)."""
+    (equal radii within 1 %), keeping the separation from the column where
+    it was (Eq. K1: the station cannot tell a dead vehicle from a lost one)."""
     binary_or_skip()
     with sitl_swarm(4, tmp_path / "sitl", first=10) as swarm:
         # instances 10-13 (ports 5860-5890), so it can run beside the others
@@ -227,10 +228,14 @@ def test_killed_vehicle_leaves_and_the_rest_reform(tmp_path: Path) -> None:
     left = v["4"]["left_at_s"]
     radii = [v[k]["final_radius_m"] for k in ("1", "2", "3")]
     final = s["overall"]["vehicles_final"]
-    write_figures(
-        tmp_path, "sitl_vehicle_killed", {"left_at_s": left, "radii_m": radii, "final": final}
-    )
+    kept = s["keep_out"]
+    figures = {"left_at_s": left, "radii_m": radii, "final": final, "keep_out": kept}
+    write_figures(tmp_path, "sitl_vehicle_killed", figures)
     assert s["overall"]["vehicles_final"] == [1, 2, 3]
+    # Its column was kept: never closer than the separation (6 m), the filter's
+    # guarantee on the vehicles' reports.
+    assert kept["columns"] == 1
+    assert kept["closest_m"] >= mission.law.safety.separation, kept
     np.testing.assert_allclose(radii, np.mean(radii), rtol=0.01)
 
 

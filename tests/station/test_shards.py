@@ -38,6 +38,7 @@ import asyncio
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import signal
 import time
@@ -808,3 +809,6 @@ def test_a_vehicle_lost_on_a_shard_is_kept_out_of_by_the_controller_until_heard(
     log = "\n".join(seen["log"])  # the controller's own
     assert "vehicle red:1 left unheard, still in the air" in log
     assert "vehicle red:1 heard again: the others no longer keep out" in log
+    # The run's summary says so, with the closest a member came to the column.
+    assert summary.keep_out_columns == 1 and math.isfinite(summary.min_keep_out_m)
+    assert "lost vehicles' columns kept out of: 1, closest member" in summary.format()
