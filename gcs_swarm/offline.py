@@ -8,7 +8,10 @@ the formation phase), and every commanded acceleration passes through the
 same limits and safety filter the station applies (``SafetyFilter``), paced
 at the mission's control period. With no limits and the filter off (the
 paper's missions) the filter is the identity and the paper's law runs
-exactly.
+exactly. A vehicle that leaves is held where it left (``integrate``); with
+the filter on the others keep the separation from its column (Eq. K1,
+docs/vehicle-safety.md), as the station keeps them from a vehicle that
+left and flies on.
 
 When the mission states ``limits.envelope`` the reference models the vehicle
 (docs/vehicle-envelope.md): the station's command path of
@@ -31,6 +34,7 @@ import numpy as np
 
 from gcs_swarm.analysis import command_demand
 from gcs_swarm.control.envelope import CommandShaper, Demand, demand_lines
+from gcs_swarm.control.keep_out import lost_column
 from gcs_swarm.control.params import Envelope, LawConfig
 from gcs_swarm.control.safety import (
     SafetyFilter,
@@ -108,6 +112,35 @@ class EnvelopeHook:
         return self.shaper.shape(ids, accel)
 
 
+@dataclass
+class _HeldColumns:
+    """The station's rule for a vehicle that left while heard and flies on
+    (``swarm.departures.live_columns``), on the integrator's vehicles that
+    left: each is held where it left, at rest, and the members keep the
+    separation from its column (Eq. K1: no coast, no speed, braking as the
+    envelope allows, climbing for an RTL failsafe), with the filter on."""
+
+    mission: Mission
+    envelope: Envelope
+    filter: SafetyFilter | None
+
+    def __post_init__(self) -> None:
+        if not self.mission.law.safety.enabled:
+            self.filter = None  # the rows (e) exist only with the filter on
+
+    def __call__(self, held: dict[int, F64]) -> None:
+        assert self.filter is not None
+        m = self.mission
+        brake = min(self.envelope.accel_xy, m.law.limits.a_max)
+        fs, by_key = m.settings.failsafe, {v.key: v for v in m.vehicles}
+        zero = np.zeros(3)
+        self.filter.set_keep_out([
+            lost_column(p, zero, zero, coast_s=0.0, brake_mps2=brake,
+                        climbs=m.settings.end == "rtl" and fs.gcs_for(by_key[key].autopilot))
+            for key, p in sorted(held.items())
+        ])  # fmt: skip
+
+
 def _with_envelope(law: LawConfig, envelope: Envelope) -> LawConfig:
     return replace(law, limits=replace(law.limits, envelope=envelope))
 
@@ -142,6 +175,7 @@ def simulate_mission(
     elif filter_acts(law.limits, law.safety):
         hook = SafetyHook(SafetyFilter(law.limits, law.safety, law.obstacles, dt=period))
     vehicles = mission.vehicles
+    held = _HeldColumns(mission, env, getattr(hook, "safety_filter", None))
     result = integrate(
         law,
         [v.start for v in vehicles],
@@ -153,6 +187,7 @@ def simulate_mission(
         ids=[v.key for v in vehicles],
         accel_filter=hook,
         vehicle=model,
+        on_out=held if held.filter is not None else None,
     )
     stats = None
     if isinstance(hook, EnvelopeHook):

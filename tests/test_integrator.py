@@ -149,3 +149,16 @@ def test_analysis_helpers() -> None:
     assert time_to_form(t, series) == 4.0
     with pytest.raises(ValueError, match="5 vehicles"):
         classify_bipyramid(p, np.zeros(3))
+
+
+def test_on_out_is_told_where_the_vehicles_that_left_are_held() -> None:
+    """``on_out``: at the leave, where vehicle 2 stopped (its last position,
+    held at rest); at its rejoin, nobody; a reserve that never flew is not
+    one of them."""
+    told: list[dict[int, np.ndarray]] = []
+    res = integrate(LawConfig(), STARTS[:3], duration=1.0, dt=0.1, active=[True, True, False],
+                    events=[(0.5, "leave", 2), (0.8, "join", 2), (0.8, "join", 3)],
+                    on_out=told.append)  # fmt: skip
+    assert [sorted(t) for t in told] == [[2], []]
+    assert np.isnan(res.pos_m[5:8, 1]).all()
+    np.testing.assert_array_equal(res.pos_m[8, 1], told[0][2])  # rejoins from where it was held

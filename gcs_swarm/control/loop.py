@@ -93,8 +93,12 @@ class ControlLoop:
         step (negative: inside; the paper's Eq. 27 can cut corners, s11)."""
         self.keep_out: dict[int, Box] = {}
         """Keep-out columns of vehicles that left unheard, by key (``keep_out_of``)."""
+        self.live_keep_out: dict[int, Box] = {}
+        """Columns of vehicles out of the formation that are still heard, in
+        the air, at their latest reports (``set_live_keep_out``, every step)."""
         self.keep_outs_taken = 0
-        """Columns taken so far (``keep_out_of``)."""
+        """Vehicles whose column the members have kept out of so far."""
+        self._kept: set[int] = set()
         self.min_keep_out_m = math.inf
         """Smallest signed distance [m] of any member to a keep-out column at a
         step (the filter keeps ``safety.separation``)."""
@@ -153,23 +157,36 @@ class ControlLoop:
         law = self.config
         self.safety = SafetyFilter(limits, law.safety, law.obstacles, dt=1.0 / self.rate_hz)
         self.shaper = CommandShaper(env, 1.0 / self.rate_hz)
-        self.safety.set_keep_out(tuple(self.keep_out.values()))
+        self._apply_keep_out()
         return env
 
     def keep_out_of(self, key: int, box: Box) -> None:
         """Vehicle ``key`` left unheard: the members keep the safety separation
         from ``box`` (Eq. K1, ``keep_out.lost_column``) until ``release``."""
-        if key not in self.keep_out:
-            self.keep_outs_taken += 1
         self.keep_out[key] = box
-        self.safety.set_keep_out(tuple(self.keep_out.values()))
+        self._apply_keep_out()
 
     def release(self, key: int) -> bool:
         """Vehicle ``key``'s keep-out ends (it is heard again); False if it had none."""
         if self.keep_out.pop(key, None) is None:
             return False
-        self.safety.set_keep_out(tuple(self.keep_out.values()))
+        self._apply_keep_out()
         return True
+
+    def set_live_keep_out(self, boxes: Mapping[int, Box]) -> None:
+        """The columns of vehicles out of the formation but heard and in the
+        air, by key, from this step on (replacing the last step's)."""
+        if not boxes and not self.live_keep_out:
+            return  # the usual case: nothing to rebuild
+        self.live_keep_out = dict(boxes)
+        self._apply_keep_out()
+
+    def _apply_keep_out(self) -> None:
+        kept = {**self.live_keep_out, **self.keep_out}
+        new = kept.keys() - self._kept
+        self._kept |= new
+        self.keep_outs_taken += len(new)
+        self.safety.set_keep_out(tuple(kept.values()))
 
     def forget(self, sysid: int) -> None:
         """A vehicle left: its next telemetry maps its clock afresh, and its
@@ -224,7 +241,7 @@ class ControlLoop:
         if obstacles.count and len(ids):
             clearance = float(box_signed_distance(pos_m, obstacles).min())
             self.min_clearance_m = min(self.min_clearance_m, clearance)
-        if self.keep_out and len(ids):
+        if self.safety.keep_out and len(ids):
             kept = self.safety.keep_out
             d, _ = box_distances(
                 pos_m,

@@ -179,6 +179,12 @@ class Failsafe:
     fence_margin: float = 5.0
     restore: bool = True
 
+    def gcs_for(self, autopilot: str) -> bool:
+        """Whether the GCS-loss failsafe is set on a vehicle of ``autopilot``
+        (the mission's: ardupilot, px4 or sim): ``gcs``, or when it is None,
+        on for a real autopilot's and off for a sim one's."""
+        return autopilot in ("ardupilot", "px4") if self.gcs is None else self.gcs
+
 
 @dataclass(frozen=True)
 class Signing:

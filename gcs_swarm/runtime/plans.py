@@ -113,7 +113,7 @@ def param_settings(mission: Mission, vehicle: Vehicle) -> ParamSettings:
 
     return ParamSettings(
         read_envelope=on(s.startup.read_envelope),
-        gcs_failsafe=on(fs.gcs),
+        gcs_failsafe=fs.gcs_for(vehicle.autopilot),
         gcs_timeout_s=fs.timeout,
         fence=on(fs.fence) and limits.geofence_min is not None,
         fence_margin_m=fs.fence_margin,

@@ -49,6 +49,7 @@ from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
 from gcs_swarm.runtime.tlog import TlogWriter
 from gcs_swarm.runtime.zbus import Bus, TlsFiles
+from gcs_swarm.swarm.departures import live_columns
 from gcs_swarm.swarm.shard import ShardSide
 from gcs_swarm.swarm.shard_wire import decode_reply, encode_state, keep_out_json
 
@@ -224,8 +225,10 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                 origin = None if o is None else [o.lat_deg, o.lon_deg, o.alt_m]
                 # The columns of its vehicles it calls lost (Eq. K1), for the law's filter.
                 kept = keep_out_json(core.control.keep_out)
+                flies = core.started and not (core.ending or core.finished)
+                live = keep_out_json(live_columns(core, station.now()) if flies else {})
                 bus.put_json(f"{up}/msg", {"kind": "beat", "flying": flying, "origin": origin,
-                                           "keep_out": kept})  # fmt: skip
+                                           "keep_out": kept, "keep_live": live})  # fmt: skip
                 if side.controller_silent(station.now()) and not ended.is_set():
                     station.warn(f"controller silent for {cfg.stale_timeout_s:g} s: "
                                  "ending every vehicle of this shard")  # fmt: skip

@@ -209,7 +209,8 @@ class ShardedRun:
             return
         now = self.now()
         if kind == "beat":
-            self.core.heard(index, now, msg.get("flying"), keep_out_from_json(msg.get("keep_out")))
+            kept, live = (keep_out_from_json(msg.get(k)) for k in ("keep_out", "keep_live"))
+            self.core.heard(index, now, msg.get("flying"), kept, live)
             if self.origin is None and msg.get("origin") is not None:
                 self.origin = [float(x) for x in msg["origin"]]
         elif kind == "ready":
@@ -393,10 +394,9 @@ async def run_sharded(
     if folder is not None and on_folder is not None:
         on_folder(folder)
     log = ControllerLog(mission, folder)
-    guid_s, vs = s.startup.guid_timeout, mission.vehicles
-    departures = {
-        v.key: departure_terms(v.autopilot, param_settings(mission, v), guid_s) for v in vs
-    }
+    vs, terms = mission.vehicles, departure_terms
+    departures = {v.key: terms(v.autopilot, param_settings(mission, v), s.startup.guid_timeout)
+                  for v in vs}  # fmt: skip
     core = ControllerCore(mission.law, {v.key: v.q for v in vs}, s.rate, shards=shards,
                           duration_s=s.duration, stale_timeout_s=s.stale_timeout,
                           lockstep=lockstep, recorder=log.recorder, departures=departures,

@@ -93,10 +93,12 @@ class RunSummary:
     """Why the mission ended as failed in flight (the law failed), if it did."""
     logging_error: str | None = None
     keep_out_columns: int = 0
-    """Lost vehicles' columns the members kept out of (Eq. K1, docs/vehicle-safety.md)."""
+    """Vehicles out of the formation but in the air whose columns the members
+    kept out of (lost, or left while heard: Eq. K1, docs/vehicle-safety.md)."""
     min_keep_out_m: float = math.inf
     """The closest any member came to such a column [m] (negative: inside it,
-    as when it appears around a member)."""
+    as when one appears around a member; a column is where the vehicle may
+    be, so this is at most the distance to the vehicle)."""
     """Why the run's log stopped (a write error), if it did."""
 
     @classmethod
@@ -280,8 +282,8 @@ class RunSummary:
             )
         if self.keep_out_columns:
             near = f"{self.min_keep_out_m:.3f} m" if math.isfinite(self.min_keep_out_m) else "-"
-            lines.append(f"lost vehicles' columns kept out of: {self.keep_out_columns}, closest "
-                         f"member {near} (the separation is kept; Eq. K1)")  # fmt: skip
+            lines.append(f"columns of vehicles out of the formation kept out of: "
+                         f"{self.keep_out_columns}, closest member {near} (Eq. K1)")  # fmt: skip
         for v in self.vehicles:
             where = "-"
             if v.position_m is not None and v.radius_m is not None:

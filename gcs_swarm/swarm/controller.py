@@ -73,6 +73,8 @@ class ShardView:
     died_at: float | None = None
     kept: set[int] = field(default_factory=set)
     """Its vehicles whose keep-out columns it sent (lost, unheard)."""
+    live: dict[int, Box] = field(default_factory=dict)
+    """The columns of its vehicles out of the formation, heard and in the air."""
 
 
 class ControllerCore:
@@ -133,16 +135,20 @@ class ControllerCore:
         now: float,
         flying: int | None = None,
         keep_out: Mapping[int, Box] | None = None,
+        live: Mapping[int, Box] | None = None,
     ) -> None:
         """Shard ``shard`` said something at ``now`` (a heartbeat: with its
-        flying count once it flies, and the keep-out columns of its vehicles
-        it calls lost, by key)."""
+        flying count once it flies, the keep-out columns of its vehicles it
+        calls lost, and those of its vehicles out of the formation, heard and
+        in the air, by key)."""
         view = self.shards.get(shard)
         if view is None or not view.alive:
             return
         view.heard_at = now
         if keep_out is not None:
             self._keep(view, keep_out)
+        if live is not None:
+            self._live(view, live)
         if flying is not None:
             view.flying = flying
             self._maybe_step(now)
@@ -204,10 +210,21 @@ class ControllerCore:
                           "longer keep out of its column")  # fmt: skip
         for key, box in sorted(boxes.items()):
             if control.keep_out.get(key) != box:
+                if key not in view.kept:  # said once; a live column moves every beat
+                    label, sep = str(self.labels.get(key, key)), control.config.safety.separation
+                    self.note(describe(label, box, sep), level=logging.WARNING)
                 control.keep_out_of(key, box)
-                label, sep = str(self.labels.get(key, key)), control.config.safety.separation
-                self.note(describe(label, box, sep), level=logging.WARNING)
         view.kept = set(boxes)
+
+    def _live(self, view: ShardView, boxes: Mapping[int, Box]) -> None:
+        """A live shard's columns of its heard vehicles out of the formation now."""
+        sep = self.control.config.safety.separation
+        for key in sorted(boxes.keys() - view.live.keys()):
+            label = str(self.labels.get(key, key))
+            self.note(describe(label, boxes[key], sep, heard=True), level=logging.WARNING)
+        view.live = dict(boxes)
+        merged = {k: b for v in self.shards.values() if v.alive for k, b in v.live.items()}
+        self.control.set_live_keep_out(merged)
 
     def _dead(self, view: ShardView, now: float) -> None:
         view.alive = False
@@ -237,6 +254,12 @@ class ControllerCore:
                           f"the columns of shard {view.index}'s {len(gone)} vehicles (Eq. K1)",
                           level=logging.WARNING)  # fmt: skip
         view.batch, view.fresh, view.delivered, view.flying = None, {}, False, 0
+        if view.live:  # its heard ones out of the formation: unheard now, columns where last seen
+            for key, box in view.live.items():
+                self.control.keep_out_of(key, box)
+            view.live = {}
+            merged = {k: b for v in self.shards.values() if v.alive for k, b in v.live.items()}
+            self.control.set_live_keep_out(merged)
 
     # --------------------------------------------------------- control step
     def _maybe_step(self, now: float) -> None:

@@ -1,12 +1,15 @@
-"""A vehicle that leaves the formation unheard: its keep-out column (Eq. K1).
+"""Vehicles out of the formation but in the air: their keep-out columns (Eq. K1).
 
 ``lost_keep_out`` reads what the station last knew of a vehicle that went
-LOST (its last report, its last command, its home) and what its autopilot
-will do without the station (how long it coasts on the last setpoint, how
-hard it brakes, whether its GCS failsafe climbs for RTL), and gives the box
+LOST (its last report, its last command) and what its autopilot will do
+without the station (how long it coasts on the last setpoint, how hard it
+brakes, whether its GCS failsafe climbs for RTL), and gives the box
 ``gcs_swarm.control.keep_out.lost_column`` makes of them. ``SwarmCore`` hands
-it to the members' safety filter until the vehicle is heard again
-(docs/vehicle-safety.md, "One vehicle's link lost"). No I/O.
+it to the members' safety filter until the vehicle is heard again.
+``live_columns`` gives, at each step, the columns of the vehicles that left
+the formation while heard (a ``leave`` event, a failure, a pilot taking
+over) and are still in the air, at their latest reports (docs/vehicle-safety.md,
+"Vehicles out of the formation"). No I/O.
 """
 
 from __future__ import annotations
@@ -21,13 +24,27 @@ from gcs_swarm.control.limits import FloatArray
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Box
 from gcs_swarm.mavlink.px4 import OF_LOSS_T_S
+from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 
-if TYPE_CHECKING:  # the plan's type only: the runtime layer is above this one
+if TYPE_CHECKING:  # types only: the runtime layer is above this one, the core beside
     from gcs_swarm.runtime.config import VehiclePlan
+    from gcs_swarm.swarm.core import SwarmCore
 
-__all__ = ["column", "departure_terms", "describe", "keep_out_lost", "lost_keep_out"]
+_OUT_PHASES = frozenset({Phase.ENDING, Phase.ENDED, Phase.FAILED})
+"""Phases of a vehicle that flew and left while heard: ending (its end mode
+asked), ended (in its end mode: holding, landing) or failed (someone else
+took it)."""
+
+__all__ = [
+    "column",
+    "departure_terms",
+    "describe",
+    "keep_out_lost",
+    "live_columns",
+    "lost_keep_out",
+]
 
 
 def departure_terms(
@@ -76,13 +93,17 @@ def lost_keep_out(
                   departure_terms(plan.autopilot, plan.params, guid_timeout_s))  # fmt: skip
 
 
-def describe(label: str, box: Box, separation_m: float) -> str:
-    """The log line of a keep-out column taken."""
+def describe(label: str, box: Box, separation_m: float, *, heard: bool = False) -> str:
+    """The log line of a keep-out column taken: of a vehicle unheard, or
+    (``heard``) of one that left while heard and flies on."""
     c, h = box.centre, box.half_extents
+    where = (f"the column x {c[0]:.1f} +/- {h[0]:.1f}, y {c[1]:.1f} +/- {h[1]:.1f} m, "
+             f"up to z {c[2] + h[2]:.1f} m")  # fmt: skip
+    if heard:
+        return (f"vehicle {label} out of the formation, still in the air: the others keep "
+                f"{separation_m:g} m from its column (now {where}) until it is down")  # fmt: skip
     return (f"vehicle {label} left unheard, still in the air: the others keep "
-            f"{separation_m:g} m from the column x {c[0]:.1f} +/- {h[0]:.1f}, "
-            f"y {c[1]:.1f} +/- {h[1]:.1f} m, up to z {c[2] + h[2]:.1f} m, "
-            "until it is heard again")  # fmt: skip
+            f"{separation_m:g} m from {where}, until it is heard again")  # fmt: skip
 
 
 def keep_out_lost(
@@ -101,3 +122,31 @@ def keep_out_lost(
                 "nothing keeps the others out from under it", logging.WARNING)  # fmt: skip
     control.keep_out_of(vp.sysid, box)
     return describe(vp.label, box, safety.separation), logging.WARNING
+
+
+def live_columns(core: SwarmCore, now: float) -> dict[int, Box]:
+    """The columns (Eq. K1) of the vehicles that flew in the formation and
+    are out of it now while heard, by key: in an out phase (``_OUT_PHASES``),
+    not on the ground, with a report within the stale timeout of ``now``
+    [s]. Each stands at its latest report, with its velocity and no coast
+    (its autopilot flies its own mode already: holding, landing, or a pilot
+    flying it); none with the filter off, and none for a LOST vehicle
+    (``keep_out_lost`` keeps its last one)."""
+    control = core.control
+    out: dict[int, Box] = {}
+    if not control.config.safety.enabled:
+        return out
+    stale = core.config.stale_timeout_s
+    for sysid in sorted(core.flown - core.flying):
+        vp = core.vehicles[sysid]
+        if vp.phase not in _OUT_PHASES or sysid in control.keep_out:
+            continue
+        if vp.position is None or vp.offset_m is None or now - vp.position_at > stale:
+            continue
+        if vp.on_ground:
+            continue
+        pos, vel = vp.state_mission()
+        plan = core.plans[sysid]
+        climbs = departure_terms(plan.autopilot, plan.params, 0.0)[1]
+        out[sysid] = column(control, pos, vel, np.zeros(3), (0.0, climbs))
+    return out

@@ -17,7 +17,9 @@ the numbers an unsharded one does (the lockstep test compares to 1e-9 m).
 Everything else (hello, assignment, ready, start, end, heartbeats, the
 shard's final report) is small JSON, sent a few times per run or at 10 Hz;
 a heartbeat carries the keep-out columns (Eq. K1) of the vehicles the shard
-calls lost, ``{"key": [cx, cy, cz, hx, hy, hz]}`` (``keep_out_json``).
+calls lost (``keep_out``) and of those out of the formation, heard and in
+the air (``keep_live``), each ``{"key": [cx, cy, cz, hx, hy, hz]}``
+(``keep_out_json``).
 """
 
 from __future__ import annotations

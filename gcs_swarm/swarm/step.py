@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from gcs_swarm.errors import SwarmError
 from gcs_swarm.mavlink.states import Phase
+from gcs_swarm.swarm.departures import describe, live_columns
 
 if TYPE_CHECKING:
     from gcs_swarm.control.law import ControlOutput
@@ -82,6 +83,12 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     flying vehicles, answering those in ``fresh`` (sysid -> report time)."""
     ids = sorted(core.flying)
     if ids:
+        # The members keep out of those that left but fly on, heard (Eq. K1).
+        live = live_columns(core, now)
+        for key in sorted(live.keys() - core.control.live_keep_out.keys()):
+            sep = core.control.config.safety.separation
+            core.note(describe(core.labels[key], live[key], sep, heard=True))
+        core.control.set_live_keep_out(live)
         ks, pos, vel = flying_states(core, ids, now)
         commanded = command(core, ids, pos, vel, t, fresh.keys())
         if commanded is None:

@@ -63,11 +63,13 @@ def _two_networks(
     extra: str = "",
     more: tuple[str, str] = ("", ""),
     events: str = "",
+    end: str = "hold",
 ) -> Mission:
     """Example 1's six on networks blue and red; ``more``: vehicle lines
-    added to blue and to red, ``events``: an ``events:`` section."""
+    added to blue and to red, ``events``: an ``events:`` section (or any
+    text after the networks), ``end``: the mission's end action."""
     text = (
-        f"mission: {{name: shards, duration: {duration}, rate: 50, end: hold{extra}}}\n"
+        f"mission: {{name: shards, duration: {duration}, rate: 50, end: {end}{extra}}}\n"
         f"emulator: {{{emulator}}}\n"
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}\nnetworks:\n"
     )
@@ -811,4 +813,41 @@ def test_a_vehicle_lost_on_a_shard_is_kept_out_of_by_the_controller_until_heard(
     assert "vehicle red:1 heard again: the others no longer keep out" in log
     # The run's summary says so, with the closest a member came to the column.
     assert summary.keep_out_columns == 1 and math.isfinite(summary.min_keep_out_m)
-    assert "lost vehicles' columns kept out of: 1, closest member" in summary.format()
+    assert "columns of vehicles out of the formation kept out of: 1, closest" in summary.format()
+
+
+def test_a_vehicle_that_leaves_on_a_shard_and_flies_on_is_kept_out_of() -> None:
+    """Safety filter on, ``end: land``: red:2 leaves on an event at 2 s and
+    lands. Its shard still hears it: its heartbeats carry the vehicle's
+    column at its latest report (Eq. K1), which the controller's filter
+    keeps until it is on the ground."""
+    mission = _two_networks(8.0, "dynamics: ideal, mode: realtime, speedup: 2, spawn: air",
+                            ", startup: {guid_timeout: 0.5}", end="land",
+                            events="limits: {safety: {enabled: true}}\n"
+                                   "events:\n  - {t: 2, leave: 2, network: red}\n")  # fmt: skip
+    seen: dict[str, Any] = {}
+
+    async def watch(run: ShardedRun) -> None:
+        core = run.core
+        assert await run.wait_for(lambda: 258 in core.control.live_keep_out, 30.0)
+        seen["first"] = core.control.live_keep_out[258]
+        await asyncio.sleep(1.0)
+        seen["later"] = core.control.live_keep_out.get(258)
+        seen["log"] = list(core.log)
+
+    async def fly() -> RunSummary:
+        tasks: list[asyncio.Task[None]] = []
+        async with asyncio.timeout(180):
+            summary = await run_sharded(
+                mission, 2, end_timeout_s=5.0,
+                on_run=lambda run: tasks.append(asyncio.ensure_future(watch(run))),
+            )  # fmt: skip
+            await tasks[0]
+        return summary
+
+    summary = asyncio.run(fly())
+    first, later = seen["first"], seen["later"]
+    assert later is not None and later.centre[2] < first.centre[2]  # it follows the descent
+    assert "vehicle red:2 out of the formation, still in the air" in "\n".join(seen["log"])
+    # Only its: the mission's own ending (every vehicle out then) takes none.
+    assert summary.keep_out_columns == 1, summary.keep_out_columns

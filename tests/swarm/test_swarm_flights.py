@@ -303,3 +303,50 @@ def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation(
         f"{core.control.min_keep_out_m:.3f} m"
     )
     assert closest >= m.law.safety.separation, closest
+
+
+@pytest.mark.parametrize("end", ["land", "hold"])
+def test_a_vehicle_that_leaves_and_flies_on_is_kept_out_of(end: str) -> None:
+    """Example 1 with the filter on (1 m separation): vehicle 1, an upper
+    vertex with vehicle 6 3.5 m below it, leaves on an event at 60 s with the
+    mission's ``end``: LAND brings it straight down through the formation,
+    Hold keeps it where it stopped while the others re-form. The station
+    still hears it: the others keep the separation from its column at its
+    latest report (Eq. K1) until it is on the ground (the emulator's truth
+    checked every step). Measured (2026-12-04): LAND 1.944 m, Hold 2.454 m;
+    without the column LAND passed 0.101 m from vehicle 6 (Hold 2.966 m)."""
+    m = mission_from("example1_octahedron.yaml", duration=130.0)
+    leave = (Event(60.0, "leave", 1),)
+    m = dataclasses.replace(
+        m,
+        settings=dataclasses.replace(m.settings, end=end),
+        law=dataclasses.replace(m.law, safety=dataclasses.replace(m.law.safety, enabled=True)),
+        events=leave,
+    )
+    sky = Sky(m)
+    core = sky.core
+    sky.ready()
+    sky.start()
+    sky.run_until(lambda: core.control.t_s >= 59.5, 70.0)
+    fleet = sky.vehicles[1].radio.emu.fleet  # type: ignore[union-attr]
+    rows = {s: v.hosted.row for s, v in sky.vehicles.items()}
+
+    def where(sysid: int) -> np.ndarray:  # the emulator's truth, in the mission frame
+        return ned_to_mission(fleet.pos[rows[sysid]], core.vehicles[sysid].offset_m)
+
+    closest, kept = np.inf, False
+    for _ in range(60 * 50):
+        sky.advance(sky.dt)
+        kept = kept or 1 in core.control.live_keep_out
+        for s in core.flying - {1}:
+            closest = min(closest, float(np.linalg.norm(where(s) - where(1))))
+    assert 1 not in core.flying and kept  # it left, and was kept out of
+    log = "\n".join(core.log)
+    assert "vehicle 1 out of the formation, still in the air" in log
+    if end == "land":  # down: no column any more
+        assert sky.vehicles[1].ap.control == "ground" or core.vehicles[1].on_ground
+        assert 1 not in core.control.live_keep_out
+    else:
+        assert 1 in core.control.live_keep_out
+    print(f"end {end}: closest member to the vehicle that left {closest:.3f} m")
+    assert closest >= m.law.safety.separation, closest
