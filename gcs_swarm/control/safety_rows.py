@@ -202,28 +202,22 @@ class SafetyRows:
         # (B1')-(B2') are homogeneous in lengths, so half the relative problem
         # with one vehicle's budget, caps and jerk is each vehicle's half share.
         fams: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
-        if self.safety.enabled and self._centres.shape[0]:
-            # (a) boxes: (B1)-(B2) on the signed distance, supporting-plane normal.
-            closing = -np.einsum("nkj,nj->nk", geo.box_n, vel)
-            gap = geo.clearance - self.safety.clearance
-            normals.append(geo.box_n)
+        # (a) boxes at the clearance and (e) keep-out boxes at the vehicle
+        # separation: (B1)-(B2) on the signed distance, supporting-plane normal.
+        boxes = ((geo.box_n, geo.clearance, self.safety.clearance),
+                 (geo.keep_n, geo.keep_d, self.safety.separation))  # fmt: skip
+        for box_n, dist, margin in boxes if self.safety.enabled else ():
+            if not box_n.shape[1]:
+                continue
+            closing = -np.einsum("nkj,nj->nk", box_n, vel)
+            gap = dist - margin
+            normals.append(box_n)
             if self.plan:
-                fams.append((geo.box_n, gap, closing, -np.einsum("nkj,nj->nk", geo.box_n, prev)))
+                fams.append((box_n, gap, closing, -np.einsum("nkj,nj->nk", box_n, prev)))
                 bounds.append(gap)  # placeholder, replaced below
             else:
                 bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
-            classes += [ENV] * geo.box_n.shape[1]
-        if self.safety.enabled and self._keep_centres.shape[0]:
-            # (e) keep-out boxes: as (a), at the vehicle separation.
-            closing = -np.einsum("nkj,nj->nk", geo.keep_n, vel)
-            gap = geo.keep_d - self.safety.separation
-            normals.append(geo.keep_n)
-            if self.plan:
-                fams.append((geo.keep_n, gap, closing, -np.einsum("nkj,nj->nk", geo.keep_n, prev)))
-                bounds.append(gap)  # placeholder, replaced below
-            else:
-                bounds.append(braking_bound(gap, closing, a_b, dt, self.tuning.gamma_per_s))
-            classes += [ENV] * geo.keep_n.shape[1]
+            classes += [ENV] * box_n.shape[1]
         if self._plane_axis.size:
             # (c) floor and fence planes: (B1)-(B2), exact for a plane, margin 0.
             gap = self._plane_sign * pos[:, self._plane_axis] - self._plane_offset

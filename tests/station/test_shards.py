@@ -80,6 +80,23 @@ def _two_networks(
     return parse_mission(text + events)
 
 
+def _fly_watched(mission: Mission, watch: Callable[[ShardedRun], Any]) -> RunSummary:
+    """``run_sharded`` on two shards with ``watch(run)`` run beside it (3 min at most)."""
+
+    async def fly() -> RunSummary:
+        tasks: list[asyncio.Task[None]] = []
+
+        def started(run: ShardedRun) -> None:
+            tasks.append(asyncio.ensure_future(watch(run)))
+
+        async with asyncio.timeout(180):
+            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
+            await tasks[0]
+        return summary
+
+    return asyncio.run(fly())
+
+
 LOCKSTEP_S = 8.0
 """Formation flight of the lockstep comparison [s] (400 steps: the two
 flights are compared with each other, not with the equilibrium)."""
@@ -352,18 +369,7 @@ def test_when_the_controller_dies_every_shard_sends_its_vehicles_the_end_action(
             await asyncio.sleep(0.05)
         exits.extend(p.returncode for p in run.processes)
 
-    async def fly() -> RunSummary:
-        tasks: list[asyncio.Task[None]] = []
-
-        def started(run: ShardedRun) -> None:
-            tasks.append(asyncio.ensure_future(watch(run)))
-
-        async with asyncio.timeout(180):
-            summary = await run_sharded(mission, 2, end_timeout_s=5.0, on_run=started)
-            await tasks[0]
-        return summary
-
-    summary = asyncio.run(fly())
+    summary = _fly_watched(mission, watch)
     assert sorted(modes) == ["0:1", "0:2", "0:3", "1:1", "1:2", "1:3"]
     assert set(modes.values()) == {"BRAKE"}, modes
     assert exits == [0, 0]  # each shard: every vehicle that flew ended
@@ -789,17 +795,7 @@ def test_a_vehicle_lost_on_a_shard_is_kept_out_of_by_the_controller_until_heard(
         seen["released"] = True
         seen["log"] = list(core.log)
 
-    async def fly() -> RunSummary:
-        tasks: list[asyncio.Task[None]] = []
-        async with asyncio.timeout(180):
-            summary = await run_sharded(
-                mission, 2, end_timeout_s=5.0,
-                on_run=lambda run: tasks.append(asyncio.ensure_future(watch(run))),
-            )  # fmt: skip
-            await tasks[0]
-        return summary
-
-    summary = asyncio.run(fly())
+    summary = _fly_watched(mission, watch)
     assert summary.outcome == "completed", summary.outcome
     assert seen.get("released"), seen
     box = seen["box"]
@@ -835,17 +831,7 @@ def test_a_vehicle_that_leaves_on_a_shard_and_flies_on_is_kept_out_of() -> None:
         seen["later"] = core.control.live_keep_out.get(258)
         seen["log"] = list(core.log)
 
-    async def fly() -> RunSummary:
-        tasks: list[asyncio.Task[None]] = []
-        async with asyncio.timeout(180):
-            summary = await run_sharded(
-                mission, 2, end_timeout_s=5.0,
-                on_run=lambda run: tasks.append(asyncio.ensure_future(watch(run))),
-            )  # fmt: skip
-            await tasks[0]
-        return summary
-
-    summary = asyncio.run(fly())
+    summary = _fly_watched(mission, watch)
     first, later = seen["first"], seen["later"]
     assert later is not None and later.centre[2] < first.centre[2]  # it follows the descent
     assert "vehicle red:2 out of the formation, still in the air" in "\n".join(seen["log"])

@@ -6,6 +6,8 @@ The real-UDP end-to-end twins stay in tests/station and tests/reliability."""
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -246,6 +248,27 @@ def test_an_emulated_px4_heard_again_rejoins_a_moving_formation() -> None:
     assert core.flying == {1, 2, 3, 4}
 
 
+def _closest_members(sky: Sky, away: int, seconds: float, each: Callable[[], object]) -> float:
+    """Fly ``seconds`` [s] step by step (``each`` after every step) and return
+    how close any member came to vehicle ``away``: the emulator's truth, in
+    the mission frame."""
+    core = sky.core
+    fleet = sky.vehicles[away].radio.emu.fleet  # type: ignore[union-attr]
+    rows = {s: v.hosted.row for s, v in sky.vehicles.items()}
+
+    def where(sysid: int) -> np.ndarray:
+        return ned_to_mission(fleet.pos[rows[sysid]], core.vehicles[sysid].offset_m)
+
+    closest = math.inf
+    for _ in range(round(seconds / sky.dt)):
+        sky.advance(sky.dt)
+        each()
+        there = where(away)
+        for s in core.flying - {away}:
+            closest = min(closest, float(np.linalg.norm(where(s) - there)))
+    return closest
+
+
 @pytest.mark.parametrize(
     ("mission", "lost_id", "lost_at_s"),
     [
@@ -283,20 +306,10 @@ def test_a_lost_vehicle_s_failsafe_descent_keeps_the_separation(
     sky.start()
     sky.run_until(lambda: core.control.t_s >= lost_at_s, lost_at_s + 10.0)
     sky.set_silent(lost_id)
-    fleet = sky.vehicles[lost_id].radio.emu.fleet  # type: ignore[union-attr]
-    rows = {s: v.hosted.row for s, v in sky.vehicles.items()}
-
-    def where(sysid: int) -> np.ndarray:  # the emulator's truth, in the mission frame
-        return ned_to_mission(fleet.pos[rows[sysid]], core.vehicles[sysid].offset_m)
-
-    closest, landing = np.inf, False
-    for _ in range(20 * 50):
-        sky.advance(sky.dt)
-        landing = landing or sky.vehicles[lost_id].ap.control == "land"
-        lost = where(lost_id)
-        for s in core.flying - {lost_id}:
-            closest = min(closest, float(np.linalg.norm(where(s) - lost)))
-    assert landing and core.vehicles[lost_id].phase is Phase.LOST  # the scenario happened
+    landing: list[str] = []
+    closest = _closest_members(sky, lost_id, 20.0, lambda: landing.append(
+        sky.vehicles[lost_id].ap.control))  # fmt: skip
+    assert "land" in landing and core.vehicles[lost_id].phase is Phase.LOST  # the scenario happened
     assert lost_id in core.control.keep_out
     print(
         f"closest member to the lost vehicle: {closest:.3f} m; to its column "
@@ -328,19 +341,9 @@ def test_a_vehicle_that_leaves_and_flies_on_is_kept_out_of(end: str) -> None:
     sky.ready()
     sky.start()
     sky.run_until(lambda: core.control.t_s >= 59.5, 70.0)
-    fleet = sky.vehicles[1].radio.emu.fleet  # type: ignore[union-attr]
-    rows = {s: v.hosted.row for s, v in sky.vehicles.items()}
-
-    def where(sysid: int) -> np.ndarray:  # the emulator's truth, in the mission frame
-        return ned_to_mission(fleet.pos[rows[sysid]], core.vehicles[sysid].offset_m)
-
-    closest, kept = np.inf, False
-    for _ in range(60 * 50):
-        sky.advance(sky.dt)
-        kept = kept or 1 in core.control.live_keep_out
-        for s in core.flying - {1}:
-            closest = min(closest, float(np.linalg.norm(where(s) - where(1))))
-    assert 1 not in core.flying and kept  # it left, and was kept out of
+    kept: list[bool] = []
+    closest = _closest_members(sky, 1, 60.0, lambda: kept.append(1 in core.control.live_keep_out))
+    assert 1 not in core.flying and any(kept)  # it left, and was kept out of
     log = "\n".join(core.log)
     assert "vehicle 1 out of the formation, still in the air" in log
     if end == "land":  # down: no column any more
