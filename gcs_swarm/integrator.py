@@ -14,8 +14,9 @@ Join/leave events ``(time_s, "join" | "leave", vehicle_id)`` apply at the
 first step whose time is >= ``time_s``. A vehicle that leaves is held where it
 is, at rest; one that joins starts from its held state (its start position if
 it never flew). Inactive vehicles are recorded as NaN. ``on_out`` is told,
-at every step where the set changes, where the vehicles that flew and left
-are held (the station keeps its members out of their columns, Eq. K1).
+at the first step and every step where the set changes, where the inactive
+vehicles are held and which of them have flown (the station keeps its
+members out of where such vehicles may be, Eq. K1).
 
 An optional ``accel_filter(t, ids, pos, vel, accel) -> accel`` (limits, safety
 filter) is applied to the law's output in every RK4 stage; the default is the
@@ -164,7 +165,7 @@ def integrate(
     t0: float = 0.0,
     start_vel_mps: ArrayLike | None = None,
     vehicle: Envelope | None = None,
-    on_out: Callable[[dict[int, F64]], None] | None = None,
+    on_out: Callable[[dict[int, F64], set[int]], None] | None = None,
 ) -> SimResult:
     """Integrate the swarm under the law for ``duration`` [s] with step ``dt`` [s].
 
@@ -174,8 +175,9 @@ def integrate(
     join/leave as described in the module docstring. ``vehicle``: integrate
     that envelope's jerk-limited, lagged vehicle with the command held over
     each step ``dt`` (module docstring) instead of the point mass.
-    ``on_out(held)``: where each vehicle that flew and left is held [m], by
-    id, whenever that set changes (module docstring).
+    ``on_out(held, flown)``: where each inactive vehicle is held [m], by id,
+    and the ids of those that have flown, whenever that set changes (module
+    docstring).
     """
     p_all = np.array(starts, dtype=np.float64).reshape(-1, 3)
     m = p_all.shape[0]
@@ -226,7 +228,7 @@ def integrate(
     flown = act.copy()  # vehicles that have flown: one out of these is held in the air
     for k in range(n_t):
         t = float(times[k])
-        changed = False
+        changed = k == 0
         while ev < len(pending) and float(pending[ev][0]) <= t + 1e-9 * dt:
             _, kind, who = pending[ev]
             j = index[int(who)]
@@ -237,7 +239,9 @@ def integrate(
             ev += 1
             changed = True
         if changed and on_out is not None:
-            on_out({int(vid[j]): p_all[j].copy() for j in np.flatnonzero(flown & ~act)})
+            out = np.flatnonzero(~act)
+            on_out({int(vid[j]): p_all[j].copy() for j in out},
+                   {int(vid[j]) for j in out if flown[j]})  # fmt: skip
         idx = np.flatnonzero(act)
         key = tuple(int(vid[j]) for j in idx)
         p, v, q = p_all[idx], v_all[idx], q_all[idx]

@@ -114,11 +114,13 @@ class EnvelopeHook:
 
 @dataclass
 class _HeldColumns:
-    """The station's rule for a vehicle that left while heard and flies on
-    (``swarm.departures.live_columns``), on the integrator's vehicles that
-    left: each is held where it left, at rest, and the members keep the
-    separation from its column (Eq. K1: no coast, no speed, braking as the
-    envelope allows, climbing for an RTL failsafe), with the filter on."""
+    """The station's rule for vehicles out of the formation and in the air
+    (``swarm.departures.live_columns``), on the integrator's inactive ones:
+    each is held at rest (where it left, or a reserve at its start), and the
+    members keep the separation from where it may be (Eq. K1, no coast, no
+    speed, braking as the envelope allows): a column for one that flew and
+    left (climbing for an RTL failsafe), the cube of Eq. K1c for a reserve,
+    with the filter on."""
 
     mission: Mission
     envelope: Envelope
@@ -128,15 +130,16 @@ class _HeldColumns:
         if not self.mission.law.safety.enabled:
             self.filter = None  # the rows (e) exist only with the filter on
 
-    def __call__(self, held: dict[int, F64]) -> None:
+    def __call__(self, held: dict[int, F64], flown: set[int]) -> None:
         assert self.filter is not None
         m = self.mission
         brake = min(self.envelope.accel_xy, m.law.limits.a_max)
         fs, by_key = m.settings.failsafe, {v.key: v for v in m.vehicles}
         zero = np.zeros(3)
+        rtl = m.settings.end == "rtl"
         self.filter.set_keep_out([
-            lost_column(p, zero, zero, coast_s=0.0, brake_mps2=brake,
-                        climbs=m.settings.end == "rtl" and fs.gcs_for(by_key[key].autopilot))
+            lost_column(p, zero, zero, coast_s=0.0, brake_mps2=brake, down=key in flown,
+                        climbs=rtl and key in flown and fs.gcs_for(by_key[key].autopilot))
             for key, p in sorted(held.items())
         ])  # fmt: skip
 

@@ -152,13 +152,15 @@ def test_analysis_helpers() -> None:
 
 
 def test_on_out_is_told_where_the_vehicles_that_left_are_held() -> None:
-    """``on_out``: at the leave, where vehicle 2 stopped (its last position,
-    held at rest); at its rejoin, nobody; a reserve that never flew is not
-    one of them."""
-    told: list[dict[int, np.ndarray]] = []
+    """``on_out``: at the start the reserve 3, held at its start; at the
+    leave, vehicle 2 too, where it stopped (held at rest), and it has flown;
+    at the joins, nobody."""
+    told: list[tuple[dict[int, np.ndarray], set[int]]] = []
     res = integrate(LawConfig(), STARTS[:3], duration=1.0, dt=0.1, active=[True, True, False],
                     events=[(0.5, "leave", 2), (0.8, "join", 2), (0.8, "join", 3)],
-                    on_out=told.append)  # fmt: skip
-    assert [sorted(t) for t in told] == [[2], []]
+                    on_out=lambda held, flown: told.append((held, flown)))  # fmt: skip
+    assert [(sorted(h), sorted(f)) for h, f in told] == [([3], []), ([2, 3], [2]), ([], [])]
+    np.testing.assert_array_equal(told[0][0][3], STARTS[2])
+    held = told[1][0][2]
     assert np.isnan(res.pos_m[5:8, 1]).all()
-    np.testing.assert_array_equal(res.pos_m[8, 1], told[0][2])  # rejoins from where it was held
+    np.testing.assert_array_equal(res.pos_m[8, 1], held)  # rejoins from where it was held

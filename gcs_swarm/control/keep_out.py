@@ -1,4 +1,4 @@
-"""Keep-out columns: where a vehicle that left the formation unheard may be (Eq. K1).
+"""Keep-out boxes: where a vehicle out of the formation may be (Eq. K1).
 
 A vehicle whose link goes quiet leaves the formation (``Phase.LOST``), but it
 is still in the air: it coasts on its last acceleration setpoint until the
@@ -23,7 +23,10 @@ from the point where it stopped. The column is the axis-aligned box
 
 from ``REACH_M`` = Z below it (the ground is always above that: nothing is
 assumed of where the ground is) up to r above where it was; with ``climbs``
-(an RTL failsafe, which climbs to RTL_ALT first) its top is Z above it too. b is the braking
+(an RTL failsafe, which climbs to RTL_ALT first) its top is Z above it too.
+A vehicle the station itself flies to a point (readied, rejoining, a
+reserve holding at its start) does not come down: ``down=False`` gives the
+cube z in [p_z - r, p_z + r] instead (Eq. K1c). b is the braking
 acceleration the vehicle is known to have, never more than
 ``BRAKE_CAP_MPS2``: a smaller b only widens the column.
 """
@@ -63,6 +66,7 @@ def lost_column(
     coast_s: float,
     brake_mps2: float,
     climbs: bool = False,
+    down: bool = True,
 ) -> Box:
     """Eq. K1: the column a vehicle last seen at ``pos_m`` moving at
     ``vel_mps`` under ``accel_mps2`` may be in, from now until it is heard
@@ -79,7 +83,7 @@ def lost_column(
     stop = v + a * coast_s
     r = HOLD_DRIFT_M + v * coast_s + 0.5 * a * coast_s**2 + stop * stop / (2.0 * b)  # K1a
     top = float(p[2]) + (REACH_M if climbs else r)
-    bottom = float(p[2]) - REACH_M  # K1b
+    bottom = float(p[2]) - (REACH_M if down else r)  # K1b; K1c
     return Box(
         centre=(float(p[0]), float(p[1]), 0.5 * (top + bottom)),
         half_extents=(r, r, 0.5 * (top - bottom)),

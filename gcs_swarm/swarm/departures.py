@@ -6,10 +6,12 @@ without the station (how long it coasts on the last setpoint, how hard it
 brakes, whether its GCS failsafe climbs for RTL), and gives the box
 ``gcs_swarm.control.keep_out.lost_column`` makes of them. ``SwarmCore`` hands
 it to the members' safety filter until the vehicle is heard again.
-``live_columns`` gives, at each step, the columns of the vehicles that left
-the formation while heard (a ``leave`` event, a failure, a pilot taking
-over) and are still in the air, at their latest reports (docs/vehicle-safety.md,
-"Vehicles out of the formation"). No I/O.
+``live_columns`` gives, at each step, the columns of the vehicles out of
+the formation that are heard and in the air, at their latest reports: those
+that left it (a ``leave`` event, a failure, a pilot taking over), and, as
+cubes (they do not come down), those being readied into it (a reserve
+holding at its start, a vehicle flying to its rejoin point)
+(docs/vehicle-safety.md, "Vehicles out of the formation"). No I/O.
 """
 
 from __future__ import annotations
@@ -36,6 +38,12 @@ _OUT_PHASES = frozenset({Phase.ENDING, Phase.ENDED, Phase.FAILED})
 """Phases of a vehicle that flew and left while heard: ending (its end mode
 asked), ended (in its end mode: holding, landing) or failed (someone else
 took it)."""
+_IN_PHASES = frozenset(
+    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
+     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
+)  # fmt: skip
+"""Phases of a vehicle on its way into the formation (``step.READYING``):
+in the air, the station flies it to a point (its start, its rejoin point)."""
 
 __all__ = [
     "column",
@@ -66,15 +74,19 @@ def column(
     vel_mps: FloatArray,
     accel_mps2: FloatArray,
     terms: tuple[float, bool],
+    *,
+    down: bool = True,
 ) -> Box:
     """Eq. K1 for a vehicle last at ``pos_m``, ``vel_mps`` under ``accel_mps2``
     (mission frame), braking at most as the envelope in force and
-    ``limits.a_max`` allow, with ``terms`` from ``departure_terms``."""
+    ``limits.a_max`` allow, with ``terms`` from ``departure_terms``; with
+    ``down`` False the cube of Eq. K1c."""
     brake = min(control.envelope.accel_xy, control.config.limits.a_max)
     accel = np.asarray(accel_mps2, dtype=np.float64)
     if not np.isfinite(accel).all():
         accel = np.zeros(3)
-    return lost_column(pos_m, vel_mps, accel, coast_s=terms[0], brake_mps2=brake, climbs=terms[1])
+    return lost_column(pos_m, vel_mps, accel, coast_s=terms[0], brake_mps2=brake,
+                       climbs=terms[1], down=down)  # fmt: skip
 
 
 def lost_keep_out(
@@ -94,16 +106,17 @@ def lost_keep_out(
 
 
 def describe(label: str, box: Box, separation_m: float, *, heard: bool = False) -> str:
-    """The log line of a keep-out column taken: of a vehicle unheard, or
-    (``heard``) of one that left while heard and flies on."""
+    """The log line of a keep-out box taken: of a vehicle unheard, or
+    (``heard``) of one out of the formation, heard and in the air (it moves
+    with the vehicle)."""
     c, h = box.centre, box.half_extents
-    where = (f"the column x {c[0]:.1f} +/- {h[0]:.1f}, y {c[1]:.1f} +/- {h[1]:.1f} m, "
-             f"up to z {c[2] + h[2]:.1f} m")  # fmt: skip
+    box_xyz = (f"x {c[0]:.1f} +/- {h[0]:.1f}, y {c[1]:.1f} +/- {h[1]:.1f} m, "
+               f"up to z {c[2] + h[2]:.1f} m")  # fmt: skip
     if heard:
-        return (f"vehicle {label} out of the formation, still in the air: the others keep "
-                f"{separation_m:g} m from its column (now {where}) until it is down")  # fmt: skip
+        return (f"vehicle {label} out of the formation and in the air: the others keep "
+                f"{separation_m:g} m from where it may be (now {box_xyz}) while it is")  # fmt: skip
     return (f"vehicle {label} left unheard, still in the air: the others keep "
-            f"{separation_m:g} m from {where}, until it is heard again")  # fmt: skip
+            f"{separation_m:g} m from the column {box_xyz}, until it is heard again")  # fmt: skip
 
 
 def keep_out_lost(
@@ -125,21 +138,23 @@ def keep_out_lost(
 
 
 def live_columns(core: SwarmCore, now: float) -> dict[int, Box]:
-    """The columns (Eq. K1) of the vehicles that flew in the formation and
-    are out of it now while heard, by key: in an out phase (``_OUT_PHASES``),
-    not on the ground, with a report within the stale timeout of ``now``
-    [s]. Each stands at its latest report, with its velocity and no coast
-    (its autopilot flies its own mode already: holding, landing, or a pilot
-    flying it); none with the filter off, and none for a LOST vehicle
+    """The keep-out boxes (Eq. K1) of the vehicles out of the formation that
+    are heard and in the air, by key: not on the ground, with a report
+    within the stale timeout of ``now`` [s], and either flown and left (an
+    out phase, ``_OUT_PHASES``: a column down) or on their way in
+    (``_IN_PHASES``: a cube, Eq. K1c). Each stands at its latest report,
+    with its velocity and no coast (its autopilot flies its own mode, or the
+    station's point); none with the filter off, and none for a LOST vehicle
     (``keep_out_lost`` keeps its last one)."""
     control = core.control
     out: dict[int, Box] = {}
     if not control.config.safety.enabled:
         return out
     stale = core.config.stale_timeout_s
-    for sysid in sorted(core.flown - core.flying):
+    for sysid in sorted(core.vehicles.keys() - core.flying):
         vp = core.vehicles[sysid]
-        if vp.phase not in _OUT_PHASES or sysid in control.keep_out:
+        left = vp.phase in _OUT_PHASES and sysid in core.flown
+        if not (left or vp.phase in _IN_PHASES) or sysid in control.keep_out:
             continue
         if vp.position is None or vp.offset_m is None or now - vp.position_at > stale:
             continue
@@ -148,5 +163,5 @@ def live_columns(core: SwarmCore, now: float) -> dict[int, Box]:
         pos, vel = vp.state_mission()
         plan = core.plans[sysid]
         climbs = departure_terms(plan.autopilot, plan.params, 0.0)[1]
-        out[sysid] = column(control, pos, vel, np.zeros(3), (0.0, climbs))
+        out[sysid] = column(control, pos, vel, np.zeros(3), (0.0, climbs and left), down=left)
     return out

@@ -262,7 +262,7 @@ def test_a_live_shard_s_vehicles_out_of_the_formation_are_kept_out_of_where_they
     core.heard(1, 0.2, 0, {}, {257: at[1]})  # landing: it moved down
     assert core.control.live_keep_out == {257: at[1]} and core.control.keep_out == {}
     assert core.control.safety.keep_out == (at[1],)
-    assert sum("out of the formation, still in the air" in line for line in core.log) == 1
+    assert sum("out of the formation and in the air" in line for line in core.log) == 1
     core.heard(1, 0.3, 0, {}, {})  # down
     assert core.control.live_keep_out == {} and core.control.safety.keep_out == ()
     core.heard(1, 0.4, 0, {}, {257: at[2]})

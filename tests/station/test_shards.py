@@ -834,6 +834,6 @@ def test_a_vehicle_that_leaves_on_a_shard_and_flies_on_is_kept_out_of() -> None:
     summary = _fly_watched(mission, watch)
     first, later = seen["first"], seen["later"]
     assert later is not None and later.centre[2] < first.centre[2]  # it follows the descent
-    assert "vehicle red:2 out of the formation, still in the air" in "\n".join(seen["log"])
+    assert "vehicle red:2 out of the formation and in the air" in "\n".join(seen["log"])
     # Only its: the mission's own ending (every vehicle out then) takes none.
     assert summary.keep_out_columns == 1, summary.keep_out_columns

@@ -345,7 +345,7 @@ def test_a_vehicle_that_leaves_and_flies_on_is_kept_out_of(end: str) -> None:
     closest = _closest_members(sky, 1, 60.0, lambda: kept.append(1 in core.control.live_keep_out))
     assert 1 not in core.flying and any(kept)  # it left, and was kept out of
     log = "\n".join(core.log)
-    assert "vehicle 1 out of the formation, still in the air" in log
+    assert "vehicle 1 out of the formation and in the air" in log
     if end == "land":  # down: no column any more
         assert sky.vehicles[1].ap.control == "ground" or core.vehicles[1].on_ground
         assert 1 not in core.control.live_keep_out
@@ -353,3 +353,29 @@ def test_a_vehicle_that_leaves_and_flies_on_is_kept_out_of(end: str) -> None:
         assert 1 in core.control.live_keep_out
     print(f"end {end}: closest member to the vehicle that left {closest:.3f} m")
     assert closest >= m.law.safety.separation, closest
+
+
+def test_a_reserve_holding_at_its_start_is_kept_out_of_until_it_joins() -> None:
+    """Scenario 2 with the filter on: the reserve holds at its start ahead of
+    the moving formation until its join at 25 s. Until then the members keep
+    the separation from where it may be (the cube of Eq. K1c: it does not
+    come down), at its latest report; once it joins it is a member, kept
+    apart by the pair rows instead."""
+    m = mission_from("scenario2_join.yaml", duration=30.0)
+    m = dataclasses.replace(
+        m, law=dataclasses.replace(m.law, safety=dataclasses.replace(m.law.safety, enabled=True))
+    )
+    sky = Sky(m)
+    core = sky.core
+    sky.ready()
+    sky.start()
+    sky.run_until(lambda: core.control.t_s >= 1.0, 5.0)
+    box = core.control.live_keep_out[5]
+    fleet = sky.vehicles[5].radio.emu.fleet  # type: ignore[union-attr]
+    where = ned_to_mission(fleet.pos[sky.vehicles[5].hosted.row], core.vehicles[5].offset_m)
+    np.testing.assert_allclose(box.centre, where, atol=0.05)  # its report, at 50 Hz
+    assert box.half_extents[2] == pytest.approx(box.half_extents[0])  # not a column
+    assert "vehicle 5 out of the formation and in the air" in "\n".join(core.log)
+    sky.run_until(lambda: 5 in core.flying, 30.0)
+    sky.advance(0.1)
+    assert 5 not in core.control.live_keep_out and core.control.keep_outs_taken == 1

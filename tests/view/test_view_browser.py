@@ -84,9 +84,13 @@ def test_the_page_shows_six_vehicles_moving_and_lands_them(tmp_path: Path) -> No
         follow = driver.find_element("id", "follow")
         if follow.is_selected():
             follow.click()  # the camera stays put: the formation crosses the canvas
-        first = _wait(driver, _DRAWN)
-        t0 = driver.execute_script("return window.gcsView.frame.t")
-        _wait(driver, f"return window.gcsView.frame.t > {t0} + 1.0")
+        # What the canvas shows and the frame time it shows, read together; then
+        # a canvas drawn from a frame at least 1 s of flight later (frames come
+        # faster than the page draws them: waiting on the frame alone compared
+        # one drawing with itself, 0.0 px, in CI on 2026-12-04).
+        first, t0 = _wait(driver, f"return ({_DRAWN[7:]}) && [window.gcsView.drawn, "
+                                  "window.gcsView.drawnT]")  # fmt: skip
+        _wait(driver, f"return window.gcsView.drawnT > {t0} + 1.0")
         later = _wait(driver, _DRAWN)
         seen["moved"] = {
             a["sysid"]: abs(a["x"] - b["x"]) + abs(a["y"] - b["y"])

@@ -9,7 +9,7 @@
   const $ = (id) => document.getElementById(id);
   const TRAIL = 60; // positions kept per vehicle (6 s at 10 Hz)
   const view = {
-    mode: "live", frames: 0, frame: null, scene: null, drawn: [], trails: new Map(),
+    mode: "live", frames: 0, frame: null, scene: null, drawn: [], drawnT: null, trails: new Map(),
     draws: 0, answers: [],
   };
   const cam = { yaw: -0.9, pitch: 0.45, dist: 0, target: [0, 0, 0], fov: 0.9 };
@@ -280,6 +280,7 @@
       view.drawn.push({ sysid: v.sysid[k], x: s[0], y: s[1] });
     }
     axes();
+    view.drawnT = f.t; // the frame time of what the canvas shows (tests wait on it)
     view.draws += 1;
   }
   function axes() { // east, north, up at the bottom left
