@@ -31,7 +31,6 @@ from gcs_swarm.control.cutoff import DENSE_SHARE, neighbour_pairs
 from gcs_swarm.control.envelope import CommandShaper
 from gcs_swarm.control.formation_rows import SMALL_N
 from gcs_swarm.control.law import ControlOutput, SwarmController
-from gcs_swarm.control.limits import box_signed_distance as box_distances
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.obstacles import box_signed_distance
 from gcs_swarm.control.params import Box, Envelope, LawConfig
@@ -96,8 +95,6 @@ class ControlLoop:
         self.live_keep_out: dict[int, Box] = {}
         """Columns of vehicles out of the formation that are still heard, in
         the air, at their latest reports (``set_live_keep_out``, every step)."""
-        self.keep_outs_taken = 0
-        """Vehicles whose column the members have kept out of so far."""
         self._kept: set[int] = set()
         self.min_keep_out_m = math.inf
         """Smallest signed distance [m] of any member to a keep-out column at a
@@ -181,11 +178,14 @@ class ControlLoop:
         self.live_keep_out = dict(boxes)
         self._apply_keep_out()
 
+    @property
+    def keep_outs_taken(self) -> int:
+        """Vehicles whose box the members have kept out of so far."""
+        return len(self._kept)
+
     def _apply_keep_out(self) -> None:
         kept = {**self.live_keep_out, **self.keep_out}
-        new = kept.keys() - self._kept
-        self._kept |= new
-        self.keep_outs_taken += len(new)
+        self._kept |= kept.keys()
         self.safety.set_keep_out(tuple(kept.values()))
 
     def forget(self, sysid: int) -> None:
@@ -241,14 +241,8 @@ class ControlLoop:
         if obstacles.count and len(ids):
             clearance = float(box_signed_distance(pos_m, obstacles).min())
             self.min_clearance_m = min(self.min_clearance_m, clearance)
-        if self.safety.keep_out and len(ids):
-            kept = self.safety.keep_out
-            d, _ = box_distances(
-                pos_m,
-                np.array([b.centre for b in kept]),
-                np.array([b.half_extents for b in kept]),
-            )
-            self.min_keep_out_m = min(self.min_keep_out_m, float(d.min()))
+        if report is not None and len(ids):  # keep-out boxes act only through the filter
+            self.min_keep_out_m = min(self.min_keep_out_m, float(report.min_keep_out_m.min()))
         self.steps += 1
         self.last = StepResult(self.t_s, tuple(ids), pos_m.copy(), accel, out, report, radii, sep)
         return self.last

@@ -238,6 +238,7 @@ class SafetyFilter:
                 state_ok, geo.clearance.min(axis=1, initial=math.inf), math.inf
             ),
             min_separation_m=geo.separation,
+            min_keep_out_m=np.where(state_ok, geo.keep_d.min(axis=1, initial=math.inf), math.inf),
         )
         if self.strict and infeasible.any():
             bad = np.flatnonzero(infeasible)

@@ -25,7 +25,9 @@ class SafetyReport:
     effort was returned; violation_mps2: the worst residual b - n.a of any row
     after the best effort (0 when feasible); min_clearance_m: signed distance
     to the nearest box (inf without boxes); min_separation_m: distance to the
-    nearest other vehicle (inf when alone). Distances are at the input state.
+    nearest other vehicle (inf when alone); min_keep_out_m: signed distance to
+    the nearest keep-out box (inf without any). Distances are at the input
+    state.
     """
 
     correction_mps2: FloatArray
@@ -34,6 +36,7 @@ class SafetyReport:
     violation_mps2: FloatArray
     min_clearance_m: FloatArray
     min_separation_m: FloatArray
+    min_keep_out_m: FloatArray
 
     @property
     def intervened(self) -> BoolArray:

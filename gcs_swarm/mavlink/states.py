@@ -22,6 +22,7 @@ __all__ = [
     "FINAL_PHASES",
     "GUIDED",
     "IDLE_PHASES",
+    "INCOMING_PHASES",
     "LANDED_STATE_NAMES",
     "READYING_PHASES",
     "TELEMETRY_PHASES",
@@ -77,6 +78,13 @@ READYING_PHASES = frozenset(
 a HEARTBEAT with another mode here is the autopilot (ArduCopter returns to
 STABILIZE when it finishes booting) and GUIDED is asked again; in READY and
 FLYING it means someone else took the vehicle."""
+INCOMING_PHASES = frozenset(
+    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
+     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
+)  # fmt: skip
+"""Phases of a vehicle on its way into the formation, from its take-over to
+READY: being readied at start-up, a reserve holding at its start, a vehicle
+heard again flying to its rejoin point."""
 FINAL_PHASES = frozenset({Phase.ENDED, Phase.FAILED})
 IDLE_PHASES = FINAL_PHASES | {Phase.CONNECTING, Phase.LOST}
 """Phases with no heartbeat watchdog."""

@@ -92,6 +92,7 @@ class RunSummary:
     failure: str | None = None
     """Why the mission ended as failed in flight (the law failed), if it did."""
     logging_error: str | None = None
+    """Why the run's log stopped (a write error), if it did."""
     keep_out_columns: int = 0
     """Vehicles out of the formation but in the air whose columns the members
     kept out of (lost, or left while heard: Eq. K1, docs/vehicle-safety.md)."""
@@ -99,7 +100,6 @@ class RunSummary:
     """The closest any member came to such a column [m] (negative: inside it,
     as when one appears around a member; a column is where the vehicle may
     be, so this is at most the distance to the vehicle)."""
-    """Why the run's log stopped (a write error), if it did."""
 
     @classmethod
     def from_station(

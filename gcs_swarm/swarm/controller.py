@@ -208,12 +208,11 @@ class ControllerCore:
             if control.release(key):
                 self.note(f"vehicle {self.labels.get(key, key)} heard again: the others no "
                           "longer keep out of its column")  # fmt: skip
-        for key, box in sorted(boxes.items()):
-            if control.keep_out.get(key) != box:
-                if key not in view.kept:  # said once; a live column moves every beat
-                    label, sep = str(self.labels.get(key, key)), control.config.safety.separation
-                    self.note(describe(label, box, sep), level=logging.WARNING)
-                control.keep_out_of(key, box)
+        sep = control.config.safety.separation
+        for key in sorted(boxes.keys() - view.kept):  # a lost vehicle's column is fixed
+            self.note(describe(str(self.labels.get(key, key)), boxes[key], sep),
+                      level=logging.WARNING)  # fmt: skip
+            control.keep_out_of(key, boxes[key])
         view.kept = set(boxes)
 
     def _live(self, view: ShardView, boxes: Mapping[int, Box]) -> None:
@@ -223,6 +222,10 @@ class ControllerCore:
             label = str(self.labels.get(key, key))
             self.note(describe(label, boxes[key], sep, heard=True), level=logging.WARNING)
         view.live = dict(boxes)
+        self._merge_live()
+
+    def _merge_live(self) -> None:
+        """The law's live columns: every live shard's."""
         merged = {k: b for v in self.shards.values() if v.alive for k, b in v.live.items()}
         self.control.set_live_keep_out(merged)
 
@@ -258,8 +261,7 @@ class ControllerCore:
             for key, box in view.live.items():
                 self.control.keep_out_of(key, box)
             view.live = {}
-            merged = {k: b for v in self.shards.values() if v.alive for k, b in v.live.items()}
-            self.control.set_live_keep_out(merged)
+            self._merge_live()
 
     # --------------------------------------------------------- control step
     def _maybe_step(self, now: float) -> None:

@@ -26,7 +26,7 @@ from gcs_swarm.control.limits import FloatArray
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Box
 from gcs_swarm.mavlink.px4 import OF_LOSS_T_S
-from gcs_swarm.mavlink.states import Phase
+from gcs_swarm.mavlink.states import INCOMING_PHASES, Phase
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 
@@ -38,12 +38,6 @@ _OUT_PHASES = frozenset({Phase.ENDING, Phase.ENDED, Phase.FAILED})
 """Phases of a vehicle that flew and left while heard: ending (its end mode
 asked), ended (in its end mode: holding, landing) or failed (someone else
 took it)."""
-_IN_PHASES = frozenset(
-    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
-     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
-)  # fmt: skip
-"""Phases of a vehicle on its way into the formation (``step.READYING``):
-in the air, the station flies it to a point (its start, its rejoin point)."""
 
 __all__ = [
     "column",
@@ -142,19 +136,20 @@ def live_columns(core: SwarmCore, now: float) -> dict[int, Box]:
     are heard and in the air, by key: not on the ground, with a report
     within the stale timeout of ``now`` [s], and either flown and left (an
     out phase, ``_OUT_PHASES``: a column down) or on their way in
-    (``_IN_PHASES``: a cube, Eq. K1c). Each stands at its latest report,
-    with its velocity and no coast (its autopilot flies its own mode, or the
-    station's point); none with the filter off, and none for a LOST vehicle
+    (``INCOMING_PHASES``: a cube, Eq. K1c: the station flies it to a
+    point). Each stands at its latest report, with its velocity and no
+    coast (its autopilot flies its own mode, or the station's point);
+    none with the filter off, and none for a LOST vehicle
     (``keep_out_lost`` keeps its last one)."""
     control = core.control
     out: dict[int, Box] = {}
-    if not control.config.safety.enabled:
-        return out
+    if not control.config.safety.enabled or len(core.flying) == len(core.vehicles):
+        return out  # every step: the usual case, nobody out, costs no set of N keys
     stale = core.config.stale_timeout_s
     for sysid in sorted(core.vehicles.keys() - core.flying):
         vp = core.vehicles[sysid]
         left = vp.phase in _OUT_PHASES and sysid in core.flown
-        if not (left or vp.phase in _IN_PHASES) or sysid in control.keep_out:
+        if not (left or vp.phase in INCOMING_PHASES) or sysid in control.keep_out:
             continue
         if vp.position is None or vp.offset_m is None or now - vp.position_at > stale:
             continue

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.errors import SwarmError
-from gcs_swarm.mavlink.states import Phase
+from gcs_swarm.mavlink.states import INCOMING_PHASES, Phase
 from gcs_swarm.swarm.departures import describe, live_columns
 
 if TYPE_CHECKING:
@@ -49,11 +49,8 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 
-READYING = frozenset(
-    {Phase.CONFIGURING, Phase.SETTING_GUIDED, Phase.WAITING_ARMABLE, Phase.ARMING,
-     Phase.TAKING_OFF, Phase.GOING_TO_START, Phase.READY}
-)  # fmt: skip
-"""The phases of a vehicle on its way into the formation."""
+READYING = INCOMING_PHASES
+"""The phases of a vehicle on its way into the formation (``mavlink.states``)."""
 
 LEADER_BOUND = 1.0e7
 """Largest leader coordinate [m] or velocity component [m/s] taken as finite:
@@ -85,8 +82,8 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
     if ids:
         # The members keep out of those that left but fly on, heard (Eq. K1).
         live = live_columns(core, now)
+        sep = core.control.config.safety.separation
         for key in sorted(live.keys() - core.control.live_keep_out.keys()):
-            sep = core.control.config.safety.separation
             core.note(describe(core.labels[key], live[key], sep, heard=True))
         core.control.set_live_keep_out(live)
         ks, pos, vel = flying_states(core, ids, now)
