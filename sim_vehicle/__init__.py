@@ -129,10 +129,18 @@ at run time by typing ``add SYSID [N,E,D]`` / ``remove SYSID`` / ``list`` on std
 
 from __future__ import annotations
 
-from sim_vehicle.config import DEFAULT_ORIGIN, EmulatorConfig, Impairment, VehicleSpec
-from sim_vehicle.server import Emulator
-from sim_vehicle.stats import EmulatorStats
-from sim_vehicle.vehicles import VehicleState
+import os as _os
+
+# One BLAS thread, set before numpy loads: the emulator's products are small
+# and OpenBLAS's worker threads take the core of the station beside it (as
+# gcs_swarm.cli; docs/architecture.md, "Threads"). A value the user set is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    _os.environ.setdefault(_var, "1")
+
+from sim_vehicle.config import DEFAULT_ORIGIN, EmulatorConfig, Impairment, VehicleSpec  # noqa: E402
+from sim_vehicle.server import Emulator  # noqa: E402
+from sim_vehicle.stats import EmulatorStats  # noqa: E402
+from sim_vehicle.vehicles import VehicleState  # noqa: E402
 
 __all__ = [
     "DEFAULT_ORIGIN",
