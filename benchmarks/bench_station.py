@@ -62,6 +62,9 @@ CUTOFF: float | None = None
 """``--cutoff F``: the vehicles start on their equilibrium sphere (``bench_law.
 sphere_swarm``, d_nn its mean neighbour distance) and the law's repulsion
 is cut off at F d_nn (Eq. 9c); None: the 3 m grid and the exact law."""
+STEP = "swarm"
+"""``--step``: the mission's ``step`` (``network``: a step per network whose
+reports are all in, docs/formation-law.md section 3b)."""
 
 
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
@@ -79,7 +82,8 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
                                              q_default=10))  # fmt: skip
         cut = f", repulsion_cutoff: {CUTOFF * d_nn!r}"
     lines = [
-        f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold}}",
+        f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold,"
+        f" step: {STEP}}}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         f"gains: {{M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10{cut}}}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
@@ -310,6 +314,7 @@ async def station_run(
         "max_ms": lat[-1] * 1e3 if lat else math.nan,
         "missed": float(reports - sent),
         "missed_steps": max(0.0, RATE_HZ * wall * len(stations) - steps),
+        "steps_per_s": steps / wall,
         "drops": drops,
         "cpu": (c1 - c0) / wall,
         "us_per_vehicle_cycle": (c1 - c0) / max(sent, 1) * 1e6,
@@ -337,9 +342,11 @@ def main() -> None:
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
     ap.add_argument("--cutoff", type=float, default=None, metavar="F",
                     help="start on the equilibrium sphere, repulsion cut at F x d_nn")  # fmt: skip
+    ap.add_argument("--step", choices=("swarm", "network"), default="swarm",
+                    help="the mission's step: swarm (default) or network")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF
-    RATE_HZ, GROUP, CUTOFF = args.rate, args.group, args.cutoff
+    global RATE_HZ, GROUP, CUTOFF, STEP
+    RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
@@ -350,11 +357,12 @@ def main() -> None:
     floor_us = bench_codec.main()
     where = pin(1)
     how = "one station, one mission of networks" if args.networks else "one station per group"
+    how += f", step: {STEP}"
     print(f"\nstation capacity, {RATE_HZ:g} Hz real time, station on {where}, emulator on core 0,"
           f" {args.seconds:g} s window, {how}")  # fmt: skip
     print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'missed':>7} {'miss st':>7} {'cpu':>5} {'us/veh':>6} {'x floor':>7} "
-          f"{'emu late':>8} {'emu cpu':>7} {'emu rt':>6}")  # fmt: skip
+          f"{'emu late':>8} {'emu cpu':>7} {'emu rt':>6} {'steps/s':>7}")  # fmt: skip
     for n in (int(c) for c in args.counts.split(",")):
         runs, failed = [], 0
         while len(runs) < args.repeat and failed < 3:
@@ -372,7 +380,7 @@ def main() -> None:
               f"{r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} {r['missed']:7.0f} "
               f"{r['missed_steps']:7.0f} {r['cpu']:5.2f} {r['us_per_vehicle_cycle']:6.1f} "
               f"{r['us_per_vehicle_cycle'] / floor_us:7.2f} {r['emu_late']:8.0f} "
-              f"{r['emu_cpu']:7.2f} {r['emu_rt']:6.3f}",
+              f"{r['emu_cpu']:7.2f} {r['emu_rt']:6.3f} {r['steps_per_s']:7.1f}",
               flush=True)  # fmt: skip
         if args.view is not None:
             print(f"       view {args.view:g} Hz: frames read {r['view_frames_read']:.0f}, "

@@ -37,7 +37,17 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ALL_PAIRS_BELOW", "DENSE_SHARE", "Pairs", "neighbour_pairs", "pair_repulsion"]
+__all__ = [
+    "ALL_PAIRS_BELOW",
+    "DENSE_SHARE",
+    "SKIN_SHARE",
+    "NeighbourList",
+    "Pairs",
+    "neighbour_pairs",
+    "pair_repulsion",
+    "row_pairs",
+    "row_repulsion",
+]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -175,3 +185,169 @@ def pair_repulsion(
     qn = q * q if q_n_twice else q
     out *= (k_r * qn)[:, None]
     return out
+
+
+#: All 27 cell offsets: a row's own cell and every neighbour (``row_pairs``).
+_FULL_SHELL = np.array([(a, b, c) for a in _UNIT for b in _UNIT for c in _UNIT], dtype=np.int64)
+
+
+def row_pairs(pos_m: F64, rows: I64, cutoff_m: float) -> Pairs:
+    """Every vehicle closer than ``cutoff_m`` [m] to each of ``rows``.
+
+    The rows' side of ``neighbour_pairs`` (a step that answers only some
+    vehicles, docs/formation-law.md section 3b): ``pos_m (N, 3)`` mission
+    frame, finite; ``rows (R,)`` distinct indices into it. Returns
+    ``(r, j, d, r2)``: ``r (P,)`` positions in ``rows`` (0 .. R - 1), ``j
+    (P,)`` indices into ``pos_m`` (``j != rows[r]``), ``d = p_rows[r] - p_j``
+    [m] and ``r2 = |d|^2`` [m^2] (x, y, z summed in that order), every such
+    pair with ``r2 < cutoff_m^2``, once per row (a pair of two rows appears
+    twice, once from each). The cells of ``neighbour_pairs`` over all N
+    (the sort is O(N log N)); the work is O(R k) with a full shell of 27
+    cells per row.
+    """
+    n = pos_m.shape[0]
+    rows = np.asarray(rows, dtype=np.int64)
+    rc2 = float(cutoff_m) * float(cutoff_m)
+    m = rows.shape[0]
+    if n < ALL_PAIRS_BELOW or m == 0:  # every (row, vehicle), then the same test
+        r_s = np.repeat(np.arange(m, dtype=np.int64), n)
+        j_s = np.tile(np.arange(n, dtype=np.int64), m)
+    else:
+        lo = pos_m.min(axis=0)
+        span = float((pos_m.max(axis=0) - lo).max())
+        side = max(float(cutoff_m), span / _MAX_CELLS)
+        cell = np.floor((pos_m - lo) / side).astype(np.int64) + 1
+        dims = cell.max(axis=0) + 2
+        stride = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
+        key = cell @ stride
+        order = np.argsort(key, kind="stable")
+        skey = key[order]
+        nkey = (key[rows][None, :] + (_FULL_SHELL @ stride)[:, None]).reshape(-1)
+        ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
+        if ncell <= _DENSE_CELLS_PER_VEHICLE * n:
+            start = np.zeros(ncell + 1, dtype=np.int64)
+            np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
+            first = start[nkey]
+            count = start[nkey + 1] - first
+        else:
+            first = np.searchsorted(skey, nkey, side="left")
+            count = np.searchsorted(skey, nkey, side="right") - first
+        owner = np.tile(np.arange(m, dtype=np.int64), _FULL_SHELL.shape[0])
+        total = int(count.sum())
+        r_s = np.repeat(owner, count)
+        starts = np.cumsum(count) - count
+        j_s = order[np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)]
+    keep = j_s != rows[r_s]
+    r_s, j_s = r_s[keep], j_s[keep]
+    x, y, z = np.ascontiguousarray(pos_m.T)
+    own = rows[r_s]
+    dx, dy, dz = x[own] - x[j_s], y[own] - y[j_s], z[own] - z[j_s]
+    r2 = dx * dx + dy * dy + dz * dz
+    near = np.flatnonzero(r2 < rc2)
+    d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+    return r_s[near], j_s[near], d, r2[near]
+
+
+def row_repulsion(
+    pairs: Pairs,
+    rows: I64,
+    charges: F64,
+    k_r: float,
+    *,
+    q_n_twice: bool,
+    r_min_m: float,
+) -> F64:
+    """Eq. 9c on ``rows`` only: ``F_n`` [N] ``(R, 3)`` for ``n`` in ``rows``
+    over ``row_pairs``' pairs (each pair's term as ``pair_repulsion``
+    computes it: the same clamp at ``r_min_m``, the same Eq. 10 variant with
+    ``q_n_twice``). ``charges (N,)`` [C] of every vehicle."""
+    q = np.asarray(charges, dtype=np.float64)
+    m = len(rows)
+    out = np.zeros((m, 3))
+    r, j, d, r2 = pairs
+    if r.size == 0:
+        return out
+    r2 = np.maximum(r2, r_min_m * r_min_m)
+    w = 1.0 / (r2 * np.sqrt(r2))
+    w = w if q_n_twice else w * q[j]
+    for axis in range(3):
+        out[:, axis] = np.bincount(r, weights=w * d[:, axis], minlength=m)
+    qn = q[rows] * q[rows] if q_n_twice else q[rows]
+    out *= (k_r * qn)[:, None]
+    return out
+
+
+SKIN_SHARE = 0.3
+"""``NeighbourList``'s margin beyond the cut-off, as a share of it."""
+
+
+class NeighbourList:
+    """``row_pairs`` for steps of some rows, from a kept list of candidates.
+
+    A Verlet list (the molecular-dynamics device): every pair closer than
+    ``r_c + skin`` when it was built (``neighbour_pairs``, both ways round,
+    rows in order), with the positions then, less their mean. Any common
+    translation leaves the distances unchanged, so while no vehicle has moved
+    more than ``skin / 2`` from its built position relative to the swarm's
+    mean, a pair closer than ``r_c`` now was closer than ``r_c + skin`` then:
+    it is in the list. ``row_pairs`` then tests only the rows' candidates
+    (about 4.2 (1 + skin/r_c)^3 r_c^3 of volume each, against 27 r_c^3 for the
+    cells) and rebuilds first when a vehicle moved farther, or when the
+    vehicles are others (a join or a leave: ``key``). The same pairs as
+    ``cutoff.row_pairs`` (the same test on the same floats), in another
+    order. A formation holding its shape, however fast it flies, is built
+    once.
+    """
+
+    def __init__(self, cutoff_m: float, skin_share: float = SKIN_SHARE) -> None:
+        self.cutoff_m = float(cutoff_m)
+        self.skin_m = skin_share * self.cutoff_m
+        self.builds = 0
+        """Times the list was built (the benchmarks' and tests' count)."""
+        self._key: object = None
+        self._ref = np.zeros((0, 3))
+        self._start = np.zeros(1, dtype=np.int64)
+        self._other = np.zeros(0, dtype=np.int64)
+
+    def _stale(self, pos_m: F64, key: object) -> bool:
+        if key != self._key or pos_m.shape != self._ref.shape:
+            return True
+        moved = (pos_m - pos_m.mean(axis=0)) - self._ref
+        return bool((moved * moved).sum(axis=1).max() > 0.25 * self.skin_m * self.skin_m)
+
+    def _build(self, pos_m: F64, key: object) -> None:
+        n = pos_m.shape[0]
+        pairs = neighbour_pairs(pos_m, self.cutoff_m + self.skin_m)
+        assert pairs is not None  # no max_candidates
+        i, j = pairs[0], pairs[1]
+        src = np.concatenate((i, j))
+        other = np.concatenate((j, i))
+        order = np.argsort(src, kind="stable")
+        self._other = other[order]
+        self._start = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(src, minlength=n), out=self._start[1:])
+        self._ref = pos_m - pos_m.mean(axis=0)
+        self._key = key
+        self.builds += 1
+
+    def row_pairs(self, pos_m: F64, rows: I64, key: object = None) -> Pairs:
+        """``cutoff.row_pairs(pos_m, rows, cutoff_m)``'s pairs (same arrays,
+        in another order); ``key`` names the vehicles (e.g. their ids): a
+        different key rebuilds the list."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if self._stale(pos_m, key):
+            self._build(pos_m, key)
+        first = self._start[rows]
+        count = self._start[rows + 1] - first
+        total = int(count.sum())
+        r_s = np.repeat(np.arange(rows.shape[0], dtype=np.int64), count)
+        starts = np.cumsum(count) - count
+        j_s = self._other[np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)]
+        x, y, z = np.ascontiguousarray(pos_m.T)
+        own = rows[r_s]
+        dx, dy, dz = x[own] - x[j_s], y[own] - y[j_s], z[own] - z[j_s]
+        r2 = dx * dx + dy * dy + dz * dz
+        rc = self.cutoff_m
+        near = np.flatnonzero(r2 < rc * rc)
+        d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+        return r_s[near], j_s[near], d, r2[near]

@@ -22,10 +22,20 @@ default) nothing here changes: the exact sum below, bit for bit.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
-from gcs_swarm.control.cutoff import ALL_PAIRS_BELOW, DENSE_SHARE, neighbour_pairs, pair_repulsion
+from gcs_swarm.control.cutoff import (
+    ALL_PAIRS_BELOW,
+    DENSE_SHARE,
+    Pairs,
+    neighbour_pairs,
+    pair_repulsion,
+    row_pairs,
+    row_repulsion,
+)
 from gcs_swarm.control.params import Gains, Readings
 
 __all__ = [
@@ -33,10 +43,13 @@ __all__ = [
     "eq1_acceleration",
     "formation_force",
     "repulsion_force",
+    "repulsion_rows",
     "sphere_attraction",
 ]
 
 F64 = NDArray[np.float64]
+RowPairs = Callable[[F64, NDArray[np.int64]], Pairs]
+"""``(pos_m, rows) -> cutoff.row_pairs(pos_m, rows, r_c)``'s pairs."""
 
 #: Lower clamp of the inter-vehicle distance in Eq. 9 [m]. Below it the pair
 #: force grows linearly with the distance (like the field inside a uniformly
@@ -152,6 +165,71 @@ def repulsion_force(
                 acc[j0:j1] += w.T @ rhs[i0:i1]
     qn = q * q if q_n_twice else q
     np.multiply(p, acc[:, 0:1], out=out)
+    out -= acc[:, 1:]
+    out *= (k_r * qn)[:, None]
+    return out
+
+
+def repulsion_rows(
+    pos_m: F64,
+    rows: NDArray[np.int64],
+    charges: F64,
+    k_r: float,
+    *,
+    q_n_twice: bool = False,
+    r_min_m: float = R_MIN_M,
+    cutoff_m: float | None = None,
+    pairs_of: RowPairs | None = None,
+) -> F64:
+    """Eqs. 8-9 (or Eq. 9c with ``cutoff_m``) for the vehicles ``rows`` only,
+    against all N: ``(R, 3)`` [N], row k the force on vehicle ``rows[k]``
+    (a step that answers some vehicles, docs/formation-law.md section 3b).
+
+    The same pair terms as ``repulsion_force`` (one q_n, or Eq. 10 as
+    printed with ``q_n_twice``; the clamp at ``r_min_m``); the sums run in
+    another order, so the rows agree with ``repulsion_force``'s to rounding
+    (about 1e-15 relative), not bit for bit. Exact law: one ``(R, N)``
+    block of the augmented Gram product (in blocks of columns),
+    O(R N). Cut-off: ``cutoff.row_pairs``
+    on the cells of all N, O(N log N + R k), or ``pairs_of(pos_m, rows)``
+    when given (the same pairs: ``cutoff.NeighbourList.row_pairs``).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    q = np.asarray(charges, dtype=np.float64)
+    if cutoff_m is not None:
+        pairs = row_pairs(pos_m, rows, cutoff_m) if pairs_of is None else pairs_of(pos_m, rows)
+        return row_repulsion(pairs, rows, q, k_r, q_n_twice=q_n_twice, r_min_m=r_min_m)
+    n, m = pos_m.shape[0], rows.shape[0]
+    out = np.zeros((m, 3))
+    if n < 2 or m == 0:
+        return out
+    p = pos_m - pos_m.mean(axis=0)
+    sq = np.einsum("ni,ni->n", p, p)
+    left = np.empty((m, 5))
+    left[:, :3] = p[rows]
+    left[:, 3] = sq[rows]
+    left[:, 4] = 1.0
+    right = np.empty((n, 5))
+    right[:, :3] = -2.0 * p
+    right[:, 3] = 1.0
+    right[:, 4] = sq
+    qw = np.ones(n) if q_n_twice else q
+    rhs = np.empty((n, 4))
+    rhs[:, 0] = qw
+    rhs[:, 1:] = qw[:, None] * p
+    acc = np.zeros((m, 4))
+    r2_min = r_min_m * r_min_m
+    for j0 in range(0, n, _BLOCK_ROWS):  # blocks of columns, as repulsion_force's
+        j1 = min(n, j0 + _BLOCK_ROWS)
+        w = left @ right[j0:j1].T  # |r|^2, (R, block)
+        np.maximum(w, r2_min, out=w)
+        w *= np.sqrt(w)
+        np.divide(1.0, w, out=w)
+        own = np.flatnonzero((rows >= j0) & (rows < j1))
+        w[own, rows[own] - j0] = 0.0  # no self-interaction
+        acc += w @ rhs[j0:j1]
+    qn = q[rows] * q[rows] if q_n_twice else q[rows]
+    np.multiply(p[rows], acc[:, 0:1], out=out)
     out -= acc[:, 1:]
     out *= (k_r * qn)[:, None]
     return out

@@ -27,8 +27,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gcs_swarm.control.cutoff import NeighbourList, Pairs
 from gcs_swarm.control.fields import avoidance_force, desired_force
-from gcs_swarm.control.formation import eq1_acceleration, formation_force, repulsion_force
+from gcs_swarm.control.formation import (
+    RowPairs,
+    eq1_acceleration,
+    formation_force,
+    repulsion_force,
+    repulsion_rows,
+    sphere_attraction,
+)
 from gcs_swarm.control.formation_rows import SMALL_N, formation_accelerations
 from gcs_swarm.control.leader import LeaderLaw, LeaderState
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
@@ -49,13 +57,33 @@ def law_accelerations(
     charges: F64,
     leader_pos_m: F64,
     obstacles: Ellipsoids,
+    rows: NDArray[np.int64] | None = None,
+    pairs_of: RowPairs | None = None,
 ) -> F64:
     """Eq. 1 accelerations [m/s^2] ``(N, 3)`` of the law for the held ``mode``.
 
     ``pos_m``/``vel_mps (N, 3)`` mission frame, ``charges (N,)``,
     ``leader_pos_m (3,)`` the virtual leader (used in formation only).
+
+    ``rows`` (indices): only those vehicles' accelerations, ``(R, 3)``, each
+    against every vehicle's state (docs/formation-law.md section 3b). In
+    formation from ``SMALL_N`` vehicles on, Eqs. 7, 9 (9c) and 1 are taken
+    for the rows alone (``formation.repulsion_rows``: equal to the whole
+    step's rows to rounding); otherwise the whole step, then its rows.
+    ``pairs_of``: the rows' pairs within the cut-off (``repulsion_rows``).
     """
     g, rd = config.gains, config.readings
+    if rows is not None:
+        if mode.behaviour != "formation" or pos_m.shape[0] < SMALL_N:
+            whole = law_accelerations(config, mode, pos_m, vel_mps, charges, leader_pos_m,
+                                      obstacles)  # fmt: skip
+            return whole[rows]
+        fs = sphere_attraction(pos_m[rows], leader_pos_m, g, rd)
+        if rd.eq11_printed:
+            fs = -fs
+        f = fs + repulsion_rows(pos_m, rows, charges, g.k_r, q_n_twice=rd.eq10_printed,
+                                cutoff_m=g.repulsion_cutoff, pairs_of=pairs_of)  # fmt: skip
+        return eq1_acceleration(f, vel_mps[rows], g)
     if mode.behaviour == "formation":
         if pos_m.shape[0] < SMALL_N:  # the same equations in floats (formation_rows.py)
             return formation_accelerations(pos_m, vel_mps, charges, leader_pos_m, g, rd)
@@ -104,6 +132,9 @@ class ControlOutput:
     episode: int
     event: str | None = None
     targets_m: F64 | None = None
+    rows: NDArray[np.int64] | None = None
+    """Set when the step answered only these rows of ``ids``: ``accel_mps2``
+    is then ``(R, 3)``, row k vehicle ``ids[rows[k]]``."""
 
 
 def as_states(
@@ -158,6 +189,9 @@ class SwarmController:
         self._leader = self._law.initial_state(config.leader.start, config.leader.velocity)
         self._t = float(t0)
         self._sup = Supervisor(config, self._law, defer_lookahead=defer_lookahead)
+        cut = config.gains.repulsion_cutoff
+        self._neighbours = None if cut is None else NeighbourList(cut)
+        """The candidates of steps of some rows with a cut-off (``cutoff.NeighbourList``)."""
 
     @property
     def config(self) -> LawConfig:
@@ -206,10 +240,12 @@ class SwarmController:
         pos_m: ArrayLike,
         vel_mps: ArrayLike,
         charges: ArrayLike,
+        rows: NDArray[np.int64] | None = None,
     ) -> ControlOutput:
         """Advance the leader to vehicle time ``t`` [s], update the discrete
         logic once from the measured states, and return the law's
-        accelerations (``(N, 3)`` in ``ids`` order, m/s^2, mission frame)."""
+        accelerations (``(N, 3)`` in ``ids`` order, m/s^2, mission frame),
+        or only those of ``rows`` (``law_accelerations``)."""
         key, p, v, q = as_states(ids, pos_m, vel_mps, charges)
         t = float(t)
         if self._sup.behaviour == "formation":
@@ -220,7 +256,14 @@ class SwarmController:
             # Eq. 30: the leader is the centroid; Eq. 13 restarts from it afterwards.
             self._leader = self._law.restart(self._leader, p.mean(axis=0), v.mean(axis=0))
         lead = self.leader_pos_m
-        accel = law_accelerations(self._cfg, mode, p, v, q, lead, self.obstacles)
+        pairs_of = None
+        if rows is not None and self._neighbours is not None:
+            nl = self._neighbours
+
+            def pairs_of(pos: F64, at: NDArray[np.int64]) -> Pairs:
+                return nl.row_pairs(pos, at, key)
+
+        accel = law_accelerations(self._cfg, mode, p, v, q, lead, self.obstacles, rows, pairs_of)
         return ControlOutput(
             t=t,
             ids=key,
@@ -231,6 +274,7 @@ class SwarmController:
             episode=mode.episode,
             event=event,
             targets_m=mode.targets_m,
+            rows=rows,
         )
 
     def pending_lookahead(self) -> LookaheadJob | None:

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -110,10 +110,15 @@ class TelemetryTable:
     attached rows take reports.
     """
 
-    def __init__(self, sysids: Sequence[int]) -> None:
+    def __init__(self, sysids: Sequence[int], groups: Sequence[int] | None = None) -> None:
         self.sysids = tuple(sysids)
         self.slot = {s: k for k, s in enumerate(self.sysids)}
         n = len(self.sysids)
+        self.group = [0] * n if groups is None else [int(g) for g in groups]
+        """Each row's group (its network, for a step per network's reports:
+        ``complete_groups``), 0 .. G - 1."""
+        self._attached_in = [0] * (max(self.group, default=0) + 1)
+        self._fresh_in = [0] * len(self._attached_in)
         self._buf = bytearray(n * _ROW.size)
         self.rows: npt.NDArray[Any] = np.frombuffer(self._buf, dtype=_ROW_DTYPE)
         self.arrival_s = np.full(n, -math.inf)
@@ -159,6 +164,8 @@ class TelemetryTable:
         on, starting from its latest (``VehicleProtocol.begin_flying``).
         Returns its slot."""
         k = self.slot[vp.sysid]
+        if self.owners[k] is None:
+            self._attached_in[self.group[k]] += 1
         pos = vp.position
         if pos is None:
             self._ms[k] = _NO_REPORT
@@ -184,6 +191,8 @@ class TelemetryTable:
     def detach(self, k: int) -> None:
         """Row ``k`` stops taking reports (its vehicle left FLYING): it is
         no longer fresh; the protocol has read back what it needs."""
+        if self.owners[k] is not None:
+            self._attached_in[self.group[k]] -= 1
         self.owners[k] = None
         self._observers[k] = None
         self._beat[k] = None
@@ -192,6 +201,7 @@ class TelemetryTable:
             self.fresh[k] = False
             self._fresh_rows.remove(k)
             self.fresh_count -= 1
+            self._fresh_in[self.group[k]] -= 1
 
     def set_offset(self, k: int, offset_m: FloatArray | None) -> None:
         """Row ``k``'s EKF origin in the mission frame [m] (None: not known)."""
@@ -306,6 +316,7 @@ class TelemetryTable:
             fresh[k] = True
             self._fresh_rows.append(k)
             self.fresh_count += 1
+            self._fresh_in[self.group[k]] += 1
         self.taken += 1
         if seq >= 0 and self.on_inbound is not None:
             self.on_inbound(self.sysids[k], compid, seq, _LPN_ID)
@@ -342,19 +353,38 @@ class TelemetryTable:
             self.on_inbound(self.sysids[k], compid, seq, _HB_ID)
         return True
 
-    def take_fresh(self) -> dict[int, int]:
-        """The fresh rows as {sysid: time_boot_ms}, and none fresh after."""
+    def take_fresh(self, groups: Collection[int] | None = None) -> dict[int, int]:
+        """The fresh rows as {sysid: time_boot_ms}, and none fresh after;
+        with ``groups``, only those groups' rows (the others stay fresh)."""
         if not self.fresh_count:
             return {}
         sysids, ms, flags = self.sysids, self._ms, self.fresh
         rows = self._fresh_rows
+        if groups is not None:
+            group = self.group
+            rows = []
+            rest: list[int] = []
+            for k in self._fresh_rows:
+                (rows if group[k] in groups else rest).append(k)
+            self._fresh_rows = rest
         rows.sort()  # in row order, as the column was read
         fresh = {sysids[k]: ms[k] for k in rows}
         for k in rows:
             flags[k] = False
-        rows.clear()
-        self.fresh_count = 0
+        if groups is None:
+            rows.clear()
+            self.fresh_count = 0
+            self._fresh_in = [0] * len(self._fresh_in)
+        else:
+            self.fresh_count -= len(rows)
+            for g in groups:
+                self._fresh_in[g] = 0
         return fresh
+
+    def complete_groups(self) -> list[int]:
+        """The groups whose every attached row is fresh (at least one attached)."""
+        return [g for g, (a, f) in enumerate(zip(self._attached_in, self._fresh_in, strict=True))
+                if a and f >= a]  # fmt: skip
 
     # ------------------------------------------------------- control step
     def slots(self, sysids: Sequence[int]) -> npt.NDArray[np.intp]:

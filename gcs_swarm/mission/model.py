@@ -215,6 +215,8 @@ class Settings:
     link_budget [setpoints/s] that one link may carry (vehicles on it x rate);
     delay_compensation: predict each vehicle's state to the time its setpoint
     will land, from TIMESYNC round trips (for real-time radio links);
+    step: one control step once every flying vehicle's report is in
+    ("swarm"), or one per network once that network's are ("network");
     signing: where the MAVLink 2 signing key is (None: no signing);
     failsafe: what the station sets on the vehicles themselves;
     velocity_bias: the reported velocity's bias, estimated and corrected.
@@ -228,6 +230,7 @@ class Settings:
     stale_timeout: float = 1.0
     link_budget: float = 2000.0
     delay_compensation: bool = False
+    step: Literal["swarm", "network"] = "swarm"
     startup: Startup = field(default_factory=Startup)
     signing: Signing | None = None
     failsafe: Failsafe = field(default_factory=Failsafe)

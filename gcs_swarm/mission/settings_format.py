@@ -199,6 +199,13 @@ SETTINGS = Obj(
             "real-time links only",
         ),
         Key(
+            "step",
+            Enum(choices=("swarm", "network")),
+            _SET.step,
+            "one control step once every vehicle's report is in (swarm), or one "
+            "per network once its vehicles' are (network: lower latency on many networks)",
+        ),
+        Key(
             "startup",
             Obj(
                 name="startup",

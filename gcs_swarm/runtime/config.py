@@ -69,6 +69,9 @@ class StationConfig:
     events: tuple[tuple[float, str, int], ...] = ()
     lockstep: bool = False
     delay_compensation: bool = False
+    step_per_network: bool = False
+    """A step per network whose reports are all in (``mission.step: network``,
+    docs/formation-law.md section 3b), instead of one once every report is."""
     predict_accel_max_mps2: float = 5.0
     """Acceleration a vehicle is taken to follow when its state is predicted
     over the commands in flight (the emulator's SIM_ACC_MAX default)."""

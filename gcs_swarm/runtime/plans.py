@@ -165,6 +165,7 @@ def station_config(
         events=tuple((e.t, e.action, e.key) for e in mission.events),
         lockstep=lockstep,
         delay_compensation=s.delay_compensation,
+        step_per_network=s.step == "network",
         velocity_bias=BiasSettings(
             correct=s.velocity_bias.correct,
             window_s=s.velocity_bias.window,

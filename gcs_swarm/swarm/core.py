@@ -97,7 +97,11 @@ class SwarmCore:
         }
         self.labels = {p.sysid: p.label or str(p.sysid) for p in config.vehicles}
         """How each vehicle is named in the log (``blue:7`` on a named network)."""
-        self.table = TelemetryTable([p.sysid for p in config.vehicles])
+        groups = None
+        if config.step_per_network:  # a step per network's reports (_maybe_step)
+            bases = sorted({p.base for p in config.vehicles})
+            groups = [bases.index(p.base) for p in config.vehicles]
+        self.table = TelemetryTable([p.sysid for p in config.vehicles], groups)
         """The flying vehicles' telemetry (the links write it, the step reads it)."""
         if recorder is not None:
             self.table.on_inbound = recorder.inbound
@@ -151,6 +155,8 @@ class SwarmCore:
         self._deadlines: dict[int, float] = {}
         self._heap: list[tuple[float, int]] = []
         self._fallback_at: float | None = None
+        self._fallback_due = False
+        """The wanted step is the fallback's: it takes every fresh report."""
         self._idle_since: float | None = None
         self._idle_at: float | None = None
 
@@ -322,6 +328,7 @@ class SwarmCore:
             self._service(vp, now)
         if self._fallback_at is not None and self._fallback_at <= now:
             self._fallback_at = None
+            self._fallback_due = True
             self.step_wanted = True
         if self._idle_at is not None and self._idle_at <= now:
             self.check_alive(now)
@@ -399,6 +406,8 @@ class SwarmCore:
         # so the fresh count is enough.
         if fresh >= len(self.flying):
             self.step_wanted = True
+        elif self.config.step_per_network and self.table.complete_groups():
+            self.step_wanted = True  # one network's reports are all in: its rows
         elif self._fallback_at is None:
             # Lockstep: a generous wait keeps runs repeatable; real time: half a period.
             wait = 0.2 if self.config.lockstep else 0.5 / self.config.rate_hz
@@ -431,12 +440,24 @@ class SwarmCore:
         taken from the table, or None once finished or ending (steps past the
         mission's end are not part of it). ``control_step`` runs the
         law on them here; a link shard sends them to its controller
-        (``swarm.shard``)."""
+        (``swarm.shard``). With ``step_per_network``, the networks whose
+        reports are all in when not every report is (the others wait for
+        theirs, or for the fallback, which takes every fresh report)."""
         self.step_wanted = False
-        self._fallback_at = None
+        fallback, self._fallback_at = self._fallback_at, None
+        due, self._fallback_due = self._fallback_due, False
         if self.ending or self.finished:
             return None
-        return self.table.take_fresh()
+        table = self.table
+        if self.config.step_per_network and not due and table.fresh_count < len(self.flying):
+            groups = table.complete_groups()
+            if groups:
+                fresh = table.take_fresh(set(groups))
+                if table.fresh_count and fallback is not None:  # the others' wait goes on
+                    self._fallback_at = fallback
+                    self.timer_moved = True
+                return fresh
+        return table.take_fresh()
 
     def resolve_lookahead(self, job: LookaheadJob, result: LookaheadResult, took_s: float) -> None:
         """A look-ahead's ``result``, computed off the step in ``took_s`` [s]."""

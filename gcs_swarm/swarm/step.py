@@ -87,15 +87,22 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
             core.note(describe(core.labels[key], live[key], sep, heard=True))
         core.control.set_live_keep_out(live)
         ks, pos, vel = flying_states(core, ids, now)
-        commanded = command(core, ids, pos, vel, t, fresh.keys())
+        every = len(fresh) == len(ids) and all(map(fresh.__contains__, ids))
+        rows = None
+        if not every:
+            rows = np.array([i for i, sysid in enumerate(ids) if sysid in fresh], dtype=np.int64)
+        # A step of one network's reports commands its rows only (section 3b);
+        # the whole-swarm step computes everyone's and answers the fresh ones.
+        some = rows if core.config.step_per_network and rows is not None else None
+        commanded = command(core, ids, pos, vel, t, fresh.keys(), some)
         if commanded is None:
             return
         out, accel, report = commanded
-        if len(fresh) == len(ids) and all(map(fresh.__contains__, ids)):  # every one: no copies
+        if rows is None:  # every one: no copies
             answer(core, ids, ks, accel, now, t, vel, write)
-        else:
-            rows = [i for i, sysid in enumerate(ids) if sysid in fresh]  # one answer each
-            answer(core, [ids[i] for i in rows], ks[rows], accel[rows], now, t, vel[rows], write)
+        else:  # one answer each
+            picked = accel if some is not None else accel[rows]
+            answer(core, [ids[i] for i in rows], ks[rows], picked, now, t, vel[rows], write)
         core.control.account(ids, pos, out, accel, report)
         job = core.control.pending_lookahead()
         if job is not None:
@@ -154,6 +161,7 @@ def command(
     vel: FloatArray,
     t: float,
     sent: Iterable[int],
+    rows: npt.NDArray[np.int64] | None = None,
 ) -> tuple[ControlOutput, FloatArray, SafetyReport | None] | None:
     """The law's command for ``ids`` at their mission-frame states
     (``ControlLoop.command``: the leader, the law, the safety filter, the
@@ -161,11 +169,12 @@ def command(
     failed (``core.abort``; then None and nothing goes out); the avoidance
     episodes noted; the step given to the flight recorder, ``sent`` the
     vehicles that get a setpoint, before the setpoints go out (the log's
-    LEADER note marks the step)."""
+    LEADER note marks the step). ``rows``: only those of ``ids`` are
+    commanded (``ControlLoop.command``), the accelerations are theirs."""
     try:
         # Overflow is judged below, on the leader (and counted, on the setpoints).
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            out, accel, report = core.control.command(ids, pos, vel)
+            out, accel, report = core.control.command(ids, pos, vel, rows)
     except (SwarmError, ArithmeticError, ValueError) as err:
         core.abort(f"t={t:.2f} s: the law failed in flight: {err}")
         return None
@@ -180,8 +189,16 @@ def command(
         core.note(f"t={t:.2f} s: avoidance episode {out.episode} {what}")
     if core.recorder is not None:
         cor = None if report is None else report.correction_mps2
+        acc = accel
+        if rows is not None:  # the record's rows are every vehicle's: the rows' filled
+            acc = np.zeros((len(ids), 3))
+            acc[rows] = accel
+            if cor is not None:
+                full = np.full(len(ids), np.nan)
+                full[rows] = cor
+                cor = full
         core.recorder.step(t, ids, pos.copy(), out.leader_pos_m, out.behaviour,
-                           out.episode, accel_mps2=accel, sent=sent,
+                           out.episode, accel_mps2=acc, sent=sent,
                            correction_mps2=cor)  # fmt: skip
     return out, accel, report
 

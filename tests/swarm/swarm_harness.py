@@ -146,8 +146,12 @@ class Sky:
         uplink: Impairment | None = None,
         seed: int = 0,
         keys: Collection[int] | None = None,
+        stagger: bool = False,
     ) -> None:
         mine = [v for v in mission.vehicles if keys is None or v.key in keys]
+        self.stagger = stagger
+        """Each network's emulator steps, then its datagrams reach the station,
+        before the next network's (unsynchronised networks, within one tick)."""
         nets = sorted({v.net_index for v in mine})
         cfg = station_config(mission, {v.key: link_of(v.net_index) for v in mission.vehicles})
         if keys is not None:
@@ -317,6 +321,8 @@ class Sky:
                     lk.send(b.heartbeat())
             for emu in self.emus:
                 emu.step()
+                if self.stagger:
+                    self.transfer()
             self.now = tick
             self.transfer()
             if self.station_running and self._next_status <= self.now:  # its status task

@@ -1,0 +1,167 @@
+"""A step of some rows (docs/formation-law.md section 3b): each piece against
+the whole step's rows.
+
+The rows' sums run in another order than the whole step's, so they agree to
+rounding: the tolerance is 1e-12 of the largest force of the step (tens of
+additions of terms of that size, each off by at most an ulp, about 2e-16
+relative). The pairs found, the separation figure and the safety filter's
+rows are compared exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gcs_swarm.control.cutoff import NeighbourList, neighbour_pairs, row_pairs
+from gcs_swarm.control.envelope import ARDUCOPTER
+from gcs_swarm.control.formation import repulsion_force, repulsion_rows
+from gcs_swarm.control.law import law_accelerations
+from gcs_swarm.control.loop import ControlLoop
+from gcs_swarm.control.obstacles import Ellipsoids
+from gcs_swarm.control.params import Gains, LawConfig, Limits, Safety
+from gcs_swarm.control.supervisor import Mode
+
+ROUNDING = 1e-12
+"""Of the step's largest force (module docstring)."""
+
+
+def _swarm(n: int, seed: int, spread: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-spread, spread, (n, 3)), rng.uniform(5.0, 15.0, n)
+
+
+def _rows(n: int, seed: int, size: int) -> np.ndarray:
+    return np.sort(np.random.default_rng(seed + 1).choice(n, size, replace=False))
+
+
+@pytest.mark.parametrize("n", [12, 63, 64, 300])
+@pytest.mark.parametrize("cutoff", [None, 2.0])
+@pytest.mark.parametrize("twice", [False, True])
+def test_the_rows_repulsion_is_the_whole_repulsion_s_rows(
+    n: int, cutoff: float | None, twice: bool
+) -> None:
+    pos, q = _swarm(n, n)
+    rows = _rows(n, n, n // 3)
+    whole = repulsion_force(pos, q, 0.2, q_n_twice=twice, cutoff_m=cutoff)
+    got = repulsion_rows(pos, rows, q, 0.2, q_n_twice=twice, cutoff_m=cutoff)
+    assert got.shape == (len(rows), 3)
+    np.testing.assert_allclose(got, whole[rows], rtol=0, atol=ROUNDING * np.abs(whole).max())
+
+
+@pytest.mark.parametrize("n", [20, 400])
+def test_row_pairs_are_the_cells_pairs_of_those_rows_both_ways(n: int) -> None:
+    pos, _ = _swarm(n, 7 * n)
+    rows = _rows(n, n, n // 4)
+    i, j, _, _ = neighbour_pairs(pos, 1.7) or ((), (), None, None)
+    want = {(a, b) for a, b in zip(i.tolist(), j.tolist(), strict=True)}
+    want |= {(b, a) for a, b in want}
+    want = {(a, b) for a, b in want if a in set(rows.tolist())}
+    r, other, d, r2 = row_pairs(pos, rows, 1.7)
+    got = {(int(rows[a]), int(b)) for a, b in zip(r, other, strict=True)}
+    assert got == want
+    np.testing.assert_array_equal(d, pos[rows[r]] - pos[other])
+    assert (r2 < 1.7**2).all()
+
+
+def test_the_neighbour_list_finds_the_cells_pairs_and_rebuilds_only_when_a_vehicle_moved() -> None:
+    n, rc = 300, 1.5
+    pos, _ = _swarm(n, 3)
+    rows = _rows(n, 3, 60)
+    nl = NeighbourList(rc)
+    rng = np.random.default_rng(9)
+
+    def same() -> None:
+        want = row_pairs(pos, rows, rc)
+        got = nl.row_pairs(pos, rows, key="ids")
+        assert sorted(
+            zip(got[0].tolist(), got[1].tolist(), got[3].tolist(), strict=True)
+        ) == sorted(zip(want[0].tolist(), want[1].tolist(), want[3].tolist(), strict=True))
+
+    same()
+    assert nl.builds == 1
+    pos = pos + np.array([100.0, -40.0, 7.0])  # the whole formation flies on: same distances
+    same()
+    # each vehicle within skin / 2 of where it was, relative to the swarm's mean
+    step = rng.normal(size=(n, 3))
+    step *= 0.45 * nl.skin_m / np.linalg.norm(step, axis=1, keepdims=True)
+    assert np.linalg.norm(step - step.mean(axis=0), axis=1).max() < 0.5 * nl.skin_m
+    pos = pos + step
+    same()
+    assert nl.builds == 1
+    pos[17] += [nl.skin_m, 0.0, 0.0]  # one vehicle farther
+    same()
+    assert nl.builds == 2
+    nl.row_pairs(pos, rows, key="others")  # other vehicles: built again
+    assert nl.builds == 3
+
+
+@pytest.mark.parametrize("n", [6, 40])
+@pytest.mark.parametrize("cutoff", [None, 2.5])
+def test_the_law_s_rows_are_the_whole_law_s_rows(n: int, cutoff: float | None) -> None:
+    pos, q = _swarm(n, 11, spread=3.0)
+    vel = np.random.default_rng(5).normal(size=(n, 3))
+    cfg = LawConfig(gains=Gains(repulsion_cutoff=cutoff))
+    mode = Mode.formation(tuple(range(n)))
+    lead, obs = np.array([0.5, -0.2, 1.0]), Ellipsoids.from_boxes(())
+    whole = law_accelerations(cfg, mode, pos, vel, q, lead, obs)
+    rows = _rows(n, n, max(1, n // 3))
+    got = law_accelerations(cfg, mode, pos, vel, q, lead, obs, rows)
+    np.testing.assert_allclose(got, whole[rows], rtol=0, atol=ROUNDING * np.abs(whole).max())
+
+
+def test_the_filter_s_row_for_a_vehicle_does_not_read_the_others_commands() -> None:
+    """What ``ControlLoop.command`` relies on for a step of some rows: the
+    safety filter's answer for one vehicle depends on the states, its own
+    desired command and every vehicle's last command sent, not on the
+    others' desired commands (a pair's work is split in halves, safety.py).
+    A packed swarm, ArduCopter's envelope, random last commands: the whole
+    swarm filtered, then with the others' desired commands zeroed."""
+    n = 30
+    pos, _ = _swarm(n, 2, spread=2.5)
+    rng = np.random.default_rng(4)
+    vel, a_des, prev = (rng.normal(scale=s, size=(n, 3)) for s in (2.0, 3.0, 1.0))
+    law = LawConfig(
+        limits=Limits(a_max=8.0, envelope=ARDUCOPTER), safety=Safety(enabled=True, separation=1.0)
+    )
+    filt = ControlLoop(law, dict.fromkeys(range(n), 10.0), 50.0).safety
+    whole, report = filt.filter(pos, vel, a_des, prev_accel_mps2=prev)
+    assert report.intervened.sum() > n // 2 and report.infeasible.any()
+    for rows in np.array_split(np.arange(n), 3):
+        some = np.zeros_like(a_des)
+        some[rows] = a_des[rows]
+        got, rep = filt.filter(pos, vel, some, prev_accel_mps2=prev)
+        np.testing.assert_allclose(got[rows], whole[rows], rtol=0, atol=ROUNDING * 8.0)
+        np.testing.assert_array_equal(rep.infeasible[rows], report.infeasible[rows])
+
+
+def test_a_filtered_step_in_three_steps_of_rows_sends_what_the_whole_step_sends() -> None:
+    """The law, the filter and the shaper (ArduCopter's envelope) over a
+    packed swarm where the filter acts, from the same last commands: one loop
+    steps the whole swarm, another three steps of rows; each row's command
+    and report as the whole step's, every command in ``last``, and the
+    separation taken once, at the third step (as many rows as vehicles)."""
+    n = 30
+    pos, _ = _swarm(n, 2, spread=2.5)
+    vel = np.random.default_rng(4).normal(scale=2.0, size=(n, 3))
+    law = LawConfig(
+        limits=Limits(a_max=8.0, envelope=ARDUCOPTER), safety=Safety(enabled=True, separation=1.0)
+    )
+    ids = list(range(1, n + 1))
+    whole = ControlLoop(law, dict.fromkeys(ids, 10.0), 50.0)
+    parts = ControlLoop(law, dict.fromkeys(ids, 10.0), 50.0)
+    out, accel, report = whole.command(ids, pos, vel)
+    assert report is not None and report.intervened.any()
+    tol = ROUNDING * np.abs(out.accel_mps2).max()
+    whole.account(ids, pos, out, accel, report)
+    seps = []
+    for rows in np.array_split(np.arange(n), 3):
+        o, a, rep = parts.command(ids, pos, vel, rows)
+        np.testing.assert_allclose(a, accel[rows], rtol=0, atol=tol)
+        assert rep is not None
+        np.testing.assert_array_equal(rep.infeasible, report.infeasible[rows])
+        np.testing.assert_array_equal(rep.min_separation_m, report.min_separation_m[rows])
+        seps.append(parts.account(ids, pos, o, a, rep).min_separation_m)
+    assert whole.last is not None and parts.last is not None
+    assert seps[:2] == [np.inf, np.inf] and seps[2] == whole.last.min_separation_m
+    np.testing.assert_allclose(parts.last.accel_mps2, whole.last.accel_mps2, rtol=0, atol=tol)
