@@ -12,6 +12,11 @@ every network's reports: each network's emulator keeps its own clock, so
 the first network's reports wait for the others' (their phase offset, a
 few ms here, as unsynchronised real vehicles would make them wait), and the
 latency includes that wait; the CPU per vehicle-cycle does not.
+``--step network`` flies the mission's ``step: network`` instead: a step
+per network as soon as its reports are in (docs/formation-law.md section
+3b), so a report no longer waits for the other networks'. ``--cutoff F``
+starts on the equilibrium sphere with the repulsion cut at F d_nn, and
+``--settle S`` from where that cut-off law settles it after S s.
 
 The emulator runs in a child process (this file with ``--emulator``) pinned
 to core 0, the station in this process pinned to core 1 (when the machine has
@@ -62,6 +67,11 @@ CUTOFF: float | None = None
 """``--cutoff F``: the vehicles start on their equilibrium sphere (``bench_law.
 sphere_swarm``, d_nn its mean neighbour distance) and the law's repulsion
 is cut off at F d_nn (Eq. 9c); None: the 3 m grid and the exact law."""
+SETTLE_S = 0.0
+"""``--settle S`` (with ``--cutoff``): the start is where the cut-off law
+settles the sphere after S seconds in the in-process integrator (RK4, 0.02
+s), a formation holding its shape, instead of the exact law's sphere, which
+the cut-off law shrinks into a ball (formation-law.md section 3a)."""
 STEP = "swarm"
 """``--step``: the mission's ``step`` (``network``: a step per network whose
 reports are all in, docs/formation-law.md section 3b)."""
@@ -80,6 +90,8 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
 
         sphere, d_nn = sphere_swarm(n, Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2,
                                              q_default=10))  # fmt: skip
+        if SETTLE_S > 0.0:
+            sphere = _settled(n, sphere, CUTOFF * d_nn)
         cut = f", repulsion_cutoff: {CUTOFF * d_nn!r}"
     lines = [
         f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold,"
@@ -103,6 +115,25 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
         sysid = i % GROUP + 1 if networks else i + 1
         lines.append(f"{indent}- {{sysid: {sysid}, start: {pos}}}")
     return "\n".join(lines) + "\n"
+
+
+def _settled(n: int, start: object, cutoff_m: float) -> object:
+    """``SETTLE_S`` of the cut-off law from ``start`` (``SETTLE_S``), cached
+    in the temporary directory: the station and the emulator child read the
+    same floats."""
+    import numpy as np
+
+    name = f"gcs-swarm-bench-settled-{n}-{cutoff_m!r}-{SETTLE_S!r}.npy"
+    cache = Path(tempfile.gettempdir()) / name
+    if cache.exists():
+        return np.load(cache)
+    from gcs_swarm.control.params import Gains, LawConfig
+    from gcs_swarm.integrator import integrate
+
+    gains = Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2, q_default=10, repulsion_cutoff=cutoff_m)
+    pos = integrate(LawConfig(gains=gains), start, duration=SETTLE_S, dt=0.02).pos_m[-1]
+    np.save(cache, pos)
+    return pos
 
 
 def load(n: int, networks: bool = False):  # type: ignore[no-untyped-def]
@@ -215,7 +246,9 @@ async def station_run(
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
-    child += [] if CUTOFF is None else ["--cutoff", repr(CUTOFF)]
+    if CUTOFF is not None:  # the settled start cached before the child reads it
+        mission_yaml(n, networks)
+        child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
     child += ["--networks"] if networks else []
     proc = await asyncio.create_subprocess_exec(
         sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -344,9 +377,12 @@ def main() -> None:
                     help="start on the equilibrium sphere, repulsion cut at F x d_nn")  # fmt: skip
     ap.add_argument("--step", choices=("swarm", "network"), default="swarm",
                     help="the mission's step: swarm (default) or network")  # fmt: skip
+    ap.add_argument("--settle", type=float, default=0.0, metavar="S",
+                    help="with --cutoff: start where its law settles after S s")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
+    SETTLE_S = args.settle
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
