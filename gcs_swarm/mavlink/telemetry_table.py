@@ -381,6 +381,12 @@ class TelemetryTable:
                 self._fresh_in[g] = 0
         return fresh
 
+    def take_complete(self) -> dict[int, int]:
+        """``take_fresh`` of the groups whose every attached row is fresh
+        (``complete_groups``); {} when there is none."""
+        groups = self.complete_groups()
+        return self.take_fresh(set(groups)) if groups else {}
+
     def complete_groups(self) -> list[int]:
         """The groups whose every attached row is fresh (at least one attached)."""
         return [g for g, (a, f) in enumerate(zip(self._attached_in, self._fresh_in, strict=True))

@@ -85,6 +85,14 @@ class StationConfig:
     """A well-signed new address may take over a vehicle silent for
     ``links.REBIND_S`` (needs ``signing_key``; ``mission.signing.allow_rebind``)."""
 
+    def step_groups(self) -> list[int] | None:
+        """Each vehicle's network as 0, 1, ... in ``vehicles`` order when
+        ``step_per_network`` (the telemetry table's groups), else None."""
+        if not self.step_per_network:
+            return None
+        bases = sorted({p.base for p in self.vehicles})
+        return [bases.index(p.base) for p in self.vehicles]
+
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(
             control_rate_hz=self.rate_hz,

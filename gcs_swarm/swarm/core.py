@@ -15,7 +15,8 @@ is over. A link is the mission's connection string (``VehiclePlan.link``).
   ignored); every protocol's deadline is kept, and the earliest is the
   core's timer;
 - a step is wanted when every flying vehicle has sent a fresh
-  LOCAL_POSITION_NED, or a fallback delay after the first one (half a
+  LOCAL_POSITION_NED (with ``mission.step: network``, also every vehicle of
+  one network: its rows), or a fallback delay after the first one (half a
   period; 0.2 s in lockstep), and answers each fresh report with exactly one
   setpoint: the emulator's lockstep rule, and a steady rate on real vehicles;
 - membership: initial vehicles fly from the start; a reserve is readied with
@@ -97,11 +98,7 @@ class SwarmCore:
         }
         self.labels = {p.sysid: p.label or str(p.sysid) for p in config.vehicles}
         """How each vehicle is named in the log (``blue:7`` on a named network)."""
-        groups = None
-        if config.step_per_network:  # a step per network's reports (_maybe_step)
-            bases = sorted({p.base for p in config.vehicles})
-            groups = [bases.index(p.base) for p in config.vehicles]
-        self.table = TelemetryTable([p.sysid for p in config.vehicles], groups)
+        self.table = TelemetryTable([p.sysid for p in config.vehicles], config.step_groups())
         """The flying vehicles' telemetry (the links write it, the step reads it)."""
         if recorder is not None:
             self.table.on_inbound = recorder.inbound
@@ -155,8 +152,7 @@ class SwarmCore:
         self._deadlines: dict[int, float] = {}
         self._heap: list[tuple[float, int]] = []
         self._fallback_at: float | None = None
-        self._fallback_due = False
-        """The wanted step is the fallback's: it takes every fresh report."""
+        self._fallback_due = False  # the wanted step is the fallback's: every fresh report
         self._idle_since: float | None = None
         self._idle_at: float | None = None
 
@@ -438,11 +434,8 @@ class SwarmCore:
     def take_step(self) -> dict[int, int] | None:
         """The wanted step begins: the fresh reports (key -> ``time_boot_ms``)
         taken from the table, or None once finished or ending (steps past the
-        mission's end are not part of it). ``control_step`` runs the
-        law on them here; a link shard sends them to its controller
-        (``swarm.shard``). With ``step_per_network``, the networks whose
-        reports are all in when not every report is (the others wait for
-        theirs, or for the fallback, which takes every fresh report)."""
+        mission's end are not part of it), for ``control_step`` or a link
+        shard's controller; with ``step_per_network``, complete networks'."""
         self.step_wanted = False
         fallback, self._fallback_at = self._fallback_at, None
         due, self._fallback_due = self._fallback_due, False
@@ -450,12 +443,10 @@ class SwarmCore:
             return None
         table = self.table
         if self.config.step_per_network and not due and table.fresh_count < len(self.flying):
-            groups = table.complete_groups()
-            if groups:
-                fresh = table.take_fresh(set(groups))
+            fresh = table.take_complete()
+            if fresh:
                 if table.fresh_count and fallback is not None:  # the others' wait goes on
-                    self._fallback_at = fallback
-                    self.timer_moved = True
+                    self._fallback_at, self.timer_moved = fallback, True
                 return fresh
         return table.take_fresh()
 
