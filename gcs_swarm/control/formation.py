@@ -88,6 +88,29 @@ def sphere_attraction(pos_m: F64, centre_m: F64, gains: Gains, readings: Reading
     return out
 
 
+def _gram_operands(pos_m: F64, q: F64, q_n_twice: bool) -> tuple[F64, F64, F64, F64]:
+    """The exact sum's operands: the centred positions ``p`` (smaller Gram
+    cancellation error), ``left``/``right`` with ``|p_n - p_i|^2 = [p_n,
+    |p_n|^2, 1] . [-2 p_i, 1, |p_i|^2]`` (one product per block), and
+    ``rhs = [q_i, q_i p_i]`` (ones for Eq. 10 as printed)."""
+    n = pos_m.shape[0]
+    p = pos_m - pos_m.mean(axis=0)
+    sq = np.einsum("ni,ni->n", p, p)
+    left = np.empty((n, 5))
+    left[:, :3] = p
+    left[:, 3] = sq
+    left[:, 4] = 1.0
+    right = np.empty((n, 5))
+    right[:, :3] = -2.0 * p
+    right[:, 3] = 1.0
+    right[:, 4] = sq
+    qw = np.ones(n) if q_n_twice else q
+    rhs = np.empty((n, 4))
+    rhs[:, 0] = qw
+    rhs[:, 1:] = qw[:, None] * p
+    return p, left, right, rhs
+
+
 def repulsion_force(
     pos_m: F64,
     charges: F64,
@@ -124,22 +147,8 @@ def repulsion_force(
         if pairs is not None:
             return pair_repulsion(pairs, charges, k_r, q_n_twice=q_n_twice, r_min_m=r_min_m)
         r2_cut = cutoff_m * cutoff_m  # a clump: the blocks below, masked
-    p = pos_m - pos_m.mean(axis=0)  # centred: smaller Gram cancellation error
-    sq = np.einsum("ni,ni->n", p, p)
-    # |p_n - p_i|^2 = [p_n, |p_n|^2, 1] . [-2 p_i, 1, |p_i|^2]: one product per block.
-    left = np.empty((n, 5))
-    left[:, :3] = p
-    left[:, 3] = sq
-    left[:, 4] = 1.0
-    right = np.empty((n, 5))
-    right[:, :3] = -2.0 * p
-    right[:, 3] = 1.0
-    right[:, 4] = sq
     q = np.asarray(charges, dtype=np.float64)
-    qw = np.ones(n) if q_n_twice else q
-    rhs = np.empty((n, 4))
-    rhs[:, 0] = qw
-    rhs[:, 1:] = qw[:, None] * p
+    p, left, right, rhs = _gram_operands(pos_m, q, q_n_twice)
     acc = np.zeros((n, 4))
     r2_min = r_min_m * r_min_m
     nb = -(-n // _BLOCK_ROWS)
@@ -203,20 +212,8 @@ def repulsion_rows(
     out = np.zeros((m, 3))
     if n < 2 or m == 0:
         return out
-    p = pos_m - pos_m.mean(axis=0)
-    sq = np.einsum("ni,ni->n", p, p)
-    left = np.empty((m, 5))
-    left[:, :3] = p[rows]
-    left[:, 3] = sq[rows]
-    left[:, 4] = 1.0
-    right = np.empty((n, 5))
-    right[:, :3] = -2.0 * p
-    right[:, 3] = 1.0
-    right[:, 4] = sq
-    qw = np.ones(n) if q_n_twice else q
-    rhs = np.empty((n, 4))
-    rhs[:, 0] = qw
-    rhs[:, 1:] = qw[:, None] * p
+    p, left_all, right, rhs = _gram_operands(pos_m, q, q_n_twice)
+    left = left_all[rows]
     acc = np.zeros((m, 4))
     r2_min = r_min_m * r_min_m
     for j0 in range(0, n, _BLOCK_ROWS):  # blocks of columns, as repulsion_force's

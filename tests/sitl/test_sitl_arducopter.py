@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from gcs_swarm.control.params import Limits
-from gcs_swarm.mission import Mission
+from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.offline import simulate_mission
 from gcs_swarm.runtime import run_mission
 from tests.sitl.mavmonitor import Monitor
@@ -380,3 +380,46 @@ def test_two_networks_with_the_same_ids_fly_one_tetrahedron_on_two_shards(tmp_pa
     for label, v in s["vehicles"].items():
         assert rebuilt["vehicles"][label]["final_radius_m"] == pytest.approx(
             v["final_radius_m"], abs=1e-3), label  # fmt: skip
+
+
+def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(tmp_path: Path) -> None:
+    """The same four instances and mission with ``mission.step: network``, one
+    station process: each network is stepped when its two instances'
+    reports are in (their phases are their own), the other network's at
+    their latest. It completes, every radius's mean over the last 20 s is
+    within 1 % of the law's equilibrium, the separation never falls below
+    the configured 6 m, and there were more control steps than periods
+    (steps of one network)."""
+    from tests.sitl.sitl_flights import held_radii
+    from tests.sitl.test_sitl_px4 import _equilibrium_radius
+
+    binary_or_skip()
+    text = (MISSIONS / "sitl_arducopter_networks.yaml").read_text()
+    assert "  stale_timeout: 1.0" in text
+    text = text.replace("  stale_timeout: 1.0", "  step: network\n  stale_timeout: 1.0", 1)
+    path = tmp_path / "sitl_arducopter_networks_step.yaml"
+    path.write_text(text)
+    mission = load_mission(path)
+    assert mission.settings.step == "network"
+    r_eq = _equilibrium_radius(mission)
+    with sitl_swarm(2, tmp_path / "blue"), sitl_swarm(2, tmp_path / "red", first=2):
+        rc, out, folder = gcs_swarm_run(path, tmp_path / "runs", timeout_s=900)
+    assert rc == 0, out[-4000:]
+    assert folder is not None
+    s = summary_of(folder)
+    o = s["overall"]
+    window = held_radii(s, r_eq)
+    periods = mission.settings.duration * mission.settings.rate
+    figures = {
+        "equilibrium_radius_m": r_eq, **window,
+        "time_to_form_s": o["time_to_form_s"], "min_separation_m": o["min_separation_m"],
+        "separation_configured_m": mission.law.safety.separation,
+        "control_steps": s["control_steps"], "periods": periods,
+        "setpoint_rate_hz_min": o["setpoints"]["rate_hz_min"],
+        "largest_gap_s": o["setpoints"]["largest_gap_s"], "folder": str(folder),
+    }  # fmt: skip
+    write_figures(tmp_path, "sitl_two_networks_step_per_network", figures)
+    assert s["outcome"] == "completed"
+    np.testing.assert_allclose(window["radii_last_20s_mean_m"], r_eq, rtol=0.01)
+    assert o["min_separation_m"] >= mission.law.safety.separation
+    assert s["control_steps"] > 1.2 * periods

@@ -47,7 +47,7 @@ def test_two_networks_stepped_each_on_its_own_reports_form_the_sphere(tmp_path: 
     assert len(summary.vehicles) == 12
     # At least one step a period (steps of both networks at once when their
     # phases fall together): 50 Hz over the mission time.
-    assert summary.steps >= 0.95 * 50 * DURATION_S
+    assert summary.steps >= 0.9 * 50 * DURATION_S
     radii = np.array([v.radius_m for v in summary.vehicles], dtype=float)
     # 12 s from the starts (1.7-5.7 m out): within 5 % of the sphere (the
     # hand-clock flight is within 0.23 % by then, its closest pair 1.36 m;
