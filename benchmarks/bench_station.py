@@ -72,6 +72,11 @@ SETTLE_S = 0.0
 settles the sphere after S seconds in the in-process integrator (RK4, 0.02
 s), a formation holding its shape, instead of the exact law's sphere, which
 the cut-off law shrinks into a ball (formation-law.md section 3a)."""
+SPREAD = False
+"""``--spread``: network j's emulator takes its first step j/G of a period
+after network 0's (``EmulatorConfig.start_at_s``, G networks), so their
+reports fall evenly over the period; by default each starts its clock as
+it is set up, one after the other, a few ms apart (their phases bunched)."""
 STEP = "swarm"
 """``--step``: the mission's ``step`` (``network``: a step per network whose
 reports are all in, docs/formation-law.md section 3b)."""
@@ -163,12 +168,18 @@ async def emulator_main(n: int, networks: bool) -> None:
     async with contextlib_stack() as stack:
         emus = []
         whole = load(n, networks=True) if networks else None
-        for j, size in enumerate(groups(n)):
+        sizes = groups(n)
+        # A network set up after its first step's time catches up at once, then
+        # keeps its place on the grid (the realtime clock's pacing).
+        first = time.monotonic() + 0.05
+        for j, size in enumerate(sizes):
             if whole is not None:
                 cfg = emulator_config(whole, airborne=True, network=j)
             else:
                 cfg = emulator_config(load(size), airborne=True)
             cfg = replace(cfg, shared_port=0)
+            if SPREAD:  # network j's first step j/G of a period after network 0's
+                cfg = replace(cfg, start_at_s=first + j / len(sizes) / RATE_HZ)
             emus.append(await stack.enter_async_context(Emulator(cfg)))
         print(" ".join(str(e.endpoints[1][1]) for e in emus), flush=True)
         loop = asyncio.get_running_loop()
@@ -246,6 +257,7 @@ async def station_run(
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
+    child += ["--spread"] if SPREAD else []
     if CUTOFF is not None:  # the settled start cached before the child reads it
         mission_yaml(n, networks)
         child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
@@ -379,10 +391,12 @@ def main() -> None:
                     help="the mission's step: swarm (default) or network")  # fmt: skip
     ap.add_argument("--settle", type=float, default=0.0, metavar="S",
                     help="with --cutoff: start where its law settles after S s")  # fmt: skip
+    ap.add_argument("--spread", action="store_true",
+                    help="the networks' emulators a share of a period apart")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
-    SETTLE_S = args.settle
+    SETTLE_S, SPREAD = args.settle, args.spread
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
@@ -393,7 +407,7 @@ def main() -> None:
     floor_us = bench_codec.main()
     where = pin(1)
     how = "one station, one mission of networks" if args.networks else "one station per group"
-    how += f", step: {STEP}"
+    how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
     print(f"\nstation capacity, {RATE_HZ:g} Hz real time, station on {where}, emulator on core 0,"
           f" {args.seconds:g} s window, {how}")  # fmt: skip
     print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "

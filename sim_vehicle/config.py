@@ -128,6 +128,10 @@ class EmulatorConfig:
     modelled). Before the station planned
     within the vehicle's envelope its tests flew the paper's gains, which ArduCopter (and this
     model) cannot follow; ``sim-vehicle`` uses the preset.
+    ``start_at_s``: realtime only, the ``time.monotonic()`` of the first
+    physics step (the network's phase: emulators of unsynchronised networks
+    given times a share of a period apart); None: a period after the clock
+    starts.
     ``boot_s``: sim s after the first contact (a station heard or connected)
     when the vehicle says "ArduPilot Ready" and returns to STABILIZE, as SITL
     ~1 s after its first connection (default 1.0; 0: no such event). ``ekf_ready_s``: sim s
@@ -164,6 +168,7 @@ class EmulatorConfig:
     rate_hz: float = 50.0
     clock: Literal["realtime", "lockstep"] = "realtime"
     speedup: float = 1.0
+    start_at_s: float | None = None
     lockstep_timeout_s: float = 0.5
     dynamics: Literal["ardupilot", "ideal"] = "ardupilot"
     accel_tau_s: float | None = None

@@ -335,6 +335,8 @@ class Emulator:
         loop = asyncio.get_running_loop()
         period = self.dt / self.config.speedup
         t0, k0 = loop.time(), self.step_count
+        if self.config.start_at_s is not None:  # the first step then (loop.time is monotonic)
+            t0 = self.config.start_at_s - period
         while True:
             delay = t0 + (self.step_count - k0 + 1) * period - loop.time()
             if delay > 0:

@@ -210,3 +210,22 @@ def test_mavutil_udpout_connects_and_reads() -> None:
             assert sysid == 2 and abs(z + 7) < 1e-6
 
     asyncio.run(run())
+
+
+def test_a_realtime_clock_takes_its_first_step_at_start_at() -> None:
+    """``start_at_s`` (a network's phase): no physics step before that
+    ``time.monotonic()``, steps after it, paced from it (generous bounds: the
+    loop's own latency on a loaded machine is some ms)."""
+    import time
+
+    async def main() -> None:
+        t0 = time.monotonic()
+        cfg = EmulatorConfig(vehicles=(VehicleSpec(sysid=1),), start_at_s=t0 + 0.4)
+        async with Emulator(cfg) as emu:
+            await asyncio.sleep(max(0.0, t0 + 0.3 - time.monotonic()))
+            assert emu.step_count == 0
+            await asyncio.sleep(max(0.0, t0 + 1.0 - time.monotonic()))
+            # 0.6 s at 50 Hz from the first step: 30 steps (31 counting it)
+            assert 20 <= emu.step_count <= 32
+
+    asyncio.run(main())
