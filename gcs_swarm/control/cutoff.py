@@ -308,6 +308,8 @@ class NeighbourList:
         self._ref = np.zeros((0, 3))
         self._start = np.zeros(1, dtype=np.int64)
         self._other = np.zeros(0, dtype=np.int64)
+        self._half: tuple[I64, I64] = (self._other, self._other)
+        """Each listed pair once, as ``neighbour_pairs`` gave them."""
 
     def _stale(self, pos_m: F64, key: object) -> bool:
         if key != self._key or pos_m.shape != self._ref.shape:
@@ -331,7 +333,21 @@ class NeighbourList:
         np.cumsum(np.bincount(src, minlength=n), out=self._start[1:])
         self._ref = pos_m - pos_m.mean(axis=0)
         self._key = key
+        self._half = (i, j)
         self.builds += 1
+
+    def closest(self, pos_m: F64, key: object = None) -> float | None:
+        """The swarm's smallest pairwise distance [m] at ``pos_m`` when the
+        list holds it: fresh for these vehicles and positions, and its
+        closest pair nearer than ``r_c`` (every such pair is listed); else
+        None. The distance as ``loop._min_separation`` computes it (the
+        difference's squares summed by ``einsum``): the same float."""
+        if self._stale(pos_m, key) or self._half[0].size == 0:
+            return None
+        i, j = self._half
+        diff = pos_m[i] - pos_m[j]
+        d = float(np.sqrt(np.einsum("ij,ij->i", diff, diff)).min())
+        return d if d < self.cutoff_m else None
 
     def row_pairs(self, pos_m: F64, rows: I64, key: object = None) -> Pairs:
         """``cutoff.row_pairs(pos_m, rows, cutoff_m)``'s pairs (same arrays,

@@ -277,6 +277,13 @@ class SwarmController:
             rows=rows,
         )
 
+    def closest_pair_m(self, ids: Sequence[int], pos_m: F64) -> float | None:
+        """The smallest pairwise distance [m] of ``ids`` at ``pos_m`` from the
+        cut-off's neighbour list when it holds it (``NeighbourList.closest``),
+        else None."""
+        nl = self._neighbours
+        return None if nl is None else nl.closest(pos_m, tuple(map(int, ids)))
+
     def pending_lookahead(self) -> LookaheadJob | None:
         """The next look-ahead job to run (each job is handed over once), or None."""
         return self._sup.pending_lookahead()

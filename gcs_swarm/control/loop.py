@@ -261,7 +261,8 @@ class ControlLoop:
         clearance of their rows, and the separation once as many rows as
         vehicles have been stepped since it was last taken (about once a
         period: the whole swarm's at that step's states, not six times a
-        period at 1,500 vehicles on six networks); ``last`` holds every
+        period at 1,500 vehicles on six networks; from the cut-off's
+        neighbour list when it holds it); ``last`` holds every
         vehicle's latest command (the rows' from this step) and the
         separation last taken."""
         rows = out.rows
@@ -273,7 +274,8 @@ class ControlLoop:
             sep = self.last.min_separation_m if self.last is not None else math.inf
             if self._rows_since >= len(ids):
                 self._rows_since = 0
-                sep = _min_separation(pos_m)
+                near = self.controller.closest_pair_m(ids, pos_m)
+                sep = _min_separation(pos_m) if near is None else near
         self.min_separation_m = min(self.min_separation_m, sep)
         if len(accel):
             peak = float(np.sqrt((accel**2).sum(axis=1)).max())

@@ -151,6 +151,7 @@ class TelemetryTable:
         self._compid = [1] * n
         self._observers: list[VelocityBiasObserver | None] = [None] * n
         self._corr: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * n
+        self._correcting = [False] * n  # the attached observer's settings.correct
         self._rate_t0: list[int | None] = [None] * n
         self._rate_n = [0] * n
         self._incomplete: set[int] = set()
@@ -176,6 +177,7 @@ class TelemetryTable:
             _ROW.pack_into(self._buf, k * _ROW.size, *pos[2:])
         self.seen_s[k] = vp.position_at
         self._observers[k] = obs = vp.velocity_bias
+        self._correcting[k] = obs.settings.correct
         self._corr[k] = c = obs.correction
         self._set_bias(k, c)
         self.accel_ned[k] = vp.last_accel_ned
@@ -293,10 +295,11 @@ class TelemetryTable:
         obs = self._observers[k]
         assert obs is not None
         obs.update(ms * 1e-3, x, y, z, vx, vy, vz)
-        c = obs.correction
-        if c is not self._corr[k]:  # a new estimate (every window / 20) or correct off
-            self._corr[k] = c
-            self._set_bias(k, c)
+        if self._correcting[k]:  # else the zeros set at attach stand (obs.correction)
+            c = obs.bias
+            if c is not self._corr[k]:  # a new estimate (every window / 20)
+                self._corr[k] = c
+                self._set_bias(k, c)
         # VehicleProtocol._count_report, column-wise: the window's report count.
         rate_t0 = self._rate_t0
         t0 = rate_t0[k]

@@ -165,3 +165,24 @@ def test_a_filtered_step_in_three_steps_of_rows_sends_what_the_whole_step_sends(
     assert whole.last is not None and parts.last is not None
     assert seps[:2] == [np.inf, np.inf] and seps[2] == whole.last.min_separation_m
     np.testing.assert_allclose(parts.last.accel_mps2, whole.last.accel_mps2, rtol=0, atol=tol)
+
+
+def test_the_neighbour_list_s_closest_pair_is_the_separation_when_it_holds_it() -> None:
+    """``NeighbourList.closest``: the same float as ``loop._min_separation``
+    while the list is fresh and its closest pair is nearer than r_c; None
+    when stale (a vehicle moved), for other vehicles, or when every pair is
+    at r_c or beyond (then the list may not hold the nearest pair)."""
+    from gcs_swarm.control.loop import _min_separation
+
+    n = 300
+    pos, _ = _swarm(n, 8)
+    nl = NeighbourList(1.5)
+    nl.row_pairs(pos, np.arange(10), key="ids")
+    assert nl.closest(pos, key="ids") == _min_separation(pos)
+    assert nl.closest(pos, key="others") is None
+    moved = pos.copy()
+    moved[3] += [nl.skin_m, 0.0, 0.0]
+    assert nl.closest(moved, key="ids") is None
+    far = NeighbourList(0.9 * _min_separation(pos))  # r_c below the nearest pair
+    far.row_pairs(pos, np.arange(10), key="ids")
+    assert far.closest(pos, key="ids") is None  # the nearest pair is beyond r_c
