@@ -138,10 +138,16 @@ class ControlOutput:
 
 
 def as_states(
-    ids: Sequence[int], pos_m: ArrayLike, vel_mps: ArrayLike, charges: ArrayLike
+    ids: Sequence[int],
+    pos_m: ArrayLike,
+    vel_mps: ArrayLike,
+    charges: ArrayLike,
+    known: tuple[int, ...] | None = None,
 ) -> tuple[tuple[int, ...], F64, F64, F64]:
     """Validate and convert one step's inputs; raise ``ValueError`` on a shape
-    mismatch, a repeated id or a non-finite value (naming the vehicle id)."""
+    mismatch, a repeated id or a non-finite value (naming the vehicle id).
+    ``known``: ids already found distinct (the last step's): equal ones are
+    not searched for repeats again."""
     key = tuple(map(int, ids))
     n = len(key)
     p = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
@@ -152,7 +158,7 @@ def as_states(
             f"expected {n} ids, positions (N,3), velocities (N,3), charges (N,); "
             f"got {p.shape}, {v.shape}, {q.shape}"
         )
-    if len(set(key)) != n:
+    if key != known and len(set(key)) != n:
         raise ValueError(f"vehicle ids repeat: {key}")
     if n < SMALL_N:  # plain floats: cheaper than six numpy calls for a few rows
         # Every value is finite when their sum is (a NaN or an infinity makes it NaN
@@ -189,6 +195,7 @@ class SwarmController:
         self._leader = self._law.initial_state(config.leader.start, config.leader.velocity)
         self._t = float(t0)
         self._sup = Supervisor(config, self._law, defer_lookahead=defer_lookahead)
+        self._key: tuple[int, ...] | None = None  # the last step's ids (as_states)
         cut = config.gains.repulsion_cutoff
         self._neighbours = None if cut is None else NeighbourList(cut)
         """The candidates of steps of some rows with a cut-off (``cutoff.NeighbourList``)."""
@@ -246,7 +253,8 @@ class SwarmController:
         logic once from the measured states, and return the law's
         accelerations (``(N, 3)`` in ``ids`` order, m/s^2, mission frame),
         or only those of ``rows`` (``law_accelerations``)."""
-        key, p, v, q = as_states(ids, pos_m, vel_mps, charges)
+        key, p, v, q = as_states(ids, pos_m, vel_mps, charges, self._key)
+        self._key = key
         t = float(t)
         if self._sup.behaviour == "formation":
             self._leader = self._law.advance(self._t, self._leader, t)

@@ -4,11 +4,10 @@
 driven as aioquic drives a connection (STYLE.md habit 1): messages go in with
 the link they came on and the time (``receive``; a flying vehicle's
 LOCAL_POSITION_NED is written into ``table`` by the link state, then
-``telemetry_written``), ``handle_timer(now)`` when ``get_timer()`` is due, ``control_step(now,
-write)`` when ``step_wanted``; what the vehicles' protocols queued waits in
-``outbound`` as ``(link, spec, sysid)``; ``changed`` and ``finished`` tell
-the shell (``runtime.station.Station``) that a phase moved or the mission
-is over. A link is the mission's connection string (``VehiclePlan.link``).
+``telemetry_written``), ``handle_timer(now)`` when ``get_timer()`` is due,
+``control_step(now, write)`` when ``step_wanted``; what the protocols queued waits in
+``outbound`` as ``(link, spec, sysid)``; ``changed`` and ``finished`` tell the shell
+(``runtime.station.Station``) a phase moved or the mission is over (links: connection strings).
 
 - each received message goes to its vehicle's ``VehicleProtocol`` (traffic
   from system ids the mission does not name on that link is counted and
@@ -55,7 +54,7 @@ from gcs_swarm.mavlink.states import Phase, ProtocolEvent
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.swarm.departures import keep_out_lost
-from gcs_swarm.swarm.step import READYING, Write, resolve_lookahead, run_step
+from gcs_swarm.swarm.step import READYING, FlyingOrder, Write, resolve_lookahead, run_step
 
 if TYPE_CHECKING:  # plain data of the layer above, for the types only
     from gcs_swarm.report.record import FlightRecorder
@@ -119,6 +118,7 @@ class SwarmCore:
         """Vehicles sent a velocity setpoint with the acceleration (Eq. V1)."""
         self.reference = VelocityReference()
         self.flying: set[int] = set()
+        self.order = FlyingOrder()  # ``flying`` in key order, for each step
         self.flown: set[int] = set()
         """Vehicles that have flown in the formation: if one comes back after
         being lost it goes to its slot beside the leader, not to its start."""

@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
     from gcs_swarm.control.loop import ControlLoop
     from gcs_swarm.control.safety_stats import SafetyReport
+    from gcs_swarm.mavlink.telemetry_table import TelemetryTable
     from gcs_swarm.report.record import FlightRecorder
     from gcs_swarm.swarm.core import SwarmCore
 
@@ -37,6 +38,7 @@ __all__ = [
     "LEADER_BOUND",
     "READYING",
     "Commanding",
+    "FlyingOrder",
     "SetpointBatch",
     "Write",
     "answer",
@@ -75,10 +77,34 @@ Write = Callable[[str, SetpointBatch | None], None]
 the step's bookkeeping: its setpoints, or None (write what is queued)."""
 
 
+class FlyingOrder:
+    """The flying vehicles in key order, their telemetry rows and each one's
+    index in that order: a step reads them every time (six times a period
+    with a step per network), and they change only on a join or a leave."""
+
+    __slots__ = ("_of", "ids", "index", "ks")
+
+    def __init__(self) -> None:
+        self._of: frozenset[int] = frozenset()
+        self.ids: list[int] = []
+        self.ks: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
+        self.index: dict[int, int] = {}
+
+    def update(self, flying: set[int], table: TelemetryTable) -> None:
+        """Follow ``flying`` (a set compare when it did not change)."""
+        if flying != self._of:
+            self._of = frozenset(flying)
+            self.ids = sorted(flying)
+            self.ks = table.slots(self.ids)
+            self.index = {s: i for i, s in enumerate(self.ids)}
+
+
 def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write: Write) -> None:
     """The law at mission time ``t`` [s] (wall ``now`` [s]) over ``core``'s
     flying vehicles, answering those in ``fresh`` (sysid -> report time)."""
-    ids = sorted(core.flying)
+    order = core.order
+    order.update(core.flying, core.table)
+    ids = order.ids
     if ids:
         # The members keep out of those that left but fly on, heard (Eq. K1).
         live = live_columns(core, now)
@@ -86,11 +112,13 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         for key in sorted(live.keys() - core.control.live_keep_out.keys()):
             core.note(describe(core.labels[key], live[key], sep, heard=True))
         core.control.set_live_keep_out(live)
-        ks, pos, vel = flying_states(core, ids, now)
-        every = len(fresh) == len(ids) and all(map(fresh.__contains__, ids))
-        rows = None
-        if not every:
-            rows = np.array([i for i, sysid in enumerate(ids) if sysid in fresh], dtype=np.int64)
+        ks, pos, vel = flying_states(core, ids, now, order.ks)
+        index = order.index
+        rows: npt.NDArray[np.int64] | None = np.sort(
+            np.fromiter((index[s] for s in fresh if s in index), dtype=np.int64)
+        )
+        if rows is not None and len(rows) == len(ids):
+            rows = None  # every one
         # A step of one network's reports commands its rows only (section 3b);
         # the whole-swarm step computes everyone's and answers the fresh ones.
         some = rows if core.config.step_per_network and rows is not None else None
@@ -204,13 +232,15 @@ def command(
 
 
 def flying_states(
-    core: SwarmCore, ids: list[int], now: float
+    core: SwarmCore, ids: list[int], now: float, ks: npt.NDArray[np.intp] | None = None
 ) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray]:
     """The table rows of ``ids`` and their mission-frame states ``(K, 3)``
     (position [m], velocity [m/s]) as the law reads them at wall ``now`` [s]:
-    predicted over the commands in flight when there is a delay compensator."""
+    predicted over the commands in flight when there is a delay compensator.
+    ``ks``: the rows of ``ids`` when known (``FlyingOrder``)."""
     table = core.table
-    ks = table.slots(ids)
+    if ks is None:
+        ks = table.slots(ids)
     pos, vel = table.mission_states(ks)
     if core.delay is not None:
         for i, s in enumerate(ids):
