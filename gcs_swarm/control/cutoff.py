@@ -34,6 +34,8 @@ between calls.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -84,6 +86,77 @@ on the development machine)."""
 Pairs = tuple[I64, I64, F64, F64]
 
 
+class _Cells(NamedTuple):
+    """A cell list over all N vehicles (module docstring): each vehicle's
+    cell ``key``, the vehicles sorted by it (``order``, stable; ``skey`` =
+    ``key[order]``), the key offset of one cell along each axis (``stride``)
+    and, for a compact swarm, ``start[c]`` the first sorted index of cell c
+    (``ncell + 1`` long; None: binary searches instead)."""
+
+    key: I64
+    order: I64
+    skey: I64
+    stride: I64
+    start: I64 | None
+
+
+def _cells(pos_m: F64, cutoff_m: float) -> _Cells:
+    """The cell list of side ``cutoff_m`` (larger for a swarm wider than
+    ``_MAX_CELLS`` cells) of ``pos_m (N, 3)``, padded by one cell each side
+    (no key of a neighbour wraps into another row)."""
+    n = pos_m.shape[0]
+    lo = pos_m.min(axis=0)
+    span = float((pos_m.max(axis=0) - lo).max())
+    side = max(float(cutoff_m), span / _MAX_CELLS)
+    cell = np.floor((pos_m - lo) / side).astype(np.int64) + 1  # >= 1: padding for -1 offsets
+    dims = cell.max(axis=0) + 2  # padding for +1 offsets: no key wraps into another row
+    stride = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
+    key = cell @ stride
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
+    start = None
+    if ncell <= _DENSE_CELLS_PER_VEHICLE * n:  # a compact swarm: a table of every cell
+        start = np.zeros(ncell + 1, dtype=np.int64)
+        np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
+    return _Cells(key, order, skey, stride, start)
+
+
+def _first(c: _Cells, keys: I64) -> I64:
+    """The first sorted index of each cell of ``keys``."""
+    if c.start is not None:
+        return c.start[keys]
+    return np.searchsorted(c.skey, keys, side="left")  # a sparse swarm: binary search
+
+
+def _after(c: _Cells, keys: I64) -> I64:
+    """The sorted index after the last vehicle of each cell of ``keys``."""
+    if c.start is not None:
+        return c.start[keys + 1]
+    return np.searchsorted(c.skey, keys, side="right")
+
+
+def _expand(owner: I64, first: I64, count: I64, total: int) -> tuple[I64, I64]:
+    """The candidate pairs of ranges: ``owner[k]`` with each index of
+    ``first[k], first[k] + 1, ... first[k] + count[k] - 1``; ``total`` is
+    ``count.sum()``."""
+    starts = np.cumsum(count) - count
+    index = np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)
+    return np.repeat(owner, count), index
+
+
+def _near_rows(pos_m: F64, rows: I64, r_s: I64, j_s: I64, rc2: float) -> Pairs:
+    """The candidates (row ``rows[r_s]``, vehicle ``j_s``) closer than
+    ``sqrt(rc2)``, as ``row_pairs`` returns them."""
+    x, y, z = np.ascontiguousarray(pos_m.T)
+    own = rows[r_s]
+    dx, dy, dz = x[own] - x[j_s], y[own] - y[j_s], z[own] - z[j_s]
+    r2 = dx * dx + dy * dy + dz * dz
+    near = np.flatnonzero(r2 < rc2)
+    d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+    return r_s[near], j_s[near], d, r2[near]
+
+
 def neighbour_pairs(
     pos_m: F64, cutoff_m: float, *, max_candidates: int | None = None
 ) -> Pairs | None:
@@ -106,41 +179,21 @@ def neighbour_pairs(
         r2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
         close = r2 < rc2
         return a[close].astype(np.int64), b[close].astype(np.int64), d[close], r2[close]
-    lo = pos_m.min(axis=0)
-    span = float((pos_m.max(axis=0) - lo).max())
-    side = max(float(cutoff_m), span / _MAX_CELLS)
-    cell = np.floor((pos_m - lo) / side).astype(np.int64) + 1  # >= 1: padding for -1 offsets
-    dims = cell.max(axis=0) + 2  # padding for +1 offsets: no key wraps into another row
-    stride = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
-    key = cell @ stride
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
+    c = _cells(pos_m, cutoff_m)
+    order, skey = c.order, c.skey
     xyz = np.ascontiguousarray(pos_m[order].T)  # (3, N): one contiguous row per axis
     rank = np.arange(n, dtype=np.int64)
     # Neighbouring cells (13 offsets x N vehicles): the sorted range of each.
-    nkey = (skey[None, :] + (_HALF_SHELL @ stride)[:, None]).reshape(-1)
-    ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
-    if ncell <= _DENSE_CELLS_PER_VEHICLE * n:  # a compact swarm: a table of every cell
-        start = np.zeros(ncell + 1, dtype=np.int64)
-        np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
-        first = start[nkey]
-        count = start[nkey + 1] - first
-        end = start[skey + 1]
-    else:  # a sparse one: binary search in the sorted keys
-        first = np.searchsorted(skey, nkey, side="left")
-        count = np.searchsorted(skey, nkey, side="right") - first
-        end = np.searchsorted(skey, skey, side="right")
+    nkey = (skey[None, :] + (_HALF_SHELL @ c.stride)[:, None]).reshape(-1)
+    first = _first(c, nkey)
     # The same cell: the vehicles sorted after this one (each pair once).
+    count = np.concatenate((_after(c, nkey) - first, _after(c, skey) - rank - 1))
     first = np.concatenate((first, rank + 1))
-    count = np.concatenate((count, end - rank - 1))
     owner = np.tile(rank, _HALF_SHELL.shape[0] + 1)
     total = int(count.sum())
     if max_candidates is not None and total > max_candidates:
         return None
-    i_s = np.repeat(owner, count)
-    # j runs over first[k], first[k] + 1, ... first[k] + count[k] - 1 for each k.
-    starts = np.cumsum(count) - count
-    j_s = np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)
+    i_s, j_s = _expand(owner, first, count, total)
     x, y, z = xyz
     dx, dy, dz = x[i_s] - x[j_s], y[i_s] - y[j_s], z[i_s] - z[j_s]
     r2 = dx * dx + dy * dy + dz * dz
@@ -213,39 +266,15 @@ def row_pairs(pos_m: F64, rows: I64, cutoff_m: float) -> Pairs:
         r_s = np.repeat(np.arange(m, dtype=np.int64), n)
         j_s = np.tile(np.arange(n, dtype=np.int64), m)
     else:
-        lo = pos_m.min(axis=0)
-        span = float((pos_m.max(axis=0) - lo).max())
-        side = max(float(cutoff_m), span / _MAX_CELLS)
-        cell = np.floor((pos_m - lo) / side).astype(np.int64) + 1
-        dims = cell.max(axis=0) + 2
-        stride = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
-        key = cell @ stride
-        order = np.argsort(key, kind="stable")
-        skey = key[order]
-        nkey = (key[rows][None, :] + (_FULL_SHELL @ stride)[:, None]).reshape(-1)
-        ncell = int(dims[0]) * int(dims[1]) * int(dims[2])
-        if ncell <= _DENSE_CELLS_PER_VEHICLE * n:
-            start = np.zeros(ncell + 1, dtype=np.int64)
-            np.cumsum(np.bincount(skey, minlength=ncell), out=start[1:])
-            first = start[nkey]
-            count = start[nkey + 1] - first
-        else:
-            first = np.searchsorted(skey, nkey, side="left")
-            count = np.searchsorted(skey, nkey, side="right") - first
+        c = _cells(pos_m, cutoff_m)
+        nkey = (c.key[rows][None, :] + (_FULL_SHELL @ c.stride)[:, None]).reshape(-1)
+        first = _first(c, nkey)
+        count = _after(c, nkey) - first
         owner = np.tile(np.arange(m, dtype=np.int64), _FULL_SHELL.shape[0])
-        total = int(count.sum())
-        r_s = np.repeat(owner, count)
-        starts = np.cumsum(count) - count
-        j_s = order[np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)]
+        r_s, sorted_j = _expand(owner, first, count, int(count.sum()))
+        j_s = c.order[sorted_j]
     keep = j_s != rows[r_s]
-    r_s, j_s = r_s[keep], j_s[keep]
-    x, y, z = np.ascontiguousarray(pos_m.T)
-    own = rows[r_s]
-    dx, dy, dz = x[own] - x[j_s], y[own] - y[j_s], z[own] - z[j_s]
-    r2 = dx * dx + dy * dy + dz * dz
-    near = np.flatnonzero(r2 < rc2)
-    d = np.stack((dx[near], dy[near], dz[near]), axis=1)
-    return r_s[near], j_s[near], d, r2[near]
+    return _near_rows(pos_m, rows, r_s[keep], j_s[keep], rc2)
 
 
 def row_repulsion(
@@ -358,15 +387,7 @@ class NeighbourList:
             self._build(pos_m, key)
         first = self._start[rows]
         count = self._start[rows + 1] - first
-        total = int(count.sum())
-        r_s = np.repeat(np.arange(rows.shape[0], dtype=np.int64), count)
-        starts = np.cumsum(count) - count
-        j_s = self._other[np.arange(total, dtype=np.int64) + np.repeat(first - starts, count)]
-        x, y, z = np.ascontiguousarray(pos_m.T)
-        own = rows[r_s]
-        dx, dy, dz = x[own] - x[j_s], y[own] - y[j_s], z[own] - z[j_s]
-        r2 = dx * dx + dy * dy + dz * dz
+        owner = np.arange(rows.shape[0], dtype=np.int64)
+        r_s, at = _expand(owner, first, count, int(count.sum()))
         rc = self.cutoff_m
-        near = np.flatnonzero(r2 < rc * rc)
-        d = np.stack((dx[near], dy[near], dz[near]), axis=1)
-        return r_s[near], j_s[near], d, r2[near]
+        return _near_rows(pos_m, rows, r_s, self._other[at], rc * rc)
