@@ -108,12 +108,9 @@ class ControlLoop:
         self.last: StepResult | None = None
         self._q_ids: tuple[int, ...] | None = None
         self._q = np.zeros(0)
+        """The charges of the vehicles ``_q_ids``, in that order (``command``)."""
         self._rows_since = 0
         """Rows stepped since the separation was last taken (``account``)."""
-        self._acc_ids: tuple[int, ...] = ()
-        self._acc = np.zeros((0, 3))
-        """The latest command of each of ``_acc_ids`` (steps of some rows: ``account``)."""
-        """The charges of the vehicles ``_q_ids``, in that order (``command``)."""
 
     def advance_clock(self, boot_ms: Mapping[int, int]) -> float:
         """Advance the mission clock to the fresh vehicles' ``time_boot_ms``.
@@ -287,24 +284,28 @@ class ControlLoop:
             self.min_clearance_m = min(self.min_clearance_m, clearance)
         if report is not None and len(accel):  # keep-out boxes act only through the filter
             self.min_keep_out_m = min(self.min_keep_out_m, float(report.min_keep_out_m.min()))
+        key = tuple(ids)
         if rows is not None:
-            accel = self._latest(tuple(ids), rows, accel)
+            accel = self._latest(key, rows, accel)
         self.steps += 1
-        self.last = StepResult(self.t_s, tuple(ids), pos_m.copy(), accel, out, report, radii, sep)
+        self.last = StepResult(self.t_s, key, pos_m.copy(), accel, out, report, radii, sep)
         return self.last
 
     def _latest(
         self, key: tuple[int, ...], rows: npt.NDArray[np.int64], accel: FloatArray
     ) -> FloatArray:
-        """Every vehicle's latest command (N, 3) in ``key`` order, the rows'
-        from ``accel``; a vehicle not commanded yet has zeros."""
-        if self._acc_ids != key:
-            before = dict(zip(self._acc_ids, self._acc, strict=True))
+        """Every vehicle's latest command (N, 3) in ``key`` order: the rows'
+        from ``accel``, the others' from ``last`` (zeros for a vehicle not
+        commanded yet)."""
+        last = self.last
+        if last is not None and last.ids == key:
+            out = last.accel_mps2.copy()
+        else:
+            before = {} if last is None else dict(zip(last.ids, last.accel_mps2, strict=True))
             zero = np.zeros(3)
-            self._acc = np.array([before.get(i, zero) for i in key]).reshape(-1, 3)
-            self._acc_ids = key
-        self._acc[rows] = accel
-        return self._acc.copy()
+            out = np.array([before.get(i, zero) for i in key], dtype=np.float64).reshape(-1, 3)
+        out[rows] = accel
+        return out
 
     def pending_lookahead(self) -> LookaheadJob | None:
         return self.controller.pending_lookahead()

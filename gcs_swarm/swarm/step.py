@@ -114,14 +114,11 @@ def run_step(core: SwarmCore, fresh: dict[int, int], t: float, now: float, write
         core.control.set_live_keep_out(live)
         ks, pos, vel = flying_states(core, ids, now, order.ks)
         index = order.index
-        rows: npt.NDArray[np.int64] | None = np.sort(
-            np.fromiter((index[s] for s in fresh if s in index), dtype=np.int64)
-        )
-        if rows is not None and len(rows) == len(ids):
-            rows = None  # every one
+        fresh_rows = np.sort(np.fromiter((index[s] for s in fresh if s in index), dtype=np.int64))
+        rows = None if len(fresh_rows) == len(ids) else fresh_rows  # None: every one
         # A step of one network's reports commands its rows only (section 3b);
         # the whole-swarm step computes everyone's and answers the fresh ones.
-        some = rows if core.config.step_per_network and rows is not None else None
+        some = rows if core.config.step_per_network else None
         commanded = command(core, ids, pos, vel, t, fresh.keys(), some)
         if commanded is None:
             return
