@@ -42,8 +42,6 @@ from numpy.typing import NDArray
 __all__ = [
     "ALL_PAIRS_BELOW",
     "DENSE_SHARE",
-    "SKIN_SHARE",
-    "NeighbourList",
     "Pairs",
     "neighbour_pairs",
     "pair_repulsion",
@@ -180,10 +178,20 @@ def neighbour_pairs(
         close = r2 < rc2
         return a[close].astype(np.int64), b[close].astype(np.int64), d[close], r2[close]
     c = _cells(pos_m, cutoff_m)
-    order, skey = c.order, c.skey
-    xyz = np.ascontiguousarray(pos_m[order].T)  # (3, N): one contiguous row per axis
-    rank = np.arange(n, dtype=np.int64)
-    # Neighbouring cells (13 offsets x N vehicles): the sorted range of each.
+    xyz = np.ascontiguousarray(pos_m[c.order].T)  # (3, N): one contiguous row per axis
+    return _rank_pairs(c, xyz, 0, n, rc2, max_candidates)
+
+
+def _rank_pairs(
+    c: _Cells, xyz: F64, lo: int, hi: int, rc2: float, max_candidates: int | None = None
+) -> Pairs | None:
+    """``neighbour_pairs``' pairs whose first vehicle has sorted rank ``lo`` to
+    ``hi - 1`` in the cell list ``c`` (``xyz (3, N)``: the positions in
+    sorted order, one row per axis): over the ranks 0 .. N - 1 in slices,
+    every pair once, as the whole range finds them."""
+    skey = c.skey[lo:hi]
+    rank = np.arange(lo, hi, dtype=np.int64)
+    # Neighbouring cells (13 offsets x the ranks): the sorted range of each.
     nkey = (skey[None, :] + (_HALF_SHELL @ c.stride)[:, None]).reshape(-1)
     first = _first(c, nkey)
     # The same cell: the vehicles sorted after this one (each pair once).
@@ -199,6 +207,7 @@ def neighbour_pairs(
     r2 = dx * dx + dy * dy + dz * dz
     near = np.flatnonzero(r2 < rc2)
     d = np.stack((dx[near], dy[near], dz[near]), axis=1)
+    order = c.order
     return order[i_s[near]], order[j_s[near]], d, r2[near]
 
 
@@ -304,90 +313,3 @@ def row_repulsion(
     qn = q[rows] * q[rows] if q_n_twice else q[rows]
     out *= (k_r * qn)[:, None]
     return out
-
-
-SKIN_SHARE = 0.3
-"""``NeighbourList``'s margin beyond the cut-off, as a share of it."""
-
-
-class NeighbourList:
-    """``row_pairs`` for steps of some rows, from a kept list of candidates.
-
-    A Verlet list (the molecular-dynamics device): every pair closer than
-    ``r_c + skin`` when it was built (``neighbour_pairs``, both ways round,
-    rows in order), with the positions then, less their mean. Any common
-    translation leaves the distances unchanged, so while no vehicle has moved
-    more than ``skin / 2`` from its built position relative to the swarm's
-    mean, a pair closer than ``r_c`` now was closer than ``r_c + skin`` then:
-    it is in the list. ``row_pairs`` then tests only the rows' candidates
-    (about 4.2 (1 + skin/r_c)^3 r_c^3 of volume each, against 27 r_c^3 for the
-    cells) and rebuilds first when a vehicle moved farther, or when the
-    vehicles are others (a join or a leave: ``key``). The same pairs as
-    ``cutoff.row_pairs`` (the same test on the same floats), in another
-    order. A formation holding its shape, however fast it flies, is built
-    once.
-    """
-
-    def __init__(self, cutoff_m: float, skin_share: float = SKIN_SHARE) -> None:
-        self.cutoff_m = float(cutoff_m)
-        self.skin_m = skin_share * self.cutoff_m
-        self.builds = 0
-        """Times the list was built (the benchmarks' and tests' count)."""
-        self._key: object = None
-        self._ref = np.zeros((0, 3))
-        self._start = np.zeros(1, dtype=np.int64)
-        self._other = np.zeros(0, dtype=np.int64)
-        self._half: tuple[I64, I64] = (self._other, self._other)
-        """Each listed pair once, as ``neighbour_pairs`` gave them."""
-
-    def _stale(self, pos_m: F64, key: object) -> bool:
-        if key != self._key or pos_m.shape != self._ref.shape:
-            return True
-        moved = (pos_m - pos_m.mean(axis=0)) - self._ref
-        return bool((moved * moved).sum(axis=1).max() > 0.25 * self.skin_m * self.skin_m)
-
-    def _build(self, pos_m: F64, key: object) -> None:
-        n = pos_m.shape[0]
-        pairs = neighbour_pairs(pos_m, self.cutoff_m + self.skin_m)
-        assert pairs is not None  # no max_candidates
-        i, j = pairs[0], pairs[1]
-        src = np.concatenate((i, j))
-        other = np.concatenate((j, i))
-        # The same stable order; numpy radix-sorts 16-bit keys (8 times faster
-        # than its int64 merge sort at 60 000 pairs).
-        small = src.astype(np.int16) if n <= np.iinfo(np.int16).max else src
-        order = np.argsort(small, kind="stable")
-        self._other = other[order]
-        self._start = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(src, minlength=n), out=self._start[1:])
-        self._ref = pos_m - pos_m.mean(axis=0)
-        self._key = key
-        self._half = (i, j)
-        self.builds += 1
-
-    def closest(self, pos_m: F64, key: object = None) -> float | None:
-        """The swarm's smallest pairwise distance [m] at ``pos_m`` when the
-        list holds it: fresh for these vehicles and positions, and its
-        closest pair nearer than ``r_c`` (every such pair is listed); else
-        None. The distance as ``loop._min_separation`` computes it (the
-        difference's squares summed by ``einsum``): the same float."""
-        if self._stale(pos_m, key) or self._half[0].size == 0:
-            return None
-        i, j = self._half
-        diff = pos_m[i] - pos_m[j]
-        d = float(np.sqrt(np.einsum("ij,ij->i", diff, diff)).min())
-        return d if d < self.cutoff_m else None
-
-    def row_pairs(self, pos_m: F64, rows: I64, key: object = None) -> Pairs:
-        """``cutoff.row_pairs(pos_m, rows, cutoff_m)``'s pairs (same arrays,
-        in another order); ``key`` names the vehicles (e.g. their ids): a
-        different key rebuilds the list."""
-        rows = np.asarray(rows, dtype=np.int64)
-        if self._stale(pos_m, key):
-            self._build(pos_m, key)
-        first = self._start[rows]
-        count = self._start[rows + 1] - first
-        owner = np.arange(rows.shape[0], dtype=np.int64)
-        r_s, at = _expand(owner, first, count, int(count.sum()))
-        rc = self.cutoff_m
-        return _near_rows(pos_m, rows, r_s, self._other[at], rc * rc)

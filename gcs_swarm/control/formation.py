@@ -201,7 +201,7 @@ def repulsion_rows(
     block of the augmented Gram product (in blocks of columns),
     O(R N). Cut-off: ``cutoff.row_pairs``
     on the cells of all N, O(N log N + R k), or ``pairs_of(pos_m, rows)``
-    when given (the same pairs: ``cutoff.NeighbourList.row_pairs``).
+    when given (the same pairs: ``neighbours.NeighbourList.row_pairs``).
     """
     rows = np.asarray(rows, dtype=np.int64)
     q = np.asarray(charges, dtype=np.float64)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gcs_swarm.control.cutoff import NeighbourList, Pairs
+from gcs_swarm.control.cutoff import Pairs
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import (
     RowPairs,
@@ -40,6 +40,7 @@ from gcs_swarm.control.formation import (
 from gcs_swarm.control.formation_rows import SMALL_N, formation_accelerations
 from gcs_swarm.control.leader import LeaderLaw, LeaderState
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
+from gcs_swarm.control.neighbours import NeighbourList
 from gcs_swarm.control.obstacles import Ellipsoids
 from gcs_swarm.control.params import LawConfig
 from gcs_swarm.control.supervisor import Behaviour, Mode, Supervisor
@@ -198,7 +199,7 @@ class SwarmController:
         self._key: tuple[int, ...] | None = None  # the last step's ids (as_states)
         cut = config.gains.repulsion_cutoff
         self._neighbours = None if cut is None else NeighbourList(cut)
-        """The candidates of steps of some rows with a cut-off (``cutoff.NeighbourList``)."""
+        """The candidates of steps of some rows with a cut-off (``neighbours.NeighbourList``)."""
 
     @property
     def config(self) -> LawConfig:

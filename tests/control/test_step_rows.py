@@ -10,14 +10,17 @@ rows are compared exactly.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
-from gcs_swarm.control.cutoff import NeighbourList, neighbour_pairs, row_pairs
+from gcs_swarm.control.cutoff import _cells, _rank_pairs, neighbour_pairs, row_pairs
 from gcs_swarm.control.envelope import ARDUCOPTER
 from gcs_swarm.control.formation import repulsion_force, repulsion_rows
 from gcs_swarm.control.law import law_accelerations
 from gcs_swarm.control.loop import ControlLoop
+from gcs_swarm.control.neighbours import AHEAD_SHARE, SLICES, NeighbourList
 from gcs_swarm.control.obstacles import Ellipsoids
 from gcs_swarm.control.params import Gains, LawConfig, Limits, Safety
 from gcs_swarm.control.supervisor import Mode
@@ -94,6 +97,70 @@ def test_the_neighbour_list_finds_the_cells_pairs_and_rebuilds_only_when_a_vehic
     assert nl.builds == 2
     nl.row_pairs(pos, rows, key="others")  # other vehicles: built again
     assert nl.builds == 3
+
+
+def test_the_pairs_found_by_slices_of_ranks_are_the_whole_search_s() -> None:
+    """``neighbour_pairs`` is ``_rank_pairs`` over every rank; any cut of the
+    ranks into slices finds the same pairs, each once (the arrays joined in
+    slice order are the whole search's, element for element)."""
+    n, rc = 500, 1.4
+    pos, _ = _swarm(n, 11)
+    whole = neighbour_pairs(pos, rc)
+    assert whole is not None
+    c = _cells(pos, rc)
+    xyz = np.ascontiguousarray(pos[c.order].T)
+    for cuts in ([0, n], [0, 1, 2, 250, 499, n], [*list(range(0, n, 97)), n]):
+        parts = [_rank_pairs(c, xyz, a, b, rc * rc) for a, b in itertools.pairwise(cuts)]
+        i = np.concatenate([p[0] for p in parts if p is not None])
+        j = np.concatenate([p[1] for p in parts if p is not None])
+        assert {(a, b) for a, b in zip(i.tolist(), j.tolist(), strict=True)} == {
+            (a, b) for a, b in zip(whole[0].tolist(), whole[1].tolist(), strict=True)
+        }
+        assert len(i) == len(whole[0])
+
+
+def test_the_neighbour_list_built_ahead_in_slices_keeps_every_step_s_pairs() -> None:
+    """A swarm churning in place (every vehicle on its own straight line):
+    after the first list, every list is built ahead in slices (``ahead``),
+    none at once (``builds`` stays 1), and every step's pairs are
+    ``row_pairs``' on the positions of that step. A vehicle that then jumps
+    past the margin while the next list is half found gets a list at once,
+    still with every pair."""
+    n, rc = 400, 1.5
+    pos, _ = _swarm(n, 21)
+    nl = NeighbourList(rc)
+    rng = np.random.default_rng(5)
+    # Each step moves every vehicle 1/40 of the margin's half: the next list
+    # starts at AHEAD_SHARE of it and is done SLICES + 1 steps later, well
+    # before the margin is used.
+    per_step = 0.5 * nl.skin_m / 40
+    assert (1 - AHEAD_SHARE) * 40 > SLICES + 1
+
+    def same(rows: np.ndarray) -> None:
+        want = row_pairs(pos, rows, rc)
+        got = nl.row_pairs(pos, rows, key="ids")
+        assert sorted(zip(got[0].tolist(), got[1].tolist(), strict=True)) == sorted(
+            zip(want[0].tolist(), want[1].tolist(), strict=True)
+        )
+
+    sets = [np.arange(k, n, 4) for k in range(4)]
+    way = rng.normal(size=(n, 3))
+    way *= per_step / np.linalg.norm(way, axis=1, keepdims=True)
+    for step in range(400):
+        pos = pos + way
+        same(sets[step % 4])
+    assert nl.builds == 1
+    assert nl.ahead >= 400 // 40
+    while nl._next is None:  # until the next list is under way
+        pos = pos + per_step * np.array([1.0, 0.0, 0.0]) * (np.arange(n) % 2)[:, None]
+        same(sets[0])
+    same(sets[1])  # one slice of it found
+    pos = pos.copy()
+    pos[7] += [nl.skin_m, 0.0, 0.0]  # past the margin of the list and of the next
+    builds = nl.builds
+    same(sets[2])
+    assert nl.builds == builds + 1
+    same(sets[3])
 
 
 @pytest.mark.parametrize("n", [6, 40])
