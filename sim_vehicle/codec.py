@@ -13,20 +13,32 @@ cost outweighs the work (``small.SMALL_N``). Frame layout (MAVLink 2, unsigned):
 ``len`` is the payload with trailing zero bytes removed (minimum 1), as
 MAVLink 2 requires; the CRC is CRC-16/MCRF4XX over bytes 1..9+len followed by
 the message's CRC_EXTRA (185). Signed frames are packed by pymavlink
-(``server.py``). No I/O.
+(``server.py``). Inbound, ``decode_setpoint`` takes the station's 50 Hz
+message, SET_POSITION_TARGET_LOCAL_NED, apart without pymavlink's parser or
+message object (``RawSetpoint``; ``link.Endpoint.parse``). No I/O.
 """
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.crc import frame_crc
 from mavwire.framing import FrameBuilder
 
-__all__ = ["LPN_CRC_EXTRA", "LPN_MSGID", "encode_local_position_ned", "lpn_frames_small"]
+__all__ = [
+    "LPN_CRC_EXTRA",
+    "LPN_MSGID",
+    "RawSetpoint",
+    "decode_setpoint",
+    "encode_local_position_ned",
+    "lpn_frames_small",
+]
 
 LPN_MSGID = 32
 LPN_CRC_EXTRA = 185
@@ -80,3 +92,53 @@ def lpn_frames_small(
     except OverflowError:
         return None
     return out
+
+
+_SP = mav.MAVLink_set_position_target_local_ned_message
+_SP_SIZE = _SP.unpacker.size
+_SP_EXTRA = bytes((_SP.crc_extra,))
+_SP_UNPACK_FROM = _SP.unpacker.unpack_from
+
+
+class RawSetpoint:
+    """One unsigned SET_POSITION_TARGET_LOCAL_NED as its fields in wire order
+    (``f``: time_boot_ms, x, y, z, vx, vy, vz, afx, afy, afz, yaw, yaw_rate,
+    type_mask, target_system, target_component, coordinate_frame) and its
+    header: what the emulator's 50 Hz lane reads (``core._deliver``), without
+    building pymavlink's message. ``message()`` is the message pymavlink's
+    parser gives for the same frame, for every other use."""
+
+    __slots__ = ("comp", "f", "plen", "seq", "src", "target_system")
+
+    def __init__(self, f: tuple[Any, ...], plen: int, seq: int, src: int, comp: int) -> None:
+        self.f = f
+        self.plen = plen
+        self.seq = seq
+        self.src = src
+        self.comp = comp
+        self.target_system: int = f[13]
+
+    def get_msgId(self) -> int:
+        return 84
+
+    def message(self) -> mav.MAVLink_message:
+        f = self.f
+        msg = _SP(f[0], f[13], f[14], f[15], f[12], *f[1:12])
+        msg._header = mav.MAVLink_header(84, 0, 0, self.plen, self.seq, self.src, self.comp)
+        return msg
+
+
+def decode_setpoint(data: bytes, i: int, plen: int) -> RawSetpoint | None:
+    """The setpoint in the whole unsigned MAVLink 2 frame at ``data[i:]`` of
+    payload ``plen``, or None when it is another message, longer than the
+    struct, or its CRC (CRC-16/MCRF4XX with CRC_EXTRA) is wrong."""
+    if data[i + 7] != 84 or data[i + 8] or data[i + 9] or plen > _SP_SIZE:
+        return None
+    end = i + 10 + plen
+    if frame_crc(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
+        return None
+    if plen == _SP_SIZE:  # the usual case (coordinate_frame, the last byte, is not 0)
+        f = _SP_UNPACK_FROM(data, i + 10)
+    else:
+        f = _SP.unpacker.unpack(data[i + 10 : end] + bytes(_SP_SIZE - plen))
+    return RawSetpoint(f, plen, data[i + 4], data[i + 5], data[i + 6])

@@ -239,18 +239,30 @@ def stream_accel(ap: Autopilot, msg: MAVLinkMessage, now: float, landed: bool) -
     (tests/sim_vehicle/test_stream_accel.py compares the two bit for bit).
     False, having changed nothing, for any other message or state: then
     ``dispatch`` takes it."""
-    if (
-        msg.type_mask != _ACCEL_ONLY
-        or msg.coordinate_frame != mav.MAV_FRAME_LOCAL_NED
-        or ap.mode != 4
-        or not ap.armed
-        or landed
-    ):
+    return stream_accel_fields(
+        ap, msg.type_mask, msg.coordinate_frame, msg.target_system, msg.target_component,
+        msg.afx, msg.afy, msg.afz, now, landed,
+    )  # fmt: skip
+
+
+def stream_accel_fields(
+    ap: Autopilot,
+    type_mask: int,
+    frame: int,
+    ts: int,
+    tc: int,
+    ax: float,
+    ay: float,
+    az: float,
+    now: float,
+    landed: bool,
+) -> bool:
+    """``stream_accel`` of a setpoint given by the fields it reads (a
+    ``codec.RawSetpoint``'s, without a pymavlink message)."""
+    if type_mask != _ACCEL_ONLY or frame != mav.MAV_FRAME_LOCAL_NED or ap.mode != 4:
         return False
-    ts, tc = msg.target_system, msg.target_component
-    if not (ts in (0, ap.sysid) and tc in (0, ap.compid)):
+    if not ap.armed or landed or not (ts in (0, ap.sysid) and tc in (0, ap.compid)):
         return False
-    ax, ay, az = msg.afx, msg.afy, msg.afz
     lim = SETPOINT_LIMIT
     if not (abs(ax) <= lim and abs(ay) <= lim and abs(az) <= lim):
         return False  # dispatch counts the rejection

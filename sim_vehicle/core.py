@@ -24,7 +24,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import lockstep, schedule
-from sim_vehicle.commands import stream_accel
+from sim_vehicle.codec import RawSetpoint
+from sim_vehicle.commands import stream_accel, stream_accel_fields
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import DelayLine, impair
@@ -196,13 +197,16 @@ class EmulatorCore:
             ep.peers[addr] = None
             if len(ep.peers) > MAX_PEERS:
                 ep.peers.pop(next(iter(ep.peers)))
-        for m in msgs:  # lockstep rule 3: an answer counts even if the link then loses it
+        rows = []  # lockstep rule 3: an answer counts even if the link then loses it
+        vehicles, sysids = self.vehicles, ep.sysids
+        for m in msgs:
             if m.get_msgId() == _SETPOINT_ID:
                 ts = m.target_system
-                for sysid in ep.sysids if ts == 0 else (ts,):
-                    v = self.vehicles.get(ep.sysids.get(sysid, -1))
+                for sysid in sysids if ts == 0 else (ts,):
+                    v = vehicles.get(sysids.get(sysid, -1))
                     if v is not None and v.ep is ep:
-                        lockstep.answered(self.fleet, (v.row,))
+                        rows.append(v.row)
+        lockstep.answered(self.fleet, rows)
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             self.greet(ep, addr)
         elif good and ep.out == addr and id(ep) not in self._out_heard:
@@ -220,7 +224,11 @@ class EmulatorCore:
             self._deliver(ep, msgs, wall_s)
 
     def _deliver(self, ep: Port, msgs: list[Any], wall_s: float | None) -> None:
+        """Each message to the autopilots it is for, in order; a setpoint
+        may come as a ``codec.RawSetpoint`` (``Endpoint.parse(raw=True)``),
+        read by the 50 Hz lane and made a message only if the lane declines."""
         now = self.sim_time_s
+        landed = self.fleet.landed
         for m in msgs:
             ts = getattr(m, "target_system", 0)
             if ts == 0:
@@ -229,15 +237,25 @@ class EmulatorCore:
                 targets = [ep.sysids[ts]]
             else:
                 continue
-            streamed = m.__class__ is _SETPOINT_CLASS
+            cls = m.__class__
+            f = m.f if cls is RawSetpoint else None
+            msg = m
             for key in targets:
                 v = self.vehicles[key]
                 if wall_s is not None:
                     v.ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
-                if streamed and stream_accel(v.ap, m, now, bool(self.fleet.landed[v.row])):
-                    self.sync(v, now)  # the 50 Hz case, without a Kin (commands.stream_accel)
+                # the 50 Hz case, without a Kin (commands.stream_accel)
+                if f is not None:
+                    if stream_accel_fields(v.ap, f[12], f[15], f[13], f[14], f[7], f[8], f[9],
+                                           now, bool(landed[v.row])):  # fmt: skip
+                        self.sync(v, now)
+                        continue
+                    if msg is m:
+                        msg = m.message()
+                elif cls is _SETPOINT_CLASS and stream_accel(v.ap, m, now, bool(landed[v.row])):
+                    self.sync(v, now)
                     continue
-                replies = v.ap.handle(m, now, self.kin(v))
+                replies = v.ap.handle(msg, now, self.kin(v))
                 if replies:
                     self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
                 self.sync(v, now)

@@ -19,11 +19,12 @@ import asyncio
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mavwire.crc import frame_crc
 from sim_vehicle import signing
+from sim_vehicle.codec import RawSetpoint, decode_setpoint
 from sim_vehicle.core import join_frames
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.stats import LinkStats
@@ -69,20 +70,24 @@ class Endpoint(asyncio.DatagramProtocol):
     def error_received(self, exc: Exception) -> None:
         pass  # ICMP port unreachable from a station that went away: keep serving
 
-    def parse(self, data: bytes) -> list[mav.MAVLink_message]:
+    def parse(self, data: bytes, raw: bool = False) -> list[Any]:
         """Decode every frame of a datagram (bad frames are counted and skipped).
 
         Unsigned: each whole unsigned SET_POSITION_TARGET_LOCAL_NED frame is
-        decoded by ``_setpoint_frame``; every other run of bytes goes through
-        pymavlink's parser, so messages and counters are what that parser gives
-        for the whole datagram (a test checks it)."""
+        decoded by ``codec.decode_setpoint``; every other run of bytes goes
+        through pymavlink's parser, so messages and counters are what that
+        parser gives for the whole datagram (a test checks it). ``raw``: the
+        setpoints stay ``codec.RawSetpoint`` (their ``message()`` is what
+        is returned without it), as the core's 50 Hz lane reads them."""
         if self.signing_key is not None:
             return self._general(data)
         pieces = _split_setpoints(data)
-        if len(pieces) == 1 and not isinstance(pieces[0], bytes):
-            return pieces  # the hot case: one setpoint
+        if not raw:
+            pieces = [p if isinstance(p, bytes) else p.message() for p in pieces]
+        if not any(isinstance(p, bytes) for p in pieces):
+            return pieces  # the hot case: setpoints only
         parser = self.parser
-        msgs: list[mav.MAVLink_message] = []
+        msgs: list[Any] = []
         for piece in pieces:
             if not isinstance(piece, bytes):
                 msgs.append(piece)
@@ -267,18 +272,13 @@ def bind_udp(host: str, port: int) -> socket.socket:
     return sock
 
 
-_SP = mav.MAVLink_set_position_target_local_ned_message
-_SP_SIZE = _SP.unpacker.size
-_SP_EXTRA = bytes((_SP.crc_extra,))
-_SP_UNPACK_FROM = _SP.unpacker.unpack_from
-
-
 def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
     """Decode the unsigned SET_POSITION_TARGET_LOCAL_NED frame that fills ``data[i:]`` exactly.
 
     The hot inbound message (50 Hz per vehicle) skips pymavlink's byte-by-byte
     parser: same CRC check (CRC-16/MCRF4XX with CRC_EXTRA), same struct, same
-    message class and header. Anything else returns None.
+    message class and header (``codec.decode_setpoint``). Anything else
+    returns None.
     """
     n = len(data) - i
     if n < 12 or data[i] != 0xFD or data[i + 2] != 0:
@@ -286,27 +286,11 @@ def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
     plen = data[i + 1]
     if n != 12 + plen:
         return None
-    return _setpoint_frame(data, i, plen)
+    sp = decode_setpoint(data, i, plen)
+    return None if sp is None else sp.message()
 
 
-def _setpoint_frame(data: bytes, i: int, plen: int) -> mav.MAVLink_message | None:
-    """The setpoint in the whole unsigned MAVLink 2 frame at ``data[i:]`` of payload ``plen``,
-    or None when it is another message, longer than the struct, or its CRC is wrong."""
-    if data[i + 7] != 84 or data[i + 8] or data[i + 9] or plen > _SP_SIZE:
-        return None
-    end = i + 10 + plen
-    if frame_crc(data[i + 1 : end], _SP_EXTRA) != data[end] | (data[end + 1] << 8):
-        return None
-    if plen == _SP_SIZE:  # the usual case (coordinate_frame, the last byte, is not 0)
-        f = _SP_UNPACK_FROM(data, i + 10)
-    else:
-        f = _SP.unpacker.unpack(data[i + 10 : end] + bytes(_SP_SIZE - plen))
-    msg = _SP(f[0], f[13], f[14], f[15], f[12], *f[1:12])
-    msg._header = mav.MAVLink_header(84, 0, 0, plen, data[i + 4], data[i + 5], data[i + 6])
-    return msg
-
-
-def _split_setpoints(data: bytes) -> list[mav.MAVLink_message | bytes]:
+def _split_setpoints(data: bytes) -> list[RawSetpoint | bytes]:
     """Cut a datagram into fast-decoded setpoints and runs of bytes for the general parser.
 
     Walks whole unsigned MAVLink 2 frames from the start (12 + payload bytes
@@ -318,14 +302,14 @@ def _split_setpoints(data: bytes) -> list[mav.MAVLink_message | bytes]:
     decodes each run exactly as it would inside the whole datagram.
     """
     n = len(data)
-    out: list[mav.MAVLink_message | bytes] = []
+    out: list[RawSetpoint | bytes] = []
     run = i = 0
     while i + 12 <= n and data[i] == 0xFD and data[i + 2] == 0:
         plen = data[i + 1]
         end = i + 12 + plen
         if end > n:
             break
-        sp = _setpoint_frame(data, i, plen)
+        sp = decode_setpoint(data, i, plen)
         if sp is not None:
             if run < i:
                 out.append(data[run:i])

@@ -305,7 +305,7 @@ class Emulator:
     def _receive(self, ep: Endpoint, data: bytes, addr: Addr) -> None:
         if ep.silent:
             return
-        self._receive_msgs(ep, ep.parse(data), addr)
+        self._receive_msgs(ep, ep.parse(data, raw=True), addr)
 
     def _receive_msgs(self, ep: Endpoint, msgs: list[Any], addr: Addr) -> None:
         if ep.silent:

@@ -15,6 +15,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import signing
+from sim_vehicle.codec import RawSetpoint
 from sim_vehicle.config import Impairment
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.link import Endpoint, _split_setpoints, bind_udp
@@ -139,7 +140,7 @@ def test_multi_frame_datagrams_decode_as_pymavlink_does() -> None:
     stats = LinkStats()
     imp = Impairer(Impairment(), np.random.default_rng(0))
     ep = Endpoint(sock, False, imp, imp, lambda _e, _d, _a: None, stats)
-    fast_in_batches = 0
+    fast_in_batches = raw_setpoints = 0
     try:
         for _ in range(3000):
             data = frames.datagram()
@@ -152,10 +153,19 @@ def test_multi_frame_datagrams_decode_as_pymavlink_does() -> None:
             )
             want, bad, unknown = _reference(data)
             assert counts == (bad, unknown, 0), data.hex()
+            # raw: the same, the setpoints as RawSetpoint (the core's 50 Hz lane)
+            raw = ep.parse(data, raw=True)
+            assert len(raw) == len(got)
             assert [type(m) for m in got] == [type(m) for m in want], data.hex()
-            for g, w in zip(got, want, strict=True):
+            for g, w, r in zip(got, want, raw, strict=True):
                 assert repr(g.to_dict()) == repr(w.to_dict())  # repr: NaN equals NaN
                 assert _header(g) == _header(w)
+                if isinstance(r, RawSetpoint):
+                    raw_setpoints += 1
+                    assert r.get_msgId() == w.get_msgId() and r.target_system == w.target_system
+                    r = r.message()
+                assert type(r) is type(w)
+                assert repr(r.to_dict()) == repr(w.to_dict()) and _header(r) == _header(w)
             pieces = _split_setpoints(data)
             if len(pieces) > 1:
                 fast_in_batches += sum(not isinstance(p, bytes) for p in pieces)
@@ -163,6 +173,7 @@ def test_multi_frame_datagrams_decode_as_pymavlink_does() -> None:
         sock.close()
     # the fast path did decode setpoints out of multi-frame datagrams (about 7000 here)
     assert fast_in_batches > 3000
+    assert raw_setpoints > fast_in_batches
 
 
 def test_batch_joins_frames_into_datagrams_of_the_shared_limit() -> None:
