@@ -77,6 +77,10 @@ SPREAD = False
 after network 0's (``EmulatorConfig.start_at_s``, G networks), so their
 reports fall evenly over the period; by default each starts its clock as
 it is set up, one after the other, a few ms apart (their phases bunched)."""
+PHASES: int | None = None
+"""``--phases SEED``: network j's emulator takes its first step at a share
+of a period drawn uniformly (``random.Random(SEED)``), as networks that
+know nothing of each other fall: some close together, some apart."""
 STEP = "swarm"
 """``--step``: the mission's ``step`` (``network``: a step per network whose
 reports are all in, docs/formation-law.md section 3b)."""
@@ -169,6 +173,7 @@ async def emulator_main(n: int, networks: bool) -> None:
         emus = []
         whole = load(n, networks=True) if networks else None
         sizes = groups(n)
+        phases = _phases(len(sizes))
         # A network set up after its first step's time catches up at once, then
         # keeps its place on the grid (the realtime clock's pacing).
         first = time.monotonic() + 0.05
@@ -178,7 +183,9 @@ async def emulator_main(n: int, networks: bool) -> None:
             else:
                 cfg = emulator_config(load(size), airborne=True)
             cfg = replace(cfg, shared_port=0)
-            if SPREAD:  # network j's first step j/G of a period after network 0's
+            if PHASES is not None:  # network j's first step at a random share of a period
+                cfg = replace(cfg, start_at_s=first + phases[j] / RATE_HZ)
+            elif SPREAD:  # network j's first step j/G of a period after network 0's
                 cfg = replace(cfg, start_at_s=first + j / len(sizes) / RATE_HZ)
             emus.append(await stack.enter_async_context(Emulator(cfg)))
         print(" ".join(str(e.endpoints[1][1]) for e in emus), flush=True)
@@ -194,6 +201,14 @@ async def emulator_main(n: int, networks: bool) -> None:
         late = sum(e.stats.late_steps for e in emus) - late0
         print(f"late_steps={late} cpu={(c1 - c0) / (w1 - w0):.3f} rt={rt:.3f}", flush=True)
         await reader.read()  # until the parent closes stdin
+
+
+def _phases(count: int) -> list[float]:
+    """``--phases``' share of a period for each of ``count`` networks."""
+    import random
+
+    rng = random.Random(PHASES)
+    return [rng.random() for _ in range(count)]
 
 
 def contextlib_stack():  # type: ignore[no-untyped-def]
@@ -258,6 +273,7 @@ async def station_run(
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
     child += ["--spread"] if SPREAD else []
+    child += ["--phases", str(PHASES)] if PHASES is not None else []
     if CUTOFF is not None:  # the settled start cached before the child reads it
         mission_yaml(n, networks)
         child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
@@ -393,10 +409,12 @@ def main() -> None:
                     help="with --cutoff: start where its law settles after S s")  # fmt: skip
     ap.add_argument("--spread", action="store_true",
                     help="the networks' emulators a share of a period apart")  # fmt: skip
+    ap.add_argument("--phases", type=int, default=None, metavar="SEED",
+                    help="the networks' emulators at random shares of a period")  # fmt: skip
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
-    SETTLE_S, SPREAD = args.settle, args.spread
+    SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
@@ -408,6 +426,9 @@ def main() -> None:
     where = pin(1)
     how = "one station, one mission of networks" if args.networks else "one station per group"
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
+    if PHASES is not None:
+        most = len(groups(max(int(c) for c in args.counts.split(","))))
+        how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))
     print(f"\nstation capacity, {RATE_HZ:g} Hz real time, station on {where}, emulator on core 0,"
           f" {args.seconds:g} s window, {how}")  # fmt: skip
     print(f"{'N':>4} {'ready s':>7} {'setpt/s':>8} {'telem/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
