@@ -43,7 +43,7 @@ from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.neighbours import NeighbourList
 from gcs_swarm.control.obstacles import Ellipsoids
 from gcs_swarm.control.params import LawConfig
-from gcs_swarm.control.supervisor import Behaviour, Mode, Supervisor
+from gcs_swarm.control.supervisor import Behaviour, Mode, Supervisor, ids_key
 
 __all__ = ["ControlOutput", "SwarmController", "law_accelerations"]
 
@@ -149,7 +149,7 @@ def as_states(
     mismatch, a repeated id or a non-finite value (naming the vehicle id).
     ``known``: ids already found distinct (the last step's): equal ones are
     not searched for repeats again."""
-    key = tuple(map(int, ids))
+    key = ids_key(ids, known)
     n = len(key)
     p = np.asarray(pos_m, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
     v = np.asarray(vel_mps, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
@@ -159,7 +159,7 @@ def as_states(
             f"expected {n} ids, positions (N,3), velocities (N,3), charges (N,); "
             f"got {p.shape}, {v.shape}, {q.shape}"
         )
-    if key != known and len(set(key)) != n:
+    if key is not known and key != known and len(set(key)) != n:
         raise ValueError(f"vehicle ids repeat: {key}")
     if n < SMALL_N:  # plain floats: cheaper than six numpy calls for a few rows
         # Every value is finite when their sum is (a NaN or an infinity makes it NaN
@@ -291,7 +291,7 @@ class SwarmController:
         cut-off's neighbour list when it holds it (``NeighbourList.closest``),
         else None."""
         nl = self._neighbours
-        return None if nl is None else nl.closest(pos_m, tuple(map(int, ids)))
+        return None if nl is None else nl.closest(pos_m, ids_key(ids, self._key))
 
     def pending_lookahead(self) -> LookaheadJob | None:
         """The next look-ahead job to run (each job is handed over once), or None."""

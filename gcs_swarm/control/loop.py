@@ -223,7 +223,8 @@ class ControlLoop:
         the rows kept: exact, at the whole filter's cost. The last commands
         are the latest sent, this period's for the vehicles stepped before."""
         key = tuple(ids)
-        if self._q_ids != key:  # the same vehicles every step but a join or a leave
+        # the same vehicles every step but a join or a leave (mostly the same tuple)
+        if self._q_ids is not key and self._q_ids != key:
             self._q = np.array([self.charges[i] for i in key], dtype=np.float64)
             self._q_ids = key
         q = self._q

@@ -108,7 +108,7 @@ class NeighbourList:
         return float((moved * moved).sum(axis=1).max(initial=0.0))
 
     def _stale(self, pos_m: F64, key: object) -> bool:
-        if key != self._key or pos_m.shape != self._ref.shape:
+        if (key is not self._key and key != self._key) or pos_m.shape != self._ref.shape:
             return True
         return self._moved2(pos_m, self._ref) > 0.25 * self.skin_m * self.skin_m
 
@@ -158,7 +158,7 @@ class NeighbourList:
         nxt = self._next
         if nxt is not None and (nxt.key != key or nxt.pos.shape != pos_m.shape):
             self._next = nxt = None
-        same = key == self._key and pos_m.shape == self._ref.shape
+        same = (key is self._key or key == self._key) and pos_m.shape == self._ref.shape
         moved2 = self._moved2(pos_m, self._ref) if same else math.inf
         half2 = 0.25 * self.skin_m * self.skin_m
         if moved2 > half2:  # stale

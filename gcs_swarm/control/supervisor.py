@@ -59,6 +59,7 @@ __all__ = [
     "Behaviour",
     "Mode",
     "Supervisor",
+    "ids_key",
 ]
 
 F64 = NDArray[np.float64]
@@ -126,6 +127,19 @@ class _Episode:
     planned: set[int] = field(default_factory=set)
 
 
+def ids_key(ids: Sequence[int], known: tuple[int, ...] | None = None) -> tuple[int, ...]:
+    """A step's vehicle ids as a tuple of ints: ``known`` itself when ``ids``
+    is that very tuple, ``ids`` itself when it is a tuple of ints already,
+    else ``tuple(map(int, ids))``. A step per network reads all N ids several
+    times a period; handed on as one tuple they are neither copied nor
+    compared item by item."""
+    if ids is known and known is not None:
+        return known
+    if type(ids) is tuple and all(type(x) is int for x in ids):
+        return ids
+    return tuple(map(int, ids))
+
+
 class Supervisor:
     """Behaviour switch, slot targets, latched senses and planes (Eqs. 29-30)."""
 
@@ -135,6 +149,10 @@ class Supervisor:
         self._obs = Ellipsoids.from_boxes(config.obstacles)
         self._defer = defer_lookahead
         self._vehicles: dict[int, _Vehicle] = {}
+        self._ids: tuple[int, ...] | None = None
+        """The last step's ids (``ids_key``)."""
+        self._synced: tuple[int, ...] | None = None
+        """The ids ``_vehicles`` was last made to hold."""
         self._episode: _Episode | None = None
         self._count = 0
         self._pending: list[LookaheadJob] = []
@@ -184,7 +202,7 @@ class Supervisor:
         """The discrete step at time ``t`` [s]: returns the held :class:`Mode` and
         the transition (``"start"``, ``"end"`` or None)."""
         av = self._cfg.avoidance
-        key = tuple(map(int, ids))
+        key = self._ids = ids_key(ids, self._ids)
         n, k = len(key), self._obs.count
         self._sync_vehicles(key)
         event: str | None = None
@@ -231,6 +249,9 @@ class Supervisor:
     def _sync_vehicles(self, key: tuple[int, ...]) -> None:
         k = self._obs.count
         vertical = self._cfg.avoidance.plane == "vertical"
+        if key is self._synced:  # the same tuple as the last step: the same vehicles
+            return
+        self._synced = key
         members = set(key)  # a set: this runs every step for every vehicle
         if self._vehicles.keys() == members:
             return

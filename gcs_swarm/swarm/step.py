@@ -15,7 +15,7 @@ a setpoint's latency does not include it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
@@ -86,7 +86,7 @@ class FlyingOrder:
 
     def __init__(self) -> None:
         self._of: frozenset[int] = frozenset()
-        self.ids: list[int] = []
+        self.ids: tuple[int, ...] = ()
         self.ks: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
         self.index: dict[int, int] = {}
 
@@ -94,7 +94,7 @@ class FlyingOrder:
         """Follow ``flying`` (a set compare when it did not change)."""
         if flying != self._of:
             self._of = frozenset(flying)
-            self.ids = sorted(flying)
+            self.ids = tuple(sorted(flying))
             self.ks = table.slots(self.ids)
             self.index = {s: i for i, s in enumerate(self.ids)}
 
@@ -181,7 +181,7 @@ class Commanding(Protocol):
 
 def command(
     core: Commanding,
-    ids: list[int],
+    ids: Sequence[int],
     pos: FloatArray,
     vel: FloatArray,
     t: float,
@@ -229,7 +229,7 @@ def command(
 
 
 def flying_states(
-    core: SwarmCore, ids: list[int], now: float, ks: npt.NDArray[np.intp] | None = None
+    core: SwarmCore, ids: Sequence[int], now: float, ks: npt.NDArray[np.intp] | None = None
 ) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray]:
     """The table rows of ``ids`` and their mission-frame states ``(K, 3)``
     (position [m], velocity [m/s]) as the law reads them at wall ``now`` [s]:
@@ -250,7 +250,7 @@ def flying_states(
 
 def answer(
     core: SwarmCore,
-    sysids: list[int],
+    sysids: Sequence[int],
     ks: npt.NDArray[np.intp],
     accel: FloatArray,
     now: float,
