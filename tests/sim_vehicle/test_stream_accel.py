@@ -7,7 +7,10 @@ GUID_TIMEOUT changes: one through ``stream_accel`` first and ``handle`` when
 it declines, the other through ``handle`` alone, which is what the
 emulator did for every message before the lane. After every step their
 whole state must be the same bit for bit (floats compared by their bits,
-so a 0.0 for a -0.0 fails), and the lane must have been taken.
+so a 0.0 for a -0.0 fails), and the lane must have been taken. ``raw``:
+the lane reads the setpoint from its packed frame's fields
+(``codec.RawSetpoint``, ``stream_accel_fields``), as the emulator's core
+does, and the message it declines is the one the frame decodes to.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import EmulatorConfig, VehicleSpec
 from sim_vehicle.autopilot import Autopilot
-from sim_vehicle.commands import stream_accel
+from sim_vehicle.codec import decode_setpoint
+from sim_vehicle.commands import stream_accel, stream_accel_fields
 from sim_vehicle.telemetry import Kin
 from sim_vehicle.vehicles import autopilot_for
 
@@ -89,20 +93,28 @@ def _message(op: tuple[Any, ...]) -> mav.MAVLink_set_position_target_local_ned_m
 
 
 _LOCAL = mav.MAV_FRAME_LOCAL_NED
+_ENCODER = mav.MAVLink(None, srcSystem=255, srcComponent=190)
 
 
 @settings(max_examples=300, deadline=None)
-@given(autopilot=st.sampled_from(["ardupilot", "px4"]), ops=st.lists(_op, min_size=1, max_size=60))
+@given(
+    autopilot=st.sampled_from(["ardupilot", "px4"]),
+    ops=st.lists(_op, min_size=1, max_size=60),
+    raw=st.booleans(),
+)
 # Signed zeros: the frame's rotation by yaw 0 turns (-0.0, y < 0) into (0.0, y).
-@example(autopilot="ardupilot", ops=[("sp", 3135, _LOCAL, (-0.0, -1.5, 0.0), 1, 1)])
-@example(autopilot="ardupilot", ops=[("sp", 3135, _LOCAL, (2.0, -0.0, -0.0), 0, 0)])
+@example(autopilot="ardupilot", ops=[("sp", 3135, _LOCAL, (-0.0, -1.5, 0.0), 1, 1)], raw=False)
+@example(autopilot="ardupilot", ops=[("sp", 3135, _LOCAL, (2.0, -0.0, -0.0), 0, 0)], raw=True)
 # Touched down, then the stream: ignored.
-@example(autopilot="ardupilot", ops=[("landed", True), ("sp", 3135, _LOCAL, (1.0, 0, 0), 1, 1)])
+@example(
+    autopilot="ardupilot", ops=[("landed", True), ("sp", 3135, _LOCAL, (1.0, 0, 0), 1, 1)], raw=True
+)
 # Beyond SETPOINT_LIMIT, and NaN: rejected and counted.
 @example(autopilot="ardupilot", ops=[("sp", 3135, _LOCAL, (1.0000001e5, 0, 0), 1, 1),
-                                     ("sp", 3135, _LOCAL, (math.nan, 0, 0), 0, 1)])  # fmt: skip
+                                     ("sp", 3135, _LOCAL, (math.nan, 0, 0), 0, 1)],
+         raw=True)  # fmt: skip
 def test_the_fast_lane_leaves_the_autopilot_as_dispatch_does(
-    autopilot: str, ops: list[tuple[Any, ...]]
+    autopilot: str, ops: list[tuple[Any, ...]], raw: bool
 ) -> None:
     cfg = EmulatorConfig(dynamics="ardupilot")
     spec = VehicleSpec(sysid=1, start_ned_m=(0.0, 0.0, -10.0), airborne=True,
@@ -115,7 +127,16 @@ def test_the_fast_lane_leaves_the_autopilot_as_dispatch_does(
         kin = Kin((0.0, 0.0, -10.0), (0.5, 0.0, 0.0), (0.0, 0.0, 0.0), landed)
         if op[0] == "sp":
             msg = _message(op)
-            if not stream_accel(fast, msg, now, landed):
+            if raw:  # as the emulator's core takes it: from the frame's fields
+                sp = decode_setpoint(msg.pack(_ENCODER), 0, len(msg.get_payload()))
+                assert sp is not None
+                msg, f = sp.message(), sp.f
+                taken = stream_accel_fields(
+                    fast, f[12], f[15], f[13], f[14], f[7], f[8], f[9], now, landed
+                )
+            else:
+                taken = stream_accel(fast, msg, now, landed)
+            if not taken:
                 assert fast.handle(msg, now, kin) == []
             assert slow.handle(msg, now, kin) == []
         elif op[0] == "mode":
