@@ -21,6 +21,7 @@ from sim_vehicle.telemetry import Kin, Vec3
 __all__ = ["ZERO", "ControlTarget", "TargetBuilder"]
 
 _INF = math.inf
+_TUPLE_NEW = tuple.__new__
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 _ONE: Vec3 = (1.0, 1.0, 1.0)
 _SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
@@ -65,6 +66,8 @@ class TargetBuilder:
         self._base: tuple[int, ControlTarget] | None = None  # (params generation, base target)
         self.drag = 0.0  # SIM_DRAG as of the cached base target
         self.drag_vel = 0.0  # SIM_DRAG_VEL likewise
+        self._accel_rest: tuple[ControlTarget, tuple[Any, ...]] | None = None
+        """(base target, the accel target's fields after a_ff) (``target``)."""
 
     def base(self) -> ControlTarget:
         """The limits every target starts from (cached until a parameter changes)."""
@@ -113,10 +116,16 @@ class TargetBuilder:
         # The streamed kinds build their target field by field: ``replace`` costs
         # several times more, 50 times a second per vehicle.
         if ctl == "accel":
-            tg = ControlTarget(
-                sp["a"], ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
-                b.acc_lim, b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self.drag,
-            )  # fmt: skip
+            # All but a_ff come from the base target: kept as one tuple per base,
+            # so the 50 Hz stream makes its target with one C call (the same
+            # fields, the same objects: Fleet.set_target's identity test holds).
+            rest = self._accel_rest
+            if rest is None or rest[0] is not b:
+                rest = self._accel_rest = (b, (
+                    ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn, b.acc_lim,
+                    b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self.drag,
+                ))  # fmt: skip
+            tg = _TUPLE_NEW(ControlTarget, (sp["a"], *rest[1]))
         elif ctl == "vel":
             tg = ControlTarget(
                 sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,
