@@ -82,8 +82,9 @@ class NeighbourList:
     1,500 vehicles one build at once is 3.6 ms, added to one network's
     latency about nine times a second. Built ahead, each step carries at
     most a slice. If the current list goes stale first (a vehicle faster
-    than the slices), the rest of the next list is found at once, or, if
-    that one is stale too, a list is built at once.
+    than the slices), the rest of the next list is found at once; a next
+    list put together that is already stale (a vehicle moved more than
+    ``skin / 2`` from where it started) gives way to a list built at once.
     """
 
     def __init__(self, cutoff_m: float, skin_share: float = SKIN_SHARE) -> None:
@@ -156,7 +157,8 @@ class NeighbourList:
         one's slice otherwise (class docstring)."""
         n = pos_m.shape[0]
         nxt = self._next
-        if nxt is not None and (nxt.key != key or nxt.pos.shape != pos_m.shape):
+        if nxt is not None and ((nxt.key is not key and nxt.key != key)
+                                or nxt.pos.shape != pos_m.shape):  # fmt: skip
             self._next = nxt = None
         same = (key is self._key or key == self._key) and pos_m.shape == self._ref.shape
         moved2 = self._moved2(pos_m, self._ref) if same else math.inf
@@ -168,7 +170,11 @@ class NeighbourList:
                 self._build(pos_m, key)
             return
         if nxt is not None:
-            self._slice(nxt)
+            # Put together, the next list is checked as the current one was: a
+            # vehicle may have moved from where it started more than from the
+            # current one's positions.
+            if self._slice(nxt) and self._stale(pos_m, key):
+                self._build(pos_m, key)
         elif n >= ALL_PAIRS_BELOW and moved2 > AHEAD_SHARE * AHEAD_SHARE * half2:
             ref = pos_m - pos_m.mean(axis=0)
             self._next = _Ahead(pos_m, ref, key, self.cutoff_m + self.skin_m)

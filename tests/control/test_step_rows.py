@@ -161,6 +161,25 @@ def test_the_neighbour_list_built_ahead_in_slices_keeps_every_step_s_pairs() -> 
     same(sets[2])
     assert nl.builds == builds + 1
     same(sets[3])
+    # A vehicle back where the current list has it, but farther than the
+    # margin from where the next one started: the next is built at once
+    # when put together, not used.
+    while nl._next is None:
+        pos = pos + way
+        same(sets[0])
+    start = nl._next.pos.copy()
+    ahead, builds = nl.ahead, nl.builds
+    mean = pos.mean(axis=0)
+    back = nl._ref[3] + mean  # vehicle 3 where the current list has it
+    away = back - (start[3] - start.mean(axis=0) + mean)  # from where the next one has it
+    pos = pos.copy()
+    pos[3] = back + 0.2 * nl.skin_m * away / np.linalg.norm(away)
+    now = pos - pos.mean(axis=0)
+    assert np.linalg.norm(now[3] - nl._ref[3]) < 0.5 * nl.skin_m
+    assert np.linalg.norm(now[3] - (start[3] - start.mean(axis=0))) > 0.5 * nl.skin_m
+    for step in range(SLICES + 1):
+        same(sets[step % 4])
+    assert nl.ahead == ahead + 1 and nl.builds == builds + 1
 
 
 @pytest.mark.parametrize("n", [6, 40])
