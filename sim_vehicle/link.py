@@ -272,24 +272,6 @@ def bind_udp(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _fast_setpoint(data: bytes, i: int = 0) -> mav.MAVLink_message | None:
-    """Decode the unsigned SET_POSITION_TARGET_LOCAL_NED frame that fills ``data[i:]`` exactly.
-
-    The hot inbound message (50 Hz per vehicle) skips pymavlink's byte-by-byte
-    parser: same CRC check (CRC-16/MCRF4XX with CRC_EXTRA), same struct, same
-    message class and header (``codec.decode_setpoint``). Anything else
-    returns None.
-    """
-    n = len(data) - i
-    if n < 12 or data[i] != 0xFD or data[i + 2] != 0:
-        return None
-    plen = data[i + 1]
-    if n != 12 + plen:
-        return None
-    sp = decode_setpoint(data, i, plen)
-    return None if sp is None else sp.message()
-
-
 def _split_setpoints(data: bytes) -> list[RawSetpoint | bytes]:
     """Cut a datagram into fast-decoded setpoints and runs of bytes for the general parser.
 

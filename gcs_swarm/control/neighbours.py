@@ -103,15 +103,16 @@ class NeighbourList:
         """Each listed pair once, as ``neighbour_pairs`` gave them."""
         self._next: _Ahead | None = None
 
-    def _moved2(self, pos_m: F64, ref: F64) -> float:
-        """The largest squared displacement [m^2] from ``ref``, relative to the mean."""
-        moved = (pos_m - pos_m.mean(axis=0)) - ref
+    def _moved2(self, pos_m: F64, key: object) -> float:
+        """The largest squared displacement [m^2] since the list was built,
+        relative to the mean; inf for other vehicles (``key``)."""
+        if (key is not self._key and key != self._key) or pos_m.shape != self._ref.shape:
+            return math.inf
+        moved = (pos_m - pos_m.mean(axis=0)) - self._ref
         return float((moved * moved).sum(axis=1).max(initial=0.0))
 
     def _stale(self, pos_m: F64, key: object) -> bool:
-        if (key is not self._key and key != self._key) or pos_m.shape != self._ref.shape:
-            return True
-        return self._moved2(pos_m, self._ref) > 0.25 * self.skin_m * self.skin_m
+        return self._moved2(pos_m, key) > 0.25 * self.skin_m * self.skin_m
 
     def _install(self, n: int, i: I64, j: I64, ref: F64, key: object) -> None:
         src = np.concatenate((i, j))
@@ -160,21 +161,16 @@ class NeighbourList:
         if nxt is not None and ((nxt.key is not key and nxt.key != key)
                                 or nxt.pos.shape != pos_m.shape):  # fmt: skip
             self._next = nxt = None
-        same = (key is self._key or key == self._key) and pos_m.shape == self._ref.shape
-        moved2 = self._moved2(pos_m, self._ref) if same else math.inf
+        moved2 = self._moved2(pos_m, key)
         half2 = 0.25 * self.skin_m * self.skin_m
-        if moved2 > half2:  # stale
-            if n < ALL_PAIRS_BELOW or nxt is None or not self._slice(nxt, all_of_it=True):
-                self._build(pos_m, key)
-            elif self._stale(pos_m, key):  # the next list came too late
-                self._build(pos_m, key)
-            return
         if nxt is not None:
-            # Put together, the next list is checked as the current one was: a
-            # vehicle may have moved from where it started more than from the
-            # current one's positions.
-            if self._slice(nxt) and self._stale(pos_m, key):
+            # A stale list takes the rest of the next one at once. Put together,
+            # the next list is checked as the current one was: a vehicle may
+            # have moved from where it started more than from the current one's.
+            if self._slice(nxt, all_of_it=moved2 > half2) and self._stale(pos_m, key):
                 self._build(pos_m, key)
+        elif moved2 > half2:
+            self._build(pos_m, key)
         elif n >= ALL_PAIRS_BELOW and moved2 > AHEAD_SHARE * AHEAD_SHARE * half2:
             ref = pos_m - pos_m.mean(axis=0)
             self._next = _Ahead(pos_m, ref, key, self.cutoff_m + self.skin_m)

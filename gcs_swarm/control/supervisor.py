@@ -150,9 +150,7 @@ class Supervisor:
         self._defer = defer_lookahead
         self._vehicles: dict[int, _Vehicle] = {}
         self._ids: tuple[int, ...] | None = None
-        """The last step's ids (``ids_key``)."""
-        self._synced: tuple[int, ...] | None = None
-        """The ids ``_vehicles`` was last made to hold."""
+        """The last step's ids (``ids_key``), the vehicles ``_vehicles`` holds."""
         self._episode: _Episode | None = None
         self._count = 0
         self._pending: list[LookaheadJob] = []
@@ -202,9 +200,11 @@ class Supervisor:
         """The discrete step at time ``t`` [s]: returns the held :class:`Mode` and
         the transition (``"start"``, ``"end"`` or None)."""
         av = self._cfg.avoidance
-        key = self._ids = ids_key(ids, self._ids)
+        key = ids_key(ids, self._ids)
         n, k = len(key), self._obs.count
-        self._sync_vehicles(key)
+        if key is not self._ids:  # the same tuple as the last step's: the same vehicles
+            self._sync_vehicles(key)
+            self._ids = key
         event: str | None = None
         if not self._active:
             idle = self._idle
@@ -249,9 +249,6 @@ class Supervisor:
     def _sync_vehicles(self, key: tuple[int, ...]) -> None:
         k = self._obs.count
         vertical = self._cfg.avoidance.plane == "vertical"
-        if key is self._synced:  # the same tuple as the last step: the same vehicles
-            return
-        self._synced = key
         members = set(key)  # a set: this runs every step for every vehicle
         if self._vehicles.keys() == members:
             return

@@ -160,7 +160,11 @@ def test_exported_names() -> None:
 
 
 def test_fast_setpoint_decoder_agrees_with_pymavlink() -> None:
-    from sim_vehicle.link import _fast_setpoint
+    from sim_vehicle.codec import decode_setpoint
+
+    def _fast_setpoint(frame: bytes) -> mav.MAVLink_message | None:  # a whole frame
+        sp = decode_setpoint(frame, 0, frame[1])
+        return None if sp is None else sp.message()
 
     rng = np.random.default_rng(3)
     enc = mav.MAVLink(None, 255, 190)
