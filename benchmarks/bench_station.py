@@ -86,6 +86,13 @@ STEP = "swarm"
 reports are all in, docs/formation-law.md section 3b)."""
 
 
+def _gains(cutoff_m: float | None = None):  # type: ignore[no-untyped-def]
+    """Example 1's gains, the mission's ``gains:`` (repulsion cut at ``cutoff_m``)."""
+    from gcs_swarm.control.params import Gains
+
+    return Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2, q_default=10, repulsion_cutoff=cutoff_m)
+
+
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
     """N vehicles on a 3 m grid; with ``networks``, one mission whose
     networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
@@ -95,18 +102,17 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
     if CUTOFF is not None:
         from bench_law import sphere_swarm
 
-        from gcs_swarm.control.params import Gains
-
-        sphere, d_nn = sphere_swarm(n, Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2,
-                                             q_default=10))  # fmt: skip
+        sphere, d_nn = sphere_swarm(n, _gains())
         if SETTLE_S > 0.0:
             sphere = _settled(n, sphere, CUTOFF * d_nn)
         cut = f", repulsion_cutoff: {CUTOFF * d_nn!r}"
+    g = _gains()
     lines = [
         f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold,"
         f" step: {STEP}}}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
-        f"gains: {{M: 1, D: 1, k: 9, k_s: 1, k_r: 0.2, alpha: 2, q: 10{cut}}}",
+        f"gains: {{M: {g.M!r}, D: {g.D!r}, k: {g.k!r}, k_s: {g.k_s!r}, k_r: {g.k_r!r},"
+        f" alpha: {g.alpha!r}, q: {g.q_default!r}{cut}}}",
         "leader: {start: [0, 0, 0], force: [0, 0, 0]}",
     ]
     lines.append("networks:" if networks else "vehicles:")
@@ -136,11 +142,10 @@ def _settled(n: int, start: object, cutoff_m: float) -> object:
     cache = Path(tempfile.gettempdir()) / name
     if cache.exists():
         return np.load(cache)
-    from gcs_swarm.control.params import Gains, LawConfig
+    from gcs_swarm.control.params import LawConfig
     from gcs_swarm.integrator import integrate
 
-    gains = Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2, q_default=10, repulsion_cutoff=cutoff_m)
-    pos = integrate(LawConfig(gains=gains), start, duration=SETTLE_S, dt=0.02).pos_m[-1]
+    pos = integrate(LawConfig(gains=_gains(cutoff_m)), start, duration=SETTLE_S, dt=0.02).pos_m[-1]
     np.save(cache, pos)
     return pos
 
