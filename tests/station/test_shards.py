@@ -672,8 +672,16 @@ def test_the_operator_view_of_a_sharded_run_shows_both_shards_and_hold_ends_it()
                     hello = json.loads(await ws.recv())
                     assert hello["mode"] == "live"
                     await frames_until(ws, flying)
-                    t1 = seen[-1]["t"]
-                    await frames_until(ws, lambda f: f["t"] >= t1 + 0.5)
+                    t1, p1 = seen[-1]["t"], seen[-1]["vehicles"]["pos"]
+                    # Each shard's half of a frame comes at its own 10 Hz of wall
+                    # time, and lockstep may run faster: wait for both halves.
+                    await frames_until(
+                        ws,
+                        lambda f: (
+                            f["t"] >= t1 + 0.5
+                            and all(a != b for a, b in zip(p1, f["vehicles"]["pos"], strict=True))
+                        ),
+                    )
                     await ws.send(json.dumps({"type": "end", "action": "hold"}))
                     while True:
                         msg = json.loads(await ws.recv())
