@@ -29,16 +29,22 @@ estimate longer than ``max_mps`` is held at that length and flagged
 (``saturated``): a velocity that wrong is a vehicle problem, not a bias to
 correct silently.
 
-Pure computation, no I/O, O(1) per report.
+Pure computation, no I/O, O(1) per report. ``BiasBank`` runs many vehicles'
+observers with one report each as arrays (the station's telemetry table, at
+each control step): the same floats as each observer's ``update``.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["BiasSettings", "VelocityBiasObserver"]
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["BiasBank", "BiasSettings", "VelocityBiasObserver"]
 
 
 @dataclass(frozen=True)
@@ -119,12 +125,17 @@ class VelocityBiasObserver:
         s[0] += ix
         s[1] += iy
         s[2] += iz
+        if t_s - self._checkpoints[-1][0] >= self._every_s:
+            self._checkpoint(t_s, (x, y, z), s[:])
+
+    def _checkpoint(self, t_s: float, p: tuple[float, float, float], s: list[float]) -> None:
+        """A checkpoint at ``t_s`` (position ``p``, integral ``s``, a list the
+        checkpoint keeps): the window slides and the estimate is refreshed."""
         cps = self._checkpoints
-        if t_s - cps[-1][0] >= self._every_s:
-            cps.append((t_s, (x, y, z), s[:]))
-            while len(cps) > 2 and t_s - cps[1][0] >= self.settings.window_s:
-                cps.popleft()
-            self._estimate()
+        cps.append((t_s, p, s))
+        while len(cps) > 2 and t_s - cps[1][0] >= self.settings.window_s:
+            cps.popleft()
+        self._estimate()
 
     def _restart(self, t_s: float, p: tuple[float, float, float]) -> None:
         self._sum = [0.0, 0.0, 0.0]
@@ -150,3 +161,119 @@ class VelocityBiasObserver:
         """What to subtract from the reported velocity: the estimate when
         ``settings.correct``, else zeros."""
         return self.bias if self.settings.correct else (0.0, 0.0, 0.0)
+
+
+_JUMP_BAND = 1.0 - 1e-9
+"""``BiasBank`` takes a report's unexplained step as surely within ``jump_m``
+when its squared norm, summed by numpy, is below ``jump_m^2`` times this;
+one nearer the threshold goes to the observer's ``math.hypot`` (the sum's
+rounding is a few units in 1e-16)."""
+
+
+class BiasBank:
+    """The ``VelocityBiasObserver`` of many vehicles, one row each, fed one
+    report per row at a time as arrays (``update``).
+
+    The common report (the last one less than ``max_gap_s`` before, a step
+    surely within ``jump_m``, no checkpoint due) is the observer's
+    arithmetic element by element: the same IEEE operations in the same
+    order, so the same floats. Every other report (a row's first, a gap, a
+    reboot, a possible jump) goes to the observer's own ``update``; a due
+    checkpoint to its ``_checkpoint``; so the window, the estimate and the
+    counters stay the observer's. A row's running state (last report,
+    integral, reports counted) lives in the arrays while the row is
+    *banked*, else in its observer; ``sync`` writes it back.
+    """
+
+    def __init__(self, n: int) -> None:
+        self.observers: list[VelocityBiasObserver | None] = [None] * n
+        self._banked = np.zeros(n, dtype=bool)
+        self._last = np.zeros((n, 7))
+        """The last report: t [s], x, y, z [m], vx, vy, vz [m/s] (banked rows)."""
+        self._sum = np.zeros((n, 3))
+        """The integral of v dt since the window restarted (banked rows)."""
+        self._count = np.zeros(n, dtype=np.int64)
+        """Reports taken here since the row was banked (``samples`` less the observer's)."""
+        self._cp_t = np.zeros(n)
+        """The newest checkpoint's time [s] (banked rows)."""
+        self._lim = np.zeros((n, 3))
+        """Per row: checkpoint interval [s], ``max_gap_s``, ``jump_m^2 * _JUMP_BAND``."""
+
+    def attach(self, k: int, obs: VelocityBiasObserver) -> None:
+        """Row ``k`` is ``obs`` from now on (banked once it has a report)."""
+        self.observers[k] = obs
+        st = obs.settings
+        self._lim[k] = (obs._every_s, st.max_gap_s, st.jump_m * st.jump_m * _JUMP_BAND)
+        self._banked[k] = False
+        self._bank(k)
+
+    def detach(self, k: int) -> VelocityBiasObserver | None:
+        """Row ``k`` lets its observer go, its running state written back."""
+        self._unbank(k)
+        obs, self.observers[k] = self.observers[k], None
+        return obs
+
+    def sync(self, k: int) -> VelocityBiasObserver | None:
+        """Row ``k``'s observer with its running state written back (the
+        row stays banked)."""
+        obs = self.observers[k]
+        if obs is not None and self._banked[k]:
+            last = self._last[k].tolist()
+            obs._last = (last[0], last[1], last[2], last[3], last[4], last[5], last[6])
+            obs._sum = self._sum[k].tolist()
+            obs.samples += int(self._count[k])
+            self._count[k] = 0
+        return obs
+
+    def _bank(self, k: int) -> None:
+        obs = self.observers[k]
+        if obs is None or obs._last is None or self._banked[k]:
+            return
+        self._last[k] = obs._last
+        self._sum[k] = obs._sum
+        self._cp_t[k] = obs._checkpoints[-1][0]
+        self._count[k] = 0
+        self._banked[k] = True
+
+    def _unbank(self, k: int) -> None:
+        self.sync(k)
+        self._banked[k] = False
+
+    def update(self, ks: Sequence[int], reports: npt.NDArray[np.float64]) -> list[int]:
+        """One report each of rows ``ks`` (distinct, each with an observer):
+        ``reports (K, 7)``, t [s] on the vehicle's clock, x, y, z [m], vx, vy,
+        vz [m/s]. Returns the rows whose estimate may have changed."""
+        kk = np.asarray(ks, dtype=np.intp)
+        last, lim = self._last[kk], self._lim[kk]
+        t = reports[:, 0]
+        dt = t - last[:, 0]
+        # The trapezoid and the unexplained step, as VelocityBiasObserver.update.
+        inc = 0.5 * (reports[:, 4:] + last[:, 4:]) * dt[:, None]
+        step = reports[:, 1:4] - last[:, 1:4] - inc
+        sq = np.einsum("ij,ij->i", step, step)
+        common = self._banked[kk] & (dt > 0.0) & (dt <= lim[:, 1]) & (sq < lim[:, 2])
+        changed: list[int] = []
+        if not common.all():
+            for j in np.flatnonzero(~common).tolist():
+                k = int(kk[j])
+                obs = self.observers[k]
+                assert obs is not None
+                self._unbank(k)
+                obs.update(*reports[j].tolist())
+                self._bank(k)
+                changed.append(k)
+            kk, t, inc = kk[common], t[common], inc[common]
+            reports, lim = reports[common], lim[common]
+        self._sum[kk] += inc
+        self._last[kk] = reports
+        self._count[kk] += 1
+        due = np.flatnonzero(t - self._cp_t[kk] >= lim[:, 0])
+        for j in due.tolist():
+            k = int(kk[j])
+            obs = self.observers[k]
+            assert obs is not None
+            tj, x, y, z = reports[j, :4].tolist()
+            obs._checkpoint(tj, (x, y, z), self._sum[k].tolist())
+            self._cp_t[k] = tj
+            changed.append(k)
+        return changed

@@ -43,6 +43,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from gcs_swarm.control.velocity_bias import BiasBank
+from gcs_swarm.mavlink.accel_clip import SMALL_ROWS, clip_accel_ned, unclipped_ned_small
 from gcs_swarm.mavlink.inbound import (
     POSITION_LIMIT_M,
     SPEED_LIMIT_MPS,
@@ -54,19 +56,10 @@ if TYPE_CHECKING:
     from gcs_swarm.control.velocity_bias import VelocityBiasObserver
     from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
-__all__ = [
-    "ACCEL_CEILING_MPS2",
-    "RATE_WINDOW_MS",
-    "REBOOT_MS",
-    "TelemetryTable",
-    "clip_accel_ned",
-]
+__all__ = ["RATE_WINDOW_MS", "REBOOT_MS", "TelemetryTable"]
 
 FloatArray = npt.NDArray[np.float64]
 
-ACCEL_CEILING_MPS2 = 1000.0
-"""Largest acceleration setpoint sent [m/s^2] (about 100 g): beyond any
-multicopter, far inside float32, and above every figure of the paper."""
 RATE_WINDOW_MS = 2000
 """Telemetry-rate window [ms of the vehicle's own time_boot_ms] (issue 15)."""
 REBOOT_MS = 10_000
@@ -87,8 +80,6 @@ _STATE_COLS = np.array([1, 0, 2, 4, 3, 5], dtype=np.intp)
 north, east, down -> east, north, up."""
 _STATE_SIGN = np.array([1.0, 1.0, -1.0, 1.0, 1.0, -1.0])
 """Down -> up (a sign flip: exact)."""
-_NED_COLS, _NED_SIGN = _STATE_COLS[:3].copy(), _STATE_SIGN[:3].copy()
-"""The same for an acceleration: mission frame -> NED (``clip_accel_ned``)."""
 _NO_REPORT = -(1 << 62)
 """``time_boot_ms`` of a row with no report yet: every report is newer."""
 
@@ -149,7 +140,11 @@ class TelemetryTable:
         """Called with the header of every report ``write`` takes (``seq >= 0``)."""
         self._ms = [_NO_REPORT] * n
         self._compid = [1] * n
-        self._observers: list[VelocityBiasObserver | None] = [None] * n
+        self._bias = BiasBank(n)
+        """The attached rows' velocity-bias observers, fed at the control step."""
+        self._pending: list[int] = []
+        """Rows whose report the observer has not taken yet (``_observe_pending``)."""
+        self._pend = [False] * n
         self._corr: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * n
         self._correcting = [False] * n  # the attached observer's settings.correct
         self._rate_t0: list[int | None] = [None] * n
@@ -176,7 +171,8 @@ class TelemetryTable:
             self._compid[k] = pos.compid
             _ROW.pack_into(self._buf, k * _ROW.size, *pos[2:])
         self.seen_s[k] = vp.position_at
-        self._observers[k] = obs = vp.velocity_bias
+        obs = vp.velocity_bias
+        self._bias.attach(k, obs)
         self._correcting[k] = obs.settings.correct
         self._corr[k] = c = obs.correction
         self._set_bias(k, c)
@@ -195,8 +191,10 @@ class TelemetryTable:
         no longer fresh; the protocol has read back what it needs."""
         if self.owners[k] is not None:
             self._attached_in[self.group[k]] -= 1
+        if self._pend[k]:
+            self._observe_pending()
+        self._bias.detach(k)
         self.owners[k] = None
-        self._observers[k] = None
         self._beat[k] = None
         self._incomplete.discard(k)
         if self.fresh[k]:
@@ -224,6 +222,39 @@ class TelemetryTable:
         # reordered, with down's sign flipped twice.
         adj = self._adjust
         adj[k, 3], adj[k, 4], adj[k, 5] = -c[1], -c[0], c[2]
+
+    # ------------------------------------------------------- velocity bias
+    def observer(self, k: int) -> VelocityBiasObserver | None:
+        """Row ``k``'s velocity-bias observer with every report the row has
+        taken (None when no vehicle is attached)."""
+        if self._pend[k]:
+            self._observe_pending()
+        return self._bias.sync(k)
+
+    def _observe_pending(self) -> None:
+        """The observers take every report waiting, as arrays (``BiasBank``),
+        each row's in the order it came (one each: a row's next report
+        takes the waiting ones first)."""
+        ks, self._pending = self._pending, []
+        pend = self._pend
+        for k in ks:
+            pend[k] = False
+        rec = self.rows[ks]
+        reports = np.empty((len(ks), 7))
+        reports[:, 0] = rec["time_boot_ms"]
+        reports[:, 0] *= 1e-3  # ms * 1e-3 as the observer's update takes it: the same float
+        reports[:, 1:] = rec["ned"]
+        for k in self._bias.update(ks, reports):
+            self._new_estimate(k)
+
+    def _new_estimate(self, k: int) -> None:
+        if self._correcting[k]:  # else the zeros set at attach stand (obs.correction)
+            obs = self._bias.observers[k]
+            assert obs is not None
+            c = obs.bias
+            if c is not self._corr[k]:  # a new estimate (every window / 20)
+                self._corr[k] = c
+                self._set_bias(k, c)
 
     # --------------------------------------------------------------- rows
     def position(self, k: int) -> LocalPositionNed | None:
@@ -287,19 +318,19 @@ class TelemetryTable:
         last_ms = self._ms
         if 0 <= last_ms[k] - ms < REBOOT_MS:
             return False  # a duplicated or reordered frame: the protocol counts it
+        # The velocity-bias observers take the reports at the next control step,
+        # many rows at once (_observe_pending); if this row's last is still
+        # waiting (no step since), every waiting one is taken now.
+        pend = self._pend
+        if pend[k]:
+            self._observe_pending()
+        pend[k] = True
+        self._pending.append(k)
         _PACK_ROW(self._buf, k * _ROW_SIZE, *values)
         last_ms[k] = ms
         self._compid[k] = compid
         self.seen_s[k] = now
         self.arrival_s[k] = rx_s
-        obs = self._observers[k]
-        assert obs is not None
-        obs.update(ms * 1e-3, x, y, z, vx, vy, vz)
-        if self._correcting[k]:  # else the zeros set at attach stand (obs.correction)
-            c = obs.bias
-            if c is not self._corr[k]:  # a new estimate (every window / 20)
-                self._corr[k] = c
-                self._set_bias(k, c)
         # VehicleProtocol._count_report, column-wise: the window's report count.
         rate_t0 = self._rate_t0
         t0 = rate_t0[k]
@@ -410,6 +441,8 @@ class TelemetryTable:
         n = len(ks)
         if n == 0:
             return np.zeros((0, 3)), np.zeros((0, 3))
+        if self._pending:
+            self._observe_pending()
         if self._incomplete:
             for k in ks.tolist():
                 if k in self._incomplete:
@@ -427,7 +460,7 @@ class TelemetryTable:
         mission-frame ``accel_mps2`` (``clip_accel_ned``, as
         ``VehicleProtocol.accel_setpoint``): kept in ``accel_ned``, a clipped
         row counted in its protocol's ``clipped_setpoints``."""
-        ned = _unclipped_ned_small(accel_mps2) if len(ks) < _SMALL_ROWS else None
+        ned = unclipped_ned_small(accel_mps2) if len(ks) < SMALL_ROWS else None
         if ned is not None:  # nothing to clip: the same rows as clip_accel_ned's
             self.accel_ned[ks] = ned
             return ned
@@ -439,44 +472,3 @@ class TelemetryTable:
                     vp.clipped_setpoints += 1
         self.accel_ned[ks] = ned
         return ned
-
-
-_SMALL_ROWS = 16
-"""Below this many rows ``answer`` tries ``_unclipped_ned_small`` first."""
-_SURELY_UNCLIPPED = 999.0**2
-"""A squared norm [m^2/s^4] at most this is below the ceiling in any summation order."""
-
-
-def _unclipped_ned_small(accel_mps2: FloatArray) -> FloatArray | None:
-    """``clip_accel_ned(accel_mps2)[0]`` for a few rows in Python floats when no
-    row needs clipping (every squared norm finite and at most 999^2, so
-    clearly below the ceiling whatever the order numpy sums it in), else
-    None (the caller takes ``clip_accel_ned``). The rows are (a_y, a_x,
-    -a_z): the reference's ``a * 1.0`` and ``a * -1.0``, exact, signed zeros
-    included."""
-    rows = accel_mps2.tolist()
-    lim = _SURELY_UNCLIPPED
-    for x, y, z in rows:
-        if not x * x + y * y + z * z <= lim:  # NaN and inf fail too
-            return None
-    return np.array([(y, x, -z) for x, y, z in rows], dtype=np.float64).reshape(len(rows), 3)
-
-
-def clip_accel_ned(accel_mps2: FloatArray) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Mission-frame accelerations ``(N, 3)`` [m/s^2] as the NED accelerations
-    setpoints carry (a_ned = (a_y, a_x, -a_z)), each sendable: a row whose
-    norm is above ``ACCEL_CEILING_MPS2`` is scaled down to it (direction kept),
-    a non-finite row, or one whose norm overflows, becomes zero. Also returns
-    which rows were changed. The input is not modified."""
-    a = np.asarray(accel_mps2, dtype=np.float64)
-    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
-    clip = ~(norm <= ACCEL_CEILING_MPS2)  # True for NaN too
-    if clip.any():
-        a = a.copy()  # clipped in place
-        finite = np.isfinite(norm)
-        scale = clip & finite
-        a[scale] *= (ACCEL_CEILING_MPS2 / norm[scale])[:, None]
-        a[~finite] = 0.0
-    # (a_y, a_x, -a_z): a new array; the sign flip is exact (-a is a * -1).
-    ned: FloatArray = np.multiply(a.take(_NED_COLS, axis=1), _NED_SIGN)
-    return ned, clip

@@ -47,6 +47,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.accel_clip import ACCEL_CEILING_MPS2, clip_accel_ned
 from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mavlink.events import describe as describe_event
 from gcs_swarm.mavlink.inbound import (
@@ -73,13 +74,7 @@ from gcs_swarm.mavlink.states import (
     TELEMETRY_PHASES,
     Phase,
 )
-from gcs_swarm.mavlink.telemetry_table import (
-    ACCEL_CEILING_MPS2,
-    RATE_WINDOW_MS,
-    REBOOT_MS,
-    TelemetryTable,
-    clip_accel_ned,
-)
+from gcs_swarm.mavlink.telemetry_table import RATE_WINDOW_MS, REBOOT_MS, TelemetryTable
 from gcs_swarm.mavlink.vehicle_ending import _Ending
 from gcs_swarm.mavlink.vehicle_startup import _Startup
 

@@ -17,6 +17,7 @@ import numpy.typing as npt
 from gcs_swarm.control.params import Envelope
 from gcs_swarm.control.velocity_bias import VelocityBiasObserver
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.accel_clip import clip_accel_ned
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES, CommandQueue, refusal_reason
 from gcs_swarm.mavlink.coordinates import GeoOrigin, origin_offset_m
@@ -31,7 +32,7 @@ from gcs_swarm.mavlink.states import (
     ProtocolEvent,
     judge_ground,
 )
-from gcs_swarm.mavlink.telemetry_table import TelemetryTable, clip_accel_ned
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle_params import ParamSettings, VehicleParams
 
 __all__: list[str] = []
@@ -91,7 +92,7 @@ class _VehicleBase:
         """Messages refused for implausible numbers (NaN, 1e30 m, ...)."""
         self.stale_telemetry = 0
         """LOCAL_POSITION_NED not newer than the last one (duplicated or reordered)."""
-        self.velocity_bias = VelocityBiasObserver(config.velocity_bias)
+        self._velocity_bias = VelocityBiasObserver(config.velocity_bias)
         """The bias of the reported velocity (NED), from every accepted report."""
         self.params: dict[str, float] = {}
         self.telemetry_rate_hz: float | None = None
@@ -177,6 +178,16 @@ class _VehicleBase:
             self._last_accel_ned = ned
         else:
             t.accel_ned[self._slot] = ned
+
+    @property
+    def velocity_bias(self) -> VelocityBiasObserver:
+        """The velocity-bias observer (docs/velocity-bias.md), with every
+        report taken (while FLYING its telemetry row feeds it at each
+        control step: ``TelemetryTable.observer``)."""
+        t = self._table
+        if t is not None:
+            t.observer(self._slot)
+        return self._velocity_bias
 
     @property
     def vel_correction_ned(self) -> tuple[float, float, float]:

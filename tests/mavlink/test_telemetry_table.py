@@ -10,10 +10,11 @@ import random
 
 import numpy as np
 
+from gcs_swarm.mavlink.accel_clip import clip_accel_ned
 from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
 from gcs_swarm.mavlink.inbound import Heartbeat, LocalPositionNed
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
-from gcs_swarm.mavlink.telemetry_table import TelemetryTable, clip_accel_ned
+from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
 
@@ -238,3 +239,54 @@ def test_unchanged_heartbeats_taken_by_the_table_leave_the_protocols_state() -> 
         total += taken
         ended += slow.phase is not Phase.LOST
     assert total > 2000 and 5 <= ended <= 35  # both paths, both endings
+
+
+def test_the_velocity_the_step_reads_carries_the_protocols_bias_estimate() -> None:
+    """Vehicles whose velocity is reported off by a bias, a report each per
+    step or two (the second before the step: taken at once), steps at random,
+    a vehicle leaving and coming back: each step's states are the reference
+    protocol's ``state_mission`` bit for bit, the estimates included."""
+    rng = random.Random(11)
+    ids = list(range(1, 25))
+    table = TelemetryTable(ids)
+    fast = [_ready(s, random.Random(s)) for s in ids]
+    slow = [_ready(s, random.Random(s)) for s in ids]
+    bias = {s: [rng.uniform(-0.1, 0.1) for _ in range(3)] for s in ids}
+    pos = {s: [rng.uniform(-20, 20) for _ in range(3)] for s in ids}
+    t_ms = {s: f.boot_ms() for s, f in zip(ids, fast, strict=True)}
+    for f, s in zip(fast, slow, strict=True):
+        f.begin_flying(1.0, table)
+        s.begin_flying(1.0)
+    now, steps, estimated, returned = 1.0, 0, 0, 0
+    for _ in range(600):
+        now += 0.02
+        for s, f, ref in zip(ids, fast, slow, strict=True):
+            for _ in range(rng.choice([0, 1, 1, 1, 2])):
+                t_ms[s] += 10
+                v = [rng.uniform(-1, 1) for _ in range(3)]
+                pos[s] = [p + c * 0.01 for p, c in zip(pos[s], v, strict=True)]
+                vel = (_f32(c + b) for c, b in zip(v, bias[s], strict=True))
+                rep = LocalPositionNed(s, 1, t_ms[s], *map(_f32, pos[s]), *vel)
+                if f.phase is Phase.FLYING:
+                    assert table.write(table.slot[s], 1, -1, rep[2:], now, now)
+                else:
+                    f.handle_message(rep, now)
+                ref.handle_message(rep, now)
+        if rng.random() < 0.6:
+            flying = [f.sysid for f in fast if f.phase is Phase.FLYING]
+            p, v = table.mission_states(table.slots(flying))
+            steps += 1
+            for i, s in enumerate(flying):
+                rp, rv = slow[s - 1].state_mission()
+                assert p[i].tolist() == rp.tolist() and v[i].tolist() == rv.tolist(), s
+                estimated += slow[s - 1].vel_correction_ned != (0.0, 0.0, 0.0)
+        if rng.random() < 0.01:  # one leaves flying (its row handed back) and comes back
+            k = rng.randrange(len(ids))
+            for vp in (fast[k], slow[k]):
+                vp._set_phase(Phase.READY, now)  # what leaving FLYING does to the row
+                vp.begin_flying(now, table if vp is fast[k] else None)
+            returned += 1
+    for f, s in zip(fast, slow, strict=True):
+        assert f.velocity_bias.samples == s.velocity_bias.samples
+        assert f.velocity_bias.bias == s.velocity_bias.bias != (0.0, 0.0, 0.0)
+    assert steps > 300 and estimated > 1000 and returned > 2
