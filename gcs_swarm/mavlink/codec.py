@@ -29,7 +29,7 @@ import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -37,8 +37,9 @@ from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.events import register as _register_event
 from gcs_swarm.mavlink.frame_decode import decode_unsigned as _decode_unsigned
-from mavwire.crc import MCRF4XX as _MCRF4XX
-from mavwire.crc import frame_crc as _frame_crc
+from gcs_swarm.mavlink.raw_frames import RAW_LAYOUTS as _RAW_LAYOUTS
+from gcs_swarm.mavlink.raw_frames import RawHeartbeat, RawPosition, RawStatus
+from gcs_swarm.mavlink.raw_frames import raw_frame as _raw_frame
 from mavwire.framing import FrameBuilder
 from mavwire.protocols import MAVLinkInterface, MAVLinkMessage
 from mavwire.signing import SIGNING_KEY_BYTES, mavlink
@@ -55,6 +56,7 @@ __all__ = [
     "MessageSpec",
     "RawHeartbeat",
     "RawPosition",
+    "RawStatus",
 ]
 
 STATION_SYSID = 255
@@ -99,38 +101,6 @@ class CodecStats:
     bad_packets: int = 0
     unknown_messages: int = 0
     signature_rejected: int = 0
-
-
-class RawPosition(NamedTuple):
-    """An unsigned LOCAL_POSITION_NED frame decoded without pymavlink's
-    message objects (``Codec.decode(..., raw_positions=True)``): the hot
-    inbound message, 50 Hz per vehicle, for the link state to write into the
-    telemetry table (swarm/link_state.py, mavlink/telemetry_table.py);
-    ``Codec.message`` makes pymavlink's message of one the table does not
-    take. ``values`` are the payload's fields in wire order:
-    (time_boot_ms, x, y, z, vx, vy, vz)."""
-
-    sysid: int
-    compid: int
-    seq: int
-    frame: bytes
-    values: tuple[Any, ...]
-
-
-class RawHeartbeat(NamedTuple):
-    """An unsigned HEARTBEAT frame decoded without pymavlink's message
-    objects (``Codec.decode(..., raw_positions=True)``), as a ``RawPosition``
-    is: for the telemetry table to recognise a flying vehicle's unchanged
-    HEARTBEAT (``TelemetryTable.heartbeat``); ``Codec.message`` makes
-    pymavlink's message of one the table does not take. ``values`` are the
-    payload's fields in wire order: (custom_mode, type, autopilot,
-    base_mode, system_status, mavlink_version)."""
-
-    sysid: int
-    compid: int
-    seq: int
-    frame: bytes
-    values: tuple[int, ...]
 
 
 @dataclass
@@ -293,7 +263,8 @@ class Codec:
         frame (50 Hz per vehicle) is instead CRC-checked and unpacked with
         the dialect's own struct into a ``RawPosition`` (the telemetry
         table's input), without a pymavlink object, and a HEARTBEAT
-        (1 Hz per vehicle) likewise into a ``RawHeartbeat``.
+        (1 Hz per vehicle) likewise into a ``RawHeartbeat``, a status
+        message (1-2 Hz each) into a ``RawStatus``.
         """
         if not datagram or self.signing_key is not None:
             good = self._parse(data, datagram=datagram)
@@ -329,10 +300,11 @@ class Codec:
         self.stats.received += len(good)
         return good
 
-    def message(self, raw: RawPosition | RawHeartbeat) -> Any:
-        """The pymavlink message of a ``RawPosition`` (or ``RawHeartbeat``) from ``decode``, made by
-        pymavlink's own ``decode`` of its frame (for a report that goes
-        through a vehicle's protocol rather than the telemetry table)."""
+    def message(self, raw: RawPosition | RawHeartbeat | RawStatus) -> Any:
+        """The pymavlink message of a raw tuple (``RawPosition``, ``RawHeartbeat``,
+        ``RawStatus``) from ``decode``, made by pymavlink's own ``decode`` of
+        its frame (for one that goes through a vehicle's protocol rather than
+        the telemetry table)."""
         msg = self._decode_frame(raw.frame, 0, len(raw.frame))
         assert msg is not None and msg is not _SKIP  # its CRC and length were checked
         return msg
@@ -394,65 +366,8 @@ class Codec:
         mav.have_prefix_error = False
 
 
-_LPN = _dialect.MAVLink_local_position_ned_message
-_LPN_ID0: int = _LPN.id  # a 24-bit id: (32, 0, 0) on the wire
-_HB = _dialect.MAVLink_heartbeat_message
-_HB_ID0: int = _HB.id  # (0, 0, 0) on the wire
-
-
-class _RawLayout(NamedTuple):
-    """What ``_raw_frame`` needs of one message type: its payload size, CRC
-    extra, struct unpackers, the zeros MAVLink 2 trimmed off a payload of
-    ``n`` bytes (``pad[n]``), and the tuple type it makes."""
-
-    size: int
-    extra: bytes
-    unpack: Any
-    unpack_from: Any
-    pad: list[bytes]
-    kind: type
-
-
-def _layout(msg: Any, kind: type) -> _RawLayout:
-    size: int = msg.unpacker.size
-    return _RawLayout(size, bytes((msg.crc_extra,)), msg.unpacker.unpack,
-                      msg.unpacker.unpack_from, [bytes(size - n) for n in range(size + 1)],
-                      kind)  # fmt: skip
-
-
-_CRC = _MCRF4XX
-_tuple_new = tuple.__new__
-"""``RawPosition`` made from a tuple in C (the NamedTuple's ``__new__`` is a
-Python function)."""
-
-
 _SKIP = object()
 """``_decode_frame``'s answer for a frame counted and dropped."""
-
-
-def _raw_frame(data: bytes, i: int, end: int, lay: _RawLayout) -> Any:
-    """The unsigned MAVLink 2 frame ``data[i:end]`` of ``lay``'s message as
-    its raw tuple (``RawPosition``, ``RawHeartbeat``), or None if its length
-    or CRC is wrong.
-
-    LOCAL_POSITION_NED comes at 50 Hz per vehicle, so written for speed:
-    one slice for the frame, one for the CRC's body, the payload unpacked in
-    place (or once padded, when MAVLink 2 trimmed its trailing zeros), the
-    tuple made in C."""
-    size, extra, unpack, unpack_from, pad, kind = lay
-    plen = end - i - 12
-    if not 0 < plen <= size:
-        return None
-    frame = data[i:end]
-    crc = _frame_crc(frame[1:-2], extra) if _CRC is None else _CRC(extra, _CRC(frame[1:-2]))
-    if crc != frame[-2] | (frame[-1] << 8):
-        return None
-    values = unpack_from(frame, 10) if plen == size else unpack(frame[10:-2] + pad[plen])
-    return _tuple_new(kind, (frame[5], frame[6], frame[4], frame, values))
-
-
-_RAW_LAYOUTS = {_LPN_ID0: _layout(_LPN, RawPosition), _HB_ID0: _layout(_HB, RawHeartbeat)}
-"""The messages ``decode`` takes raw, by their id's first byte (both ids fit in it)."""
 
 
 _SP = _dialect.MAVLink_set_position_target_local_ned_message

@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 __all__ = [
     "POSITION_LIMIT_M",
     "SPEED_LIMIT_MPS",
+    "STATUS_FIELDS",
     "CommandAck",
     "EkfStatus",
     "Event",
@@ -34,6 +35,7 @@ __all__ = [
     "SysStatus",
     "from_pymavlink",
     "plausible",
+    "seen_key",
 ]
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
@@ -286,6 +288,40 @@ def from_pymavlink(msg: Any) -> Inbound | None:
             float(msg.afy),
             float(msg.afz),
         )
+    return None
+
+
+STATUS_FIELDS: dict[int, tuple[type, tuple[str, ...]]] = {
+    1: (SysStatus, ("onboard_control_sensors_present", "onboard_control_sensors_enabled",
+                    "onboard_control_sensors_health")),
+    24: (GpsRaw, ("fix_type", "satellites_visible")),
+    193: (EkfStatus, ("flags",)),
+    230: (EkfStatus, ("flags",)),
+    245: (ExtendedSysState, ("vtol_state", "landed_state")),
+}  # fmt: skip
+"""The status messages a flying vehicle streams at 1-2 Hz, by message id:
+the typed message ``from_pymavlink`` makes of one and the pymavlink fields it
+keeps, in its own field order (after ``sysid``, ``compid``). The codec reads
+these fields off the frame (``codec.RawStatus``) so that the telemetry table
+can tell one that would change nothing (``TelemetryTable.status``)."""
+
+
+def seen_key(msg: Inbound) -> tuple[type, tuple[int, ...]] | None:
+    """(type, (compid, fields...)) of a HEARTBEAT (its fields but
+    ``mavlink_version``: a ``codec.RawHeartbeat``'s first five values) or a
+    status message of ``STATUS_FIELDS`` (a ``codec.RawStatus``'s values);
+    None for others (``TelemetryTable.unchanged``)."""
+    if isinstance(msg, Heartbeat):
+        return Heartbeat, (msg.compid, msg.custom_mode, msg.type, msg.autopilot, msg.base_mode,
+                           msg.system_status)  # fmt: skip
+    if isinstance(msg, SysStatus):
+        return SysStatus, (msg.compid, msg.present, msg.enabled, msg.health)
+    if isinstance(msg, GpsRaw):
+        return GpsRaw, (msg.compid, msg.fix_type, msg.satellites)
+    if isinstance(msg, EkfStatus):
+        return EkfStatus, (msg.compid, msg.flags)
+    if isinstance(msg, ExtendedSysState):
+        return ExtendedSysState, (msg.compid, msg.vtol_state, msg.landed_state)
     return None
 
 

@@ -16,11 +16,13 @@ The protocol hears only what changes its phase or its counters:
   before;
 - the telemetry-rate window (every ``RATE_WINDOW_MS`` of vehicle time):
   ``VehicleProtocol.rate_window``, which may ask for the interval again;
-- a HEARTBEAT: only one that differs from the last its FLYING protocol
-  handled (``heartbeat_seen``) goes on to it; an unchanged one (the same
-  component, type, autopilot, modes and status: what ``Heartbeat`` holds)
-  would change nothing there but the time the vehicle was last heard, so
-  the row keeps that time (``heartbeat``, ``heard_s``);
+- a HEARTBEAT or a status message (``inbound.STATUS_FIELDS``: SYS_STATUS,
+  GPS_RAW_INT, EKF_STATUS_REPORT, ESTIMATOR_STATUS, EXTENDED_SYS_STATE):
+  only one that differs from the last of its kind its FLYING protocol
+  handled (``message_seen``) goes on to it; an unchanged one (the same
+  component and the fields its typed message holds) would change nothing
+  there but the time the vehicle was last heard, so the row keeps that
+  time (``unchanged``, ``heard_s``, ``said_s``);
 - the watchdog and everything else that reads the vehicle's latest report
   (``position``, ``position_at``, ``last_accel_ned``) read this table's row
   while the vehicle is attached; leaving FLYING, the protocol takes its row
@@ -48,9 +50,12 @@ from gcs_swarm.mavlink.accel_clip import SMALL_ROWS, clip_accel_ned, unclipped_n
 from gcs_swarm.mavlink.inbound import (
     POSITION_LIMIT_M,
     SPEED_LIMIT_MPS,
+    STATUS_FIELDS,
     Heartbeat,
     LocalPositionNed,
+    seen_key,
 )
+from gcs_swarm.mavlink.inbound import Inbound as Message
 
 if TYPE_CHECKING:
     from gcs_swarm.control.velocity_bias import VelocityBiasObserver
@@ -75,6 +80,8 @@ _LPN_ID = 32
 """LOCAL_POSITION_NED's message id."""
 _HB_ID = 0
 """HEARTBEAT's message id."""
+_STATUS_TYPE = {i: t for i, (t, _) in STATUS_FIELDS.items()}
+"""The typed message of each status message id."""
 _STATE_COLS = np.array([1, 0, 2, 4, 3, 5], dtype=np.intp)
 """The NED row's columns (x, y, z, vx, vy, vz) in mission-frame order:
 north, east, down -> east, north, up."""
@@ -127,8 +134,10 @@ class TelemetryTable:
         self.seen_s = [-math.inf] * n
         """When each row's last report was handled [s] (the stale watchdog's clock)."""
         self.heard_s = [-math.inf] * n
-        """When each row last took an unchanged HEARTBEAT [s] (``heartbeat``: the
+        """When each row last took an unchanged HEARTBEAT [s] (``unchanged``: the
         link watchdog's clock, with the protocol's own)."""
+        self.said_s = [-math.inf] * n
+        """When each row last took an unchanged status message [s] (the same)."""
         self.fresh_count = 0
         """Rows taken since the last ``take_fresh``."""
         self.taken = 0
@@ -150,9 +159,10 @@ class TelemetryTable:
         self._rate_t0: list[int | None] = [None] * n
         self._rate_n = [0] * n
         self._incomplete: set[int] = set()
-        self._beat: list[tuple[int, ...] | None] = [None] * n
-        """(compid, custom_mode, type, autopilot, base_mode, system_status) of the
-        HEARTBEAT the row's protocol last handled in FLYING (``heartbeat_seen``)."""
+        self._seen: list[dict[type, tuple[int, ...]] | None] = [None] * n
+        """Per row, by typed message (``inbound.seen_key``): (compid, its fields)
+        of the HEARTBEAT and each status message the row's protocol last
+        handled in FLYING (``message_seen``); None while not attached."""
 
     # ------------------------------------------------------- attach/detach
     def attach(self, vp: VehicleProtocol) -> int:
@@ -178,8 +188,8 @@ class TelemetryTable:
         self._set_bias(k, c)
         self.accel_ned[k] = vp.last_accel_ned
         self._rate_t0[k], self._rate_n[k] = None, 0
-        self._beat[k] = None  # its first HEARTBEAT in FLYING goes to the protocol
-        self.heard_s[k] = -math.inf
+        self._seen[k] = {}  # its first HEARTBEAT and status in FLYING go to the protocol
+        self.heard_s[k] = self.said_s[k] = -math.inf
         self.owners[k] = vp
         self.set_offset(k, vp.offset_m)
         if pos is None:
@@ -195,7 +205,7 @@ class TelemetryTable:
             self._observe_pending()
         self._bias.detach(k)
         self.owners[k] = None
-        self._beat[k] = None
+        self._seen[k] = None
         self._incomplete.discard(k)
         if self.fresh[k]:
             self.fresh[k] = False
@@ -356,35 +366,42 @@ class TelemetryTable:
             self.on_inbound(self.sysids[k], compid, seq, _LPN_ID)
         return True
 
-    def heartbeat_seen(self, k: int, hb: Heartbeat) -> None:
-        """Row ``k``'s protocol handled ``hb`` in FLYING and is still FLYING
-        (``VehicleProtocol._on_heartbeat``): the same HEARTBEAT again would
-        change nothing there but its liveness time (``heartbeat``)."""
-        self._beat[k] = (hb.compid, hb.custom_mode, hb.type, hb.autopilot, hb.base_mode,
-                         hb.system_status)  # fmt: skip
+    def message_seen(self, k: int, msg: Message) -> None:
+        """Row ``k``'s protocol handled ``msg``, a HEARTBEAT or a status
+        message, in FLYING and is still FLYING (``VehicleProtocol``): the same
+        message again would change nothing there but the time the vehicle was
+        heard (``unchanged``)."""
+        seen, key = self._seen[k], seen_key(msg)
+        if seen is not None and key is not None:
+            seen[key[0]] = key[1]
 
-    def heartbeat(self, k: int, compid: int, seq: int, values: tuple[int, ...], now: float) -> bool:
-        """Take one HEARTBEAT of row ``k``'s vehicle (``values``: the payload in
-        wire order, (custom_mode, type, autopilot, base_mode, system_status,
-        mavlink_version)) handled at ``now`` [s] if it is the one its
-        protocol last handled in FLYING: then only the time it was heard
-        moves (``heard_s``), which is all the protocol would change (its
-        HEARTBEAT rules in FLYING keep it flying and queue nothing). False
-        (the caller hands it to the protocol): another HEARTBEAT, a row not
-        attached, or one whose protocol has something queued (``attention``:
-        the protocol is serviced after its next message, as before). ``seq``:
-        the frame's sequence number, for ``on_inbound``."""
-        beat = self._beat[k]
-        if (
-            beat is None
-            or beat[0] != compid
-            or beat[1:] != values[:5]
-            or (self.attention and self.sysids[k] in self.attention)
-        ):
+    def unchanged(self, k: int, compid: int, seq: int, msgid: int, values: tuple[int, ...],
+                  now: float) -> bool:  # fmt: skip
+        """Take one HEARTBEAT (``msgid`` 0, ``values`` its payload in wire
+        order: ``codec.RawHeartbeat``) or status message (``codec.RawStatus``)
+        of row ``k``'s vehicle handled at ``now`` [s] if it is the one of its
+        kind the protocol last handled in FLYING: then only the time it was
+        heard moves (``heard_s`` for a HEARTBEAT, ``said_s``), which is all
+        the protocol would change (in FLYING its HEARTBEAT rules keep it
+        flying and queue nothing, and a status message only sets the health
+        field it carries). False (the caller hands it to the protocol):
+        another one, a row not attached, or one whose protocol has something
+        queued (``attention``: the protocol is serviced after its next
+        message, as before). ``seq``: the frame's sequence number, for
+        ``on_inbound``."""
+        seen = self._seen[k]
+        if seen is None:
             return False
-        self.heard_s[k] = now
+        if msgid == _HB_ID:
+            last, times = seen.get(Heartbeat), self.heard_s
+            values = values[:5]  # not mavlink_version, which Heartbeat does not hold
+        else:
+            last, times = seen.get(_STATUS_TYPE[msgid]), self.said_s
+        if last != (compid, *values) or (self.attention and self.sysids[k] in self.attention):
+            return False
+        times[k] = now
         if self.on_inbound is not None:
-            self.on_inbound(self.sysids[k], compid, seq, _HB_ID)
+            self.on_inbound(self.sysids[k], compid, seq, msgid)
         return True
 
     def take_fresh(self, groups: Collection[int] | None = None) -> dict[int, int]:

@@ -166,24 +166,35 @@ class VehicleProtocol(_Startup, _Ending):
         elif isinstance(msg, SysStatus):
             self._health.sys_health = msg.health
             self._decide(now)
+            self._seen(msg)
         elif isinstance(msg, GpsGlobalOrigin):
             self._on_origin(msg, now)
         elif isinstance(msg, EkfStatus):
             self._health.ekf_flags = msg.flags
             self._decide(now)
+            self._seen(msg)
         elif isinstance(msg, GpsRaw):
             self._health.gps_fix = msg.fix_type
             self._decide(now)
+            self._seen(msg)
         elif isinstance(msg, ExtendedSysState):
             known = msg.landed_state in LANDED_STATE_NAMES
             self.landed_state = msg.landed_state if known else None
             self._decide(now)
+            self._seen(msg)
         elif isinstance(msg, ParamValue):
             value = self.personality.param_value(msg)
             self.params[msg.name] = value
             self._commands.on_param(msg.name, now, value)
         elif isinstance(msg, PositionTarget):
             self.target_echo = msg
+
+    def _seen(self, msg: SysStatus | EkfStatus | GpsRaw | ExtendedSysState) -> None:
+        """A status message handled: while FLYING (its table row attached),
+        the same one again changes nothing here but the time it was heard,
+        which the row keeps from now on (``TelemetryTable.unchanged``)."""
+        if self._table is not None and self.phase is Phase.FLYING:
+            self._table.message_seen(self._slot, msg)
 
     def _observe(self, pos: LocalPositionNed) -> None:
         obs = self.velocity_bias
@@ -317,7 +328,7 @@ class VehicleProtocol(_Startup, _Ending):
             elif self._table is not None:
                 # Flying on: the same HEARTBEAT again changes nothing here but the
                 # time it was heard, which its table row keeps from now on.
-                self._table.heartbeat_seen(self._slot, hb)
+                self._table.message_seen(self._slot, hb)
         elif phase is Phase.ENDING and "end_confirm" in self._timers:
             done = not hb.armed if self._disarming else hb.custom_mode == self._end_mode
             if done:

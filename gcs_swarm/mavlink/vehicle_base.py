@@ -246,7 +246,7 @@ class _VehicleBase:
         if t is None:
             return max(self._hb_at, self._heard_at)
         k = self._slot
-        return max(self._hb_at, self._heard_at, t.seen_s[k], t.heard_s[k])
+        return max(self._hb_at, self._heard_at, t.seen_s[k], t.heard_s[k], t.said_s[k])
 
     def next_deadline(self) -> float | None:
         """The earliest time [s] at which ``handle_timer`` has work, or None."""
@@ -282,7 +282,7 @@ class _VehicleBase:
             return
         self._position = t.position(k)
         self._position_at = t.seen_s[k]
-        self._heard_at = max(self._heard_at, t.seen_s[k])
+        self._heard_at = max(self._heard_at, t.seen_s[k], t.said_s[k])
         self._hb_at = max(self._hb_at, t.heard_s[k])  # the unchanged HEARTBEATs it took
         self._last_accel_ned = t.accel_ned[k].copy()
         t.detach(k)

@@ -35,9 +35,9 @@ Flying telemetry (issue 16): with a ``telemetry`` table, an unsigned
 LOCAL_POSITION_NED of a vehicle the link serves, from its bound peer, goes
 straight into that vehicle's row (``TelemetryTable.write``) when the row
 takes it (the vehicle is FLYING, the report plausible and newer), and so
-does an unsigned HEARTBEAT the row recognises as the one its FLYING
-protocol last handled (``TelemetryTable.heartbeat``: only the vehicle's
-liveness time moves); anything else comes out of ``receive`` as the
+does an unsigned HEARTBEAT or status message the row recognises as the one
+its FLYING protocol last handled (``TelemetryTable.unchanged``: only the
+vehicle's liveness time moves); anything else comes out of ``receive`` as the
 message pymavlink's own decoder makes of the frame, in order. A vehicle's
 report or HEARTBEAT after another message of it in the same datagram comes
 out as a message too, so that what the protocol hears keeps the datagram's
@@ -61,7 +61,7 @@ import numpy.typing as npt
 
 from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL, TYPE_MASK_VEL_ACCEL
 from gcs_swarm.mavlink.builders import MSG_ID_LOCAL_POSITION_NED as LPN_ID
-from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawHeartbeat, RawPosition
+from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawHeartbeat, RawPosition, RawStatus
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 
@@ -227,10 +227,10 @@ class LinkState:
         written = received = 0
         route, heard = self._routes.get, self._heard
         write = None if table is None else table.write
-        beat = None if table is None else table.heartbeat
+        said = None if table is None else table.unchanged
         for msg in msgs:
             kind = type(msg)
-            raw = kind is RawPosition or kind is RawHeartbeat
+            raw = kind is RawPosition or kind is RawHeartbeat or kind is RawStatus
             sysid = msg[0] if raw else msg.get_srcSystem()
             if route(sysid) == peer:
                 heard[sysid] = now  # ``_bound``'s answer for a peer already bound to it
@@ -248,8 +248,8 @@ class LinkState:
                         if write(k, compid, seq, values, now, now):
                             written += 1
                             continue
-                    elif beat is not None and beat(k, compid, seq, values, now):
-                        continue  # a flying vehicle's unchanged HEARTBEAT: its liveness only
+                    elif said is not None and said(k, compid, seq, frame[7], values, now):
+                        continue  # a flying vehicle's unchanged HEARTBEAT or status: heard
                 if superseded and id(msg) in superseded and (k is None or owners is None
                                                              or owners[k] is None):  # fmt: skip
                     stats.reports_superseded += 1

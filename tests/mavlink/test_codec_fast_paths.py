@@ -15,7 +15,15 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from gcs_swarm.mavlink import builders as b
-from gcs_swarm.mavlink.codec import SETPOINT_FIELDS, Codec, MessageSpec, RawHeartbeat, RawPosition
+from gcs_swarm.mavlink.codec import (
+    SETPOINT_FIELDS,
+    Codec,
+    MessageSpec,
+    RawHeartbeat,
+    RawPosition,
+    RawStatus,
+)
+from gcs_swarm.mavlink.inbound import STATUS_FIELDS, from_pymavlink, seen_key
 
 
 def _frame(rng: random.Random, kind: str, sysid: int, seq: int) -> bytes:
@@ -33,6 +41,16 @@ def _frame(rng: random.Random, kind: str, sysid: int, seq: int) -> bytes:
         )
     if kind == "gps":
         return bytes(enc.gps_raw_int_encode(0, 3, 1, 2, 3, 4, 5, 6, 7, rng.randrange(20)).pack(enc))
+    if kind == "sys":
+        m = enc.sys_status_encode(*(rng.randrange(2**31) for _ in range(3)), 500, 12000, -1, 90,
+                                  0, 0, 0, 0, 0, 0)  # fmt: skip
+        return bytes(m.pack(enc))
+    if kind == "est":
+        m = enc.estimator_status_encode(rng.randrange(2**40), rng.randrange(2**16),
+                                        *(rng.uniform(0, 1) for _ in range(8)))  # fmt: skip
+        return bytes(m.pack(enc))
+    if kind == "ess":
+        return bytes(enc.extended_sys_state_encode(rng.randrange(5), rng.randrange(5)).pack(enc))
     if kind == "ack":
         return bytes(enc.command_ack_encode(rng.randrange(600), rng.randrange(5)).pack(enc))
     if kind == "text":
@@ -112,12 +130,13 @@ def test_fast_setpoint_encode_equals_pymavlink_pack_on_5000_setpoints() -> None:
 def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
     """``decode(raw_positions=True)``: the same messages and counters, each
     unsigned LOCAL_POSITION_NED as a ``RawPosition`` (each HEARTBEAT as a
-    ``RawHeartbeat``) holding the header ids, the frame's bytes and the field
-    values pymavlink decodes."""
+    ``RawHeartbeat``, each status message as a ``RawStatus``) holding the
+    header ids, the frame's bytes and the field values pymavlink decodes
+    (a status message's: those its typed message keeps, as ``seen_key``)."""
     rng = random.Random(4)
-    kinds = ["lpn"] * 6 + ["hb", "ekf", "gps", "ack", "text", "unknown"]
+    kinds = ["lpn"] * 6 + ["hb", "ekf", "gps", "sys", "est", "ess", "ack", "text", "unknown"]
     kinds += ["v1", "garbage", "badcrc", "trunc"]
-    raw_n = hb_n = 0
+    raw_n = hb_n = status_n = 0
     for _ in range(1500):
         parts = [rng.choice(kinds) for _ in range(rng.randrange(1, 8))]
         data = b"".join(_frame(rng, k, rng.randrange(1, 255), rng.randrange(256)) for k in parts)
@@ -144,10 +163,22 @@ def test_raw_positions_carry_what_pymavlinks_parser_gives() -> None:
                 assert g.values == tuple(getattr(m, f) for f in names)
                 assert _view(fast.message(g)) == _view(m)
                 hb_n += 1
+            elif isinstance(g, RawStatus):
+                h = m.get_header()
+                assert (g.sysid, g.compid, g.seq) == (h.srcSystem, h.srcComponent, h.seq)
+                assert g.frame == bytes(m.get_msgbuf()) and g.frame[7] == m.get_msgId()
+                kind, names = STATUS_FIELDS[m.get_msgId()]
+                assert g.values == tuple(getattr(m, f) for f in names)
+                # What the table compares is what the protocol's typed message holds.
+                typed = from_pymavlink(m)
+                assert seen_key(typed) == (kind, (g.compid, *g.values))  # type: ignore[arg-type]
+                assert _view(fast.message(g)) == _view(m)
+                status_n += 1
             else:
                 assert _view(g) == _view(m)
         assert vars(fast.stats) == vars(slow.stats), parts
-    assert raw_n > 1000 and hb_n > 100  # (frames after a bad one take the general parser)
+    # (frames after a bad one take the general parser)
+    assert raw_n > 1000 and hb_n > 100 and status_n > 400
 
 
 def test_setpoint_values_encode_to_the_same_bytes_as_the_spec() -> None:

@@ -12,7 +12,15 @@ import numpy as np
 
 from gcs_swarm.mavlink.accel_clip import clip_accel_ned
 from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
-from gcs_swarm.mavlink.inbound import Heartbeat, LocalPositionNed
+from gcs_swarm.mavlink.inbound import (
+    EkfStatus,
+    ExtendedSysState,
+    GpsRaw,
+    Heartbeat,
+    Inbound,
+    LocalPositionNed,
+    SysStatus,
+)
 from gcs_swarm.mavlink.states import Phase, ProtocolConfig
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
@@ -183,14 +191,35 @@ def _wire(hb: Heartbeat) -> tuple[int, ...]:
     return (hb.custom_mode, hb.type, hb.autopilot, hb.base_mode, hb.system_status, 3)
 
 
-def test_unchanged_heartbeats_taken_by_the_table_leave_the_protocols_state() -> None:
-    """HEARTBEATs in flight among reports, mostly the same one, sometimes one
-    that differs (another mode, disarmed, another status, component or type):
-    those the table takes (``heartbeat``: the last one the protocol handled
-    in FLYING, again) and the rest through ``handle_message``, against every
-    one through ``handle_message``: the same state, deadlines, watchdog and
-    hand-over, for runs that end by a change of mode or by silence."""
-    total = ended = 0
+def _status(rng: random.Random, sysid: int, change: bool) -> tuple[int, Inbound, tuple[int, ...]]:
+    """A flying ArduCopter's or PX4's status message (message id, typed
+    message, ``RawStatus.values``), or with ``change`` one field changed."""
+    c = rng.choice([1, 1, 1, 2]) if change else 1
+    v = rng.randrange(4) if change else 0
+    msgid = rng.choice([1, 24, 193, 230, 245])
+    if msgid == 1:
+        msg: Inbound = SysStatus(sysid, c, 0x1F, 0x1F, 0x1F ^ v)
+        return msgid, msg, (0x1F, 0x1F, 0x1F ^ v)
+    if msgid == 24:
+        msg = GpsRaw(sysid, c, 3 + v % 2, 10)
+        return msgid, msg, (3 + v % 2, 10)
+    if msgid == 245:
+        msg = ExtendedSysState(sysid, c, 0, 2 + v)
+        return msgid, msg, (0, 2 + v)
+    msg = EkfStatus(sysid, c, 0x3FF ^ v)
+    return msgid, msg, (0x3FF ^ v,)
+
+
+def test_unchanged_heartbeats_and_status_taken_by_the_table_leave_the_protocols_state() -> None:
+    """HEARTBEATs and status messages in flight among reports, mostly the
+    same, sometimes one that differs (another mode, disarmed, another status,
+    component or type; another EKF flag, fix, landed state, sensor health):
+    those the table takes (``unchanged``: the last of its kind the protocol
+    handled in FLYING, again) and the rest through ``handle_message``,
+    against every one through ``handle_message``: the same state, health,
+    deadlines, watchdog and hand-over, for runs that end by a change of mode
+    or by silence."""
+    total = ended = said = 0
     for seed in range(40):
         rng = random.Random(seed)
         table = TelemetryTable([7])
@@ -208,18 +237,27 @@ def test_unchanged_heartbeats_taken_by_the_table_leave_the_protocols_state() -> 
                 if not table.write(0, 1, -1, pos[2:], now, now):
                     fast.handle_message(pos, now)
                 slow.handle_message(pos, now)
-            else:
+            elif rng.random() < 0.4:
                 hb = _beat(rng, 7, change=rng.random() < 0.01)
-                took = table.heartbeat(0, hb.compid, 5, _wire(hb), now)
+                took = table.unchanged(0, hb.compid, 5, 0, _wire(hb), now)
                 if not took:
                     fast.handle_message(hb, now)
                 taken += took
                 slow.handle_message(hb, now)
+            else:
+                msgid, msg, values = _status(rng, 7, change=rng.random() < 0.05)
+                took = table.unchanged(0, msg.compid, 5, msgid, values, now)
+                if not took:
+                    fast.handle_message(msg, now)
+                said += took
+                slow.handle_message(msg, now)
             for vp in (fast, slow):
                 if vp.next_deadline() is not None and vp.next_deadline() <= now:
                     vp.handle_timer(now)
             assert fast.phase is slow.phase, (seed, i)
             assert fast.heartbeat == slow.heartbeat and fast.compid == slow.compid, (seed, i)
+            assert fast._health == slow._health, (seed, i)
+            assert fast.landed_state == slow.landed_state, (seed, i)
             assert fast.next_deadline() == slow.next_deadline(), (seed, i)
             assert fast.take_outbound() == slow.take_outbound(), (seed, i)
             assert fast.take_events() == slow.take_events(), (seed, i)
@@ -234,11 +272,13 @@ def test_unchanged_heartbeats_taken_by_the_table_leave_the_protocols_state() -> 
             assert fast.phase is slow.phase
             assert fast.take_events() == slow.take_events()
         assert table.owners[0] is None  # handed back, and takes no HEARTBEAT any more
-        assert not table.heartbeat(0, 1, 5, _wire(_beat(rng, 7, change=False)), now)
+        assert not table.unchanged(0, 1, 5, 0, _wire(_beat(rng, 7, change=False)), now)
+        msgid, msg, values = _status(rng, 7, change=False)
+        assert not table.unchanged(0, 1, 5, msgid, values, now)
         assert fast.next_deadline() == slow.next_deadline()
         total += taken
         ended += slow.phase is not Phase.LOST
-    assert total > 2000 and 5 <= ended <= 35  # both paths, both endings
+    assert total > 800 and said > 1000 and 5 <= ended <= 35  # both paths, both endings
 
 
 def test_the_velocity_the_step_reads_carries_the_protocols_bias_estimate() -> None:

@@ -1,0 +1,139 @@
+"""MAVLink 2 frames of the messages a flying vehicle streams, decoded
+without pymavlink's message objects (``codec.Codec.decode(...,
+raw_positions=True)``): LOCAL_POSITION_NED (50 Hz per vehicle) into a
+``RawPosition``, HEARTBEAT into a ``RawHeartbeat``, the status messages of
+``inbound.STATUS_FIELDS`` into a ``RawStatus``, for the telemetry table
+(mavlink/telemetry_table.py). The frame's CRC is checked with the dialect's
+CRC extra and the payload unpacked with the dialect's own struct. No I/O.
+"""
+
+from __future__ import annotations
+
+from operator import itemgetter
+from typing import Any, NamedTuple
+
+from pymavlink.dialects.v20 import ardupilotmega as _dialect
+
+from gcs_swarm.mavlink.inbound import STATUS_FIELDS
+from mavwire.crc import MCRF4XX as _MCRF4XX
+from mavwire.crc import frame_crc as _frame_crc
+
+__all__ = ["RAW_LAYOUTS", "RawHeartbeat", "RawPosition", "RawStatus", "raw_frame"]
+
+
+class RawPosition(NamedTuple):
+    """An unsigned LOCAL_POSITION_NED frame decoded without pymavlink's
+    message objects (``Codec.decode(..., raw_positions=True)``): the hot
+    inbound message, 50 Hz per vehicle, for the link state to write into the
+    telemetry table (swarm/link_state.py, mavlink/telemetry_table.py);
+    ``Codec.message`` makes pymavlink's message of one the table does not
+    take. ``values`` are the payload's fields in wire order:
+    (time_boot_ms, x, y, z, vx, vy, vz)."""
+
+    sysid: int
+    compid: int
+    seq: int
+    frame: bytes
+    values: tuple[Any, ...]
+
+
+class RawHeartbeat(NamedTuple):
+    """An unsigned HEARTBEAT frame decoded without pymavlink's message
+    objects (``Codec.decode(..., raw_positions=True)``), as a ``RawPosition``
+    is: for the telemetry table to recognise a flying vehicle's unchanged
+    HEARTBEAT (``TelemetryTable.unchanged``); ``Codec.message`` makes
+    pymavlink's message of one the table does not take. ``values`` are the
+    payload's fields in wire order: (custom_mode, type, autopilot,
+    base_mode, system_status, mavlink_version)."""
+
+    sysid: int
+    compid: int
+    seq: int
+    frame: bytes
+    values: tuple[int, ...]
+
+
+class RawStatus(NamedTuple):
+    """An unsigned frame of a status message a flying vehicle streams at 1-2
+    Hz (``inbound.STATUS_FIELDS``: SYS_STATUS, GPS_RAW_INT,
+    EKF_STATUS_REPORT, ESTIMATOR_STATUS, EXTENDED_SYS_STATE), decoded as a
+    ``RawHeartbeat`` is: for the telemetry table to recognise one that would
+    change nothing (``TelemetryTable.status``). ``values`` are the fields
+    ``STATUS_FIELDS`` names for its id (``frame[7]``), in that order."""
+
+    sysid: int
+    compid: int
+    seq: int
+    frame: bytes
+    values: tuple[int, ...]
+
+
+_LPN = _dialect.MAVLink_local_position_ned_message
+_LPN_ID0: int = _LPN.id  # a 24-bit id: (32, 0, 0) on the wire
+_HB = _dialect.MAVLink_heartbeat_message
+_HB_ID0: int = _HB.id  # (0, 0, 0) on the wire
+
+
+class _RawLayout(NamedTuple):
+    """What ``raw_frame`` needs of one message type: its payload size, CRC
+    extra, struct unpackers, the zeros MAVLink 2 trimmed off a payload of
+    ``n`` bytes (``pad[n]``), and the tuple type it makes."""
+
+    size: int
+    extra: bytes
+    unpack: Any
+    unpack_from: Any
+    pad: list[bytes]
+    kind: type
+
+
+def _layout(msg: Any, kind: type, names: tuple[str, ...] = ()) -> _RawLayout:
+    """``msg``'s layout; with ``names``, its values are those fields only."""
+    size: int = msg.unpacker.size
+    unpack, unpack_from = msg.unpacker.unpack, msg.unpacker.unpack_from
+    if names:  # wire order = ordered_fieldnames: none of these messages has an array
+        assert not any(msg.array_lengths), msg.msgname
+        pick = itemgetter(*(msg.ordered_fieldnames.index(f) for f in names), -1)
+        unpack = _picking(pick, unpack)
+        unpack_from = _picking(pick, unpack_from)
+    return _RawLayout(size, bytes((msg.crc_extra,)), unpack, unpack_from,
+                      [bytes(size - n) for n in range(size + 1)], kind)  # fmt: skip
+
+
+def _picking(pick: Any, unpack: Any) -> Any:
+    """``unpack`` giving only ``pick``'s fields (its last item, a filler that
+    keeps a one-field pick a tuple, left off)."""
+    return lambda *args: pick(unpack(*args))[:-1]
+
+
+_CRC = _MCRF4XX
+_tuple_new = tuple.__new__
+"""``RawPosition`` made from a tuple in C (the NamedTuple's ``__new__`` is a
+Python function)."""
+
+
+def raw_frame(data: bytes, i: int, end: int, lay: _RawLayout) -> Any:
+    """The unsigned MAVLink 2 frame ``data[i:end]`` of ``lay``'s message as
+    its raw tuple (``RawPosition``, ``RawHeartbeat``), or None if its length
+    or CRC is wrong.
+
+    LOCAL_POSITION_NED comes at 50 Hz per vehicle, so written for speed:
+    one slice for the frame, one for the CRC's body, the payload unpacked in
+    place (or once padded, when MAVLink 2 trimmed its trailing zeros), the
+    tuple made in C."""
+    size, extra, unpack, unpack_from, pad, kind = lay
+    plen = end - i - 12
+    if not 0 < plen <= size:
+        return None
+    frame = data[i:end]
+    crc = _frame_crc(frame[1:-2], extra) if _CRC is None else _CRC(extra, _CRC(frame[1:-2]))
+    if crc != frame[-2] | (frame[-1] << 8):
+        return None
+    values = unpack_from(frame, 10) if plen == size else unpack(frame[10:-2] + pad[plen])
+    return _tuple_new(kind, (frame[5], frame[6], frame[4], frame, values))
+
+
+RAW_LAYOUTS = {_LPN_ID0: _layout(_LPN, RawPosition), _HB_ID0: _layout(_HB, RawHeartbeat)}
+RAW_LAYOUTS.update((i, _layout(_dialect.mavlink_map[i], RawStatus, names))
+                    for i, (_, names) in STATUS_FIELDS.items())  # fmt: skip
+"""The messages ``decode`` takes raw, by their id's first byte (every id fits in it)."""
