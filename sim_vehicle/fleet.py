@@ -80,6 +80,8 @@ class Fleet:
         self.changed: list[int] = []  # rows whose ``landed`` flag the last step changed
         self._views: tuple[Targets, DynParams] | None = None  # step()'s inputs over the arrays
         self._lag: tuple[list[float], float, list[tuple[float, float]]] | None = None
+        self._a_ff_due: dict[int, tuple[float, float, float]] = {}
+        """Rows' ``a_ff`` set since the last step, written at the next (``_write_a_ff``)."""
         for name in _V3:
             setattr(self, name, np.zeros((0, 3)))
         for name in _V1:
@@ -91,6 +93,7 @@ class Fleet:
 
     def add(self, sysid: int, compid: int, pos: tuple[float, float, float], landed: bool) -> int:
         """Append a row at rest at ``pos``; returns its index."""
+        self._write_a_ff()
         for name in _V3:
             arr = getattr(self, name)
             row = np.array([pos]) if name == "pos" else np.zeros((1, 3))
@@ -112,6 +115,7 @@ class Fleet:
 
     def remove(self, row: int) -> None:
         """Delete a row (later rows shift down by one)."""
+        self._write_a_ff()
         for name in (*_V3, *_V1, *_I1, *_B1):
             setattr(self, name, np.delete(getattr(self, name), row, axis=0))
         self.n -= 1
@@ -123,8 +127,9 @@ class Fleet:
         ``prev``: the target last copied into this row, if known. When every
         field but ``a_ff`` is the very same object as in ``prev`` (a streamed
         acceleration setpoint) only ``a_ff`` is written; identity, not ``==``,
-        which would take -0.0 for 0.0."""
-        self.a_ff[row] = tg.a_ff
+        which would take -0.0 for 0.0. ``a_ff`` reaches its array at the next
+        ``step`` (or ``add``, ``remove``), whatever its row's last was."""
+        self._a_ff_due[row] = tg.a_ff  # one numpy write per step, not per setpoint
         if (
             prev is not None
             and tg.p_t is prev.p_t
@@ -158,10 +163,18 @@ class Fleet:
         self.lean[row] = tg.lean_acc
         self.drag[row] = tg.drag
 
+    def _write_a_ff(self) -> None:
+        """The ``a_ff`` set since the last step into its rows (the last of each row's)."""
+        due = self._a_ff_due
+        if due:
+            self.a_ff[list(due)] = list(due.values())
+            due.clear()
+
     def step(self, dt: float) -> None:
         """Advance every vehicle by ``dt`` s: Eq. D3, then ``dynamics.step`` (D1, D5-7, D2, D4)."""
         if self.n == 0:
             return
+        self._write_a_ff()
         before = self.landed
         small = few(self.n)  # plain floats (dynamics_rows), the same bits as numpy's
         if not (small and self._step_small(dt)):
@@ -212,6 +225,7 @@ class Fleet:
         """``step`` with numpy whatever the number of vehicles (the reference of the small path)."""
         if self.n == 0:
             return
+        self._write_a_ff()
         st = KinState(self.pos, self.vel, self.acc, self.landed, self.shp)
         if self._views is None:  # the arrays are written in place; only add/remove replace them
             self._views = (

@@ -276,3 +276,39 @@ def test_lpn_frames_from_lists_are_byte_identical() -> None:
     big = Fleet()
     big.add(1, 1, (1e39, 0.0, 0.0), landed=False)
     assert big.lpn_frames_rows([0], [0]) is None and big.seq.tolist() == [0]
+
+
+def test_a_rows_feed_forward_is_its_last_target_at_the_step() -> None:
+    """``Fleet.set_target`` writes ``a_ff`` at the next step (one numpy write
+    per step, not per setpoint): several targets of a row between two steps,
+    streamed (only ``a_ff`` new) or whole, rows added and removed between,
+    step the fleet as the last target of each row alone does."""
+    from sim_vehicle.targets import ControlTarget
+
+    rng = np.random.default_rng(8)
+    many, last = Fleet(), Fleet()
+    for f in (many, last):
+        for i in range(6):
+            f.add(i + 1, 1, (float(i), 0.0, -10.0), landed=False)
+    base = ControlTarget(wv=1.0)
+    prev: list[ControlTarget | None] = [None] * 6
+    for k in range(40):
+        final: dict[int, ControlTarget] = {}
+        for _ in range(int(rng.integers(1, 15))):
+            row = int(rng.integers(0, many.n))
+            a = tuple(float(x) for x in rng.normal(0.0, 2.0, 3))
+            tg = base._replace(a_ff=a) if rng.random() < 0.8 else ControlTarget(a_ff=a, wv=0.5)
+            many.set_target(row, tg, prev[row])
+            prev[row] = final[row] = tg
+        if k == 20:  # a row leaves between a target and the step: the rest keep theirs
+            for f in (many, last):
+                f.remove(2)
+            prev.pop(2)
+            final = {r - (r > 2): t for r, t in final.items() if r != 2}
+        for row, tg in final.items():
+            last.set_target(row, tg)
+        many.step(0.02)
+        last.step(0.02)
+        for name in ("pos", "vel", "acc", "a_ff"):
+            np.testing.assert_array_equal(getattr(many, name), getattr(last, name), err_msg=name)
+    assert np.abs(many.a_ff).max() > 1.0
