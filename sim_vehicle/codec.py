@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,7 @@ __all__ = [
     "decode_setpoint",
     "encode_local_position_ned",
     "lpn_frames_small",
+    "pack_frame",
 ]
 
 LPN_MSGID = 32
@@ -92,6 +94,46 @@ def lpn_frames_small(
     except OverflowError:
         return None
     return out
+
+
+_PLAIN: dict[type, tuple[bytes, bytes, Any, Any] | None] = {}
+"""Per pymavlink message class: (id bytes, CRC extra byte, its struct's pack,
+a getter of its fields in wire order), or None (``pack_frame`` declines)."""
+
+
+def _plain(cls: type) -> tuple[bytes, bytes, Any, Any] | None:
+    """``_PLAIN``'s entry of ``cls``: a dialect message with neither an array
+    nor a text field (whose packing pymavlink converts) has one."""
+    c: Any = cls
+    if c.__module__ != mav.__name__ or any(c.array_lengths) or "char" in c.fieldtypes:
+        return None
+    names = tuple(c.ordered_fieldnames)
+    get: Any = attrgetter(*names)
+    if len(names) == 1:  # attrgetter of one name gives the value, not a tuple
+        one = get
+
+        def get(m: Any) -> tuple[Any, ...]:
+            return (one(m),)
+
+    return c.id.to_bytes(3, "little"), bytes((c.crc_extra,)), c.unpacker.pack, get
+
+
+def pack_frame(msg: Any, seq: int, sysid: int, compid: int) -> bytes | None:
+    """``msg.pack(mav)``'s bytes for an unsigned MAVLink 2 encoder ``mav`` at
+    ``seq`` with ``sysid`` and ``compid``: the payload packed by the
+    message's own struct from its fields in wire order, trailing zeros
+    trimmed (one kept), the header and CRC as pymavlink builds them, without
+    pymavlink's Python framing (the emulator's status streams: thousands a
+    second). None for a message with an array or a text field (the caller
+    packs it with pymavlink)."""
+    cls = type(msg)
+    spec = _PLAIN[cls] if cls in _PLAIN else _PLAIN.setdefault(cls, _plain(cls))
+    if spec is None:
+        return None
+    mid, extra, pack, get = spec
+    body = pack(*get(msg)).rstrip(b"\x00") or b"\x00"
+    frame = bytes((len(body), 0, 0, seq & 0xFF, sysid, compid)) + mid + body
+    return b"\xfd" + frame + frame_crc(frame, extra).to_bytes(2, "little")
 
 
 _SP = mav.MAVLink_set_position_target_local_ned_message

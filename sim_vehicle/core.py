@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import lockstep, schedule
-from sim_vehicle.codec import RawSetpoint
+from sim_vehicle.codec import RawSetpoint, pack_frame
 from sim_vehicle.commands import stream_accel, stream_accel_fields
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
@@ -263,10 +263,14 @@ class EmulatorCore:
     # ------------------------------------------------------------ outbound
     def pack(self, v: HostedVehicle, msg: Any) -> bytes:
         """One frame of ``v`` (its sequence number from the fleet row)."""
-        row = v.row
-        v.enc.seq = int(self.fleet.seq[row])
-        frame: bytes = msg.pack(v.enc)
-        self.fleet.seq[row] = (v.enc.seq + 1) & 0xFF
+        row, enc = v.row, v.enc
+        enc.seq = seq = int(self.fleet.seq[row])
+        # Unsigned, a plain message's frame without pymavlink's framing (the same bytes).
+        frame = None if enc.signing.sign_outgoing else pack_frame(msg, seq, enc.srcSystem,
+                                                                   enc.srcComponent)  # fmt: skip
+        if frame is None:
+            frame = msg.pack(enc)
+        self.fleet.seq[row] = (seq + 1) & 0xFF
         return frame
 
     def transmit(self, ep: Port, frames: list[tuple[bytes, int]], only: Addr | None = None) -> None:
