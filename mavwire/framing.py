@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from mavwire.crc import CRC_INIT, MCRF4XX, crc_step, frame_crc
 
-__all__ = ["HEADER_BYTES", "FrameBatch", "FrameBuilder"]
+__all__ = ["HEADER_BYTES", "FrameBatch", "FrameBuilder", "frame_payload"]
 
 HEADER_BYTES = 10
 """Bytes of a MAVLink 2 header, magic byte included."""
@@ -160,11 +160,21 @@ class FrameBuilder:
     def pack(self, seq: int, sysid: int, compid: int, payload: bytes) -> bytes:
         """One frame of the packed ``payload`` (``payload_bytes`` long, e.g.
         from ``struct.pack``): what ``build`` gives for one row."""
-        body = payload.rstrip(b"\x00") or b"\x00"
-        frame = bytes((len(body), 0, 0, seq & 0xFF, sysid, compid)) + self._id + body
-        crc = MCRF4XX  # frame_crc's choice, without its call (the few-frames hot path)
-        value = frame_crc(frame, self._extra) if crc is None else crc(self._extra, crc(frame))
-        return b"\xfd" + frame + value.to_bytes(2, "little")
+        return frame_payload(self._id, self._extra, seq, sysid, compid, payload)
+
+
+def frame_payload(
+    msgid: bytes, extra: bytes, seq: int, sysid: int, compid: int, payload: bytes
+) -> bytes:
+    """The unsigned MAVLink 2 frame of a packed ``payload`` (all its fields,
+    e.g. from ``struct.pack``) of the message whose 3-byte id is ``msgid``
+    and CRC_EXTRA byte ``extra``: trailing zeros trimmed (one kept), header,
+    CRC; the bytes pymavlink's ``pack`` gives."""
+    body = payload.rstrip(b"\x00") or b"\x00"
+    frame = bytes((len(body), 0, 0, seq & 0xFF, sysid, compid)) + msgid + body
+    crc = MCRF4XX  # frame_crc's choice, without its call (the few-frames hot path)
+    value = frame_crc(frame, extra) if crc is None else crc(extra, crc(frame))
+    return b"\xfd" + frame + value.to_bytes(2, "little")
 
 
 def _column_crc(

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.crc import frame_crc
-from mavwire.framing import FrameBuilder
+from mavwire.framing import FrameBuilder, frame_payload
 
 __all__ = [
     "LPN_CRC_EXTRA",
@@ -121,8 +121,8 @@ def _plain(cls: type) -> tuple[bytes, bytes, Any, Any] | None:
 def pack_frame(msg: Any, seq: int, sysid: int, compid: int) -> bytes | None:
     """``msg.pack(mav)``'s bytes for an unsigned MAVLink 2 encoder ``mav`` at
     ``seq`` with ``sysid`` and ``compid``: the payload packed by the
-    message's own struct from its fields in wire order, trailing zeros
-    trimmed (one kept), the header and CRC as pymavlink builds them, without
+    message's own struct from its fields in wire order, framed by
+    ``mavwire.framing.frame_payload`` as pymavlink frames it, without
     pymavlink's Python framing (the emulator's status streams: thousands a
     second). None for a message with an array or a text field (the caller
     packs it with pymavlink)."""
@@ -131,9 +131,7 @@ def pack_frame(msg: Any, seq: int, sysid: int, compid: int) -> bytes | None:
     if spec is None:
         return None
     mid, extra, pack, get = spec
-    body = pack(*get(msg)).rstrip(b"\x00") or b"\x00"
-    frame = bytes((len(body), 0, 0, seq & 0xFF, sysid, compid)) + mid + body
-    return b"\xfd" + frame + frame_crc(frame, extra).to_bytes(2, "little")
+    return frame_payload(mid, extra, seq, sysid, compid, pack(*get(msg)))
 
 
 _SP = mav.MAVLink_set_position_target_local_ned_message

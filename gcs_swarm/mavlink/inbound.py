@@ -303,7 +303,7 @@ STATUS_FIELDS: dict[int, tuple[type, tuple[str, ...]]] = {
 the typed message ``from_pymavlink`` makes of one and the pymavlink fields it
 keeps, in its own field order (after ``sysid``, ``compid``). The codec reads
 these fields off the frame (``codec.RawStatus``) so that the telemetry table
-can tell one that would change nothing (``TelemetryTable.status``)."""
+can tell one that would change nothing (``TelemetryTable.unchanged``)."""
 
 
 def seen_key(msg: Inbound) -> tuple[type, tuple[int, ...]] | None:

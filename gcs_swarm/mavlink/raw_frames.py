@@ -58,7 +58,7 @@ class RawStatus(NamedTuple):
     Hz (``inbound.STATUS_FIELDS``: SYS_STATUS, GPS_RAW_INT,
     EKF_STATUS_REPORT, ESTIMATOR_STATUS, EXTENDED_SYS_STATE), decoded as a
     ``RawHeartbeat`` is: for the telemetry table to recognise one that would
-    change nothing (``TelemetryTable.status``). ``values`` are the fields
+    change nothing (``TelemetryTable.unchanged``). ``values`` are the fields
     ``STATUS_FIELDS`` names for its id (``frame[7]``), in that order."""
 
     sysid: int

@@ -190,10 +190,10 @@ class VehicleProtocol(_Startup, _Ending):
             self.target_echo = msg
 
     def _seen(self, msg: SysStatus | EkfStatus | GpsRaw | ExtendedSysState) -> None:
-        """A status message handled: while FLYING (its table row attached),
-        the same one again changes nothing here but the time it was heard,
-        which the row keeps from now on (``TelemetryTable.unchanged``)."""
-        if self._table is not None and self.phase is Phase.FLYING:
+        """A status message handled: while FLYING (its table row attached:
+        only then), the same one again changes nothing here but the time it
+        was heard, which the row keeps from now on (``TelemetryTable.unchanged``)."""
+        if self._table is not None:
             self._table.message_seen(self._slot, msg)
 
     def _observe(self, pos: LocalPositionNed) -> None:
