@@ -54,6 +54,8 @@ _GUIDED_LIKE = {4, 5, 6, 16, 17}
 ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
 """MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+_ACCEL_ONLY = commands.ECHO_MASK["accel"]
+"""The echoed type_mask of an acceleration setpoint (3135)."""
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
 
 
@@ -308,6 +310,27 @@ class Autopilot:
             self._last_sp = now
             self.deadline = min(self.deadline, now + self._timeout_s())
         self.set_control(kind, now, kin)
+
+    def stream_accel(self, a: Vec3, now: float) -> None:
+        """The station's streamed acceleration setpoint ``a`` (local NED), checked by
+        ``commands.stream_accel_fields``: ``setpoint_heard(now)`` then
+        ``apply_setpoint("accel", {"a": a}, ECHO_MASK["accel"], now, kin)`` with the calls
+        written out (an accel target reads nothing of ``kin``; 50 times a second
+        per vehicle). An autopilot that hears or applies setpoints otherwise
+        overrides it (``px4``); tests/sim_vehicle/test_stream_accel.py holds both
+        to ``dispatch`` bit for bit."""
+        self.sp = {"a": a}
+        self.echo_mask = _ACCEL_ONLY
+        self.streaming = True
+        self._last_sp = now
+        due = now + self._timeout_s()
+        if due < self.deadline:  # min(deadline, due), as apply_setpoint
+            self.deadline = due
+        # set_control("accel", now, kin): the hold point stays, "accel" is not moving
+        self._ctl = "accel"
+        self._t_phase = now
+        self.target = self._targets.accel(a)
+        self.version += 1
 
     def _timeout_s(self) -> float:
         """GUID_TIMEOUT [s], at least 0.1 (read again only after a parameter

@@ -225,9 +225,6 @@ def _rot(yaw: float, v: Vec3) -> Vec3:
 
 _ACCEL_ONLY = ECHO_MASK["accel"]
 """type_mask 3135: position, velocity, yaw and yaw rate ignored (the station's stream)."""
-_NO_KIN = Kin(ZERO, ZERO, ZERO, False)
-"""What an acceleration target reads of the kinematics: nothing
-(``TargetBuilder.target``; PX4 queues it and reads its own at the due time)."""
 
 
 def stream_accel(ap: Autopilot, msg: MAVLinkMessage, now: float, landed: bool) -> bool:
@@ -266,11 +263,9 @@ def stream_accel_fields(
     lim = SETPOINT_LIMIT
     if not (abs(ax) <= lim and abs(ay) <= lim and abs(az) <= lim):
         return False  # dispatch counts the rejection
-    ap.setpoint_heard(now)
     # _rot(0.0, a) written out: cos 0 = 1 and sin 0 = 0 exactly, so the same
     # floats (signed zeros included) without two calls, 50 times a second.
-    a = (ax - 0.0 * ay, 0.0 * ax + ay, az)
-    ap.apply_setpoint("accel", {"a": a}, _ACCEL_ONLY, now, _NO_KIN)
+    ap.stream_accel((ax - 0.0 * ay, 0.0 * ax + ay, az), now)  # heard, then applied
     return True
 
 

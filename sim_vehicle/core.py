@@ -229,33 +229,36 @@ class EmulatorCore:
         read by the 50 Hz lane and made a message only if the lane declines."""
         now = self.sim_time_s
         landed = self.fleet.landed
+        vehicles, sysids = self.vehicles, ep.sysids
         for m in msgs:
-            ts = getattr(m, "target_system", 0)
-            if ts == 0:
-                targets = [ep.sysids[s] for s in sorted(ep.sysids)]
-            elif ts in ep.sysids:
-                targets = [ep.sysids[ts]]
-            else:
-                continue
             cls = m.__class__
             f = m.f if cls is RawSetpoint else None
+            ts = f[13] if f is not None else getattr(m, "target_system", 0)
+            if ts == 0:
+                targets = [vehicles[sysids[s]] for s in sorted(sysids)]
+            elif ts in sysids:
+                targets = [vehicles[sysids[ts]]]
+            else:
+                continue
             msg = m
-            for key in targets:
-                v = self.vehicles[key]
+            for v in targets:
+                ap = v.ap
                 if wall_s is not None:
-                    v.ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
-                # the 50 Hz case, without a Kin (commands.stream_accel)
+                    ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
+                # the 50 Hz case, without a Kin (commands.stream_accel); a row in
+                # sync before takes only what the lane moves (_sync_stream)
+                in_sync = v.seen_version == ap.version
                 if f is not None:
-                    if stream_accel_fields(v.ap, f[12], f[15], f[13], f[14], f[7], f[8], f[9],
+                    if stream_accel_fields(ap, f[12], f[15], ts, f[14], f[7], f[8], f[9],
                                            now, bool(landed[v.row])):  # fmt: skip
-                        self.sync(v, now)
+                        self._sync_stream(v) if in_sync else self.sync(v, now)
                         continue
                     if msg is m:
                         msg = m.message()
-                elif cls is _SETPOINT_CLASS and stream_accel(v.ap, m, now, bool(landed[v.row])):
-                    self.sync(v, now)
+                elif cls is _SETPOINT_CLASS and stream_accel(ap, m, now, bool(landed[v.row])):
+                    self._sync_stream(v) if in_sync else self.sync(v, now)
                     continue
-                replies = v.ap.handle(msg, now, self.kin(v))
+                replies = ap.handle(msg, now, self.kin(v))
                 if replies:
                     self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
                 self.sync(v, now)
@@ -307,6 +310,23 @@ class EmulatorCore:
             v = self.vehicles.get(key)
             if v is not None:
                 self.fleet.awaiting[v.row] = True
+
+    def _sync_stream(self, v: HostedVehicle) -> None:
+        """``sync`` after the setpoint lane (``commands.stream_accel_fields``) took a
+        setpoint for ``v``, whose row was in sync before: the lane moves only the
+        deadline, the holding flag (to True), the version and the target (parameters,
+        report interval and stream kick untouched), so only those are copied."""
+        ap, f, row = v.ap, self.fleet, v.row
+        if ap.deadline != v.row_deadline:
+            f.deadline[row] = v.row_deadline = ap.deadline
+        if not v.row_holding:
+            holding = ap.holding
+            if holding != v.row_holding:
+                f.holding[row] = v.row_holding = holding
+        if ap.version != v.seen_version:
+            v.seen_version = ap.version
+            f.set_target(row, ap.target, v.row_target)
+            v.row_target = ap.target
 
     def sync(self, v: HostedVehicle, now: float) -> None:
         """Copy an autopilot's published state into its fleet row (after handle/poll)."""

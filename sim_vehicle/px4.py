@@ -58,7 +58,9 @@ from sim_vehicle.autopilot import (
     TEMPORARILY_REJECTED,
     Autopilot,
 )
+from sim_vehicle.commands import ECHO_MASK
 from sim_vehicle.params import _I32, _R32, PARAM_TABLE, ParamStore
+from sim_vehicle.targets import NO_KIN
 from sim_vehicle.telemetry import Kin, Vec3
 
 __all__ = ["PX4_MODES", "PX4_PARAMS", "EventMessage", "Px4Autopilot", "Px4ParamStore", "px4_mode"]
@@ -333,6 +335,12 @@ class Px4Autopilot(Autopilot):
 
     def setpoint_heard(self, now: float) -> None:
         self._sp_times = (self._sp_times[1], now)
+
+    def stream_accel(self, a: Vec3, now: float) -> None:
+        # Heard (the stream-loss clock), then queued by Eq. D8: the queue reads no Kin
+        # (the due setpoint is applied with the kinematics of its due time).
+        self.setpoint_heard(now)
+        self.apply_setpoint("accel", {"a": a}, ECHO_MASK["accel"], now, NO_KIN)
 
     def apply_setpoint(
         self, kind: str, sp: dict[str, Any], mask: int, now: float, kin: Kin

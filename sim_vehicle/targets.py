@@ -18,12 +18,15 @@ from sim_vehicle.dynamics import GRAVITY_M_S2
 from sim_vehicle.params import ParamStore
 from sim_vehicle.telemetry import Kin, Vec3
 
-__all__ = ["ZERO", "ControlTarget", "TargetBuilder"]
+__all__ = ["NO_KIN", "ZERO", "ControlTarget", "TargetBuilder"]
 
 _INF = math.inf
 _TUPLE_NEW = tuple.__new__
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 _ONE: Vec3 = (1.0, 1.0, 1.0)
+NO_KIN = Kin(ZERO, ZERO, ZERO, False)
+"""What an acceleration target reads of the kinematics: nothing (``TargetBuilder.accel``;
+the streamed setpoint is applied without a ``Kin`` of its own)."""
 _SNAP_RAD_S4 = math.radians(1100.0) * GRAVITY_M_S2
 """ATC_ACCEL_R/P_MAX default (110000 cdeg/s^2) times g: the snap of Eq. D5a (per m, m/s^4)."""
 
@@ -95,6 +98,21 @@ class TargetBuilder:
         self.drag_vel = p["SIM_DRAG_VEL"]
         return base
 
+    def accel(self, a: Vec3) -> ControlTarget:
+        """The target of control "accel" flying the acceleration ``a`` (local NED m/s^2).
+
+        All but a_ff come from the base target: kept as one tuple per base, so
+        the 50 Hz stream makes its target with one C call (the same fields, the
+        same objects: ``Fleet.set_target``'s identity test holds)."""
+        b = self.base()
+        rest = self._accel_rest
+        if rest is None or rest[0] is not b:
+            rest = self._accel_rest = (b, (
+                ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn, b.acc_lim,
+                b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self.drag,
+            ))  # fmt: skip
+        return _TUPLE_NEW(ControlTarget, (a, *rest[1]))
+
     def target(
         self,
         ctl: str,
@@ -116,16 +134,7 @@ class TargetBuilder:
         # The streamed kinds build their target field by field: ``replace`` costs
         # several times more, 50 times a second per vehicle.
         if ctl == "accel":
-            # All but a_ff come from the base target: kept as one tuple per base,
-            # so the 50 Hz stream makes its target with one C call (the same
-            # fields, the same objects: Fleet.set_target's identity test holds).
-            rest = self._accel_rest
-            if rest is None or rest[0] is not b:
-                rest = self._accel_rest = (b, (
-                    ZERO, ZERO, ZERO, 0.0, b.vmax_xy, b.vmax_up, b.vmax_dn, b.acc_lim,
-                    b.acc_max, b.tau_s, b.jerk_xy, b.jerk_z, b.lean_acc, self.drag,
-                ))  # fmt: skip
-            tg = _TUPLE_NEW(ControlTarget, (sp["a"], *rest[1]))
+            tg = self.accel(sp["a"])
         elif ctl == "vel":
             tg = ControlTarget(
                 sp.get("a", ZERO), ZERO, sp["v"], ZERO, 1.0, b.vmax_xy, b.vmax_up, b.vmax_dn,

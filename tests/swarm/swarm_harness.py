@@ -41,6 +41,7 @@ from sim_vehicle import Impairment, signing
 from sim_vehicle.autopilot import Autopilot
 from sim_vehicle.core import EmulatorCore
 from sim_vehicle.impairments import Impairer
+from sim_vehicle.link import _split_setpoints
 from sim_vehicle.stats import LinkStats
 from sim_vehicle.vehicles import HostedVehicle
 
@@ -147,9 +148,13 @@ class Sky:
         seed: int = 0,
         keys: Collection[int] | None = None,
         stagger: bool = False,
+        raw_setpoints: bool = False,
     ) -> None:
         mine = [v for v in mission.vehicles if keys is None or v.key in keys]
         self.stagger = stagger
+        self.raw_setpoints = raw_setpoints
+        """The vehicles' radios hand unsigned setpoints to the emulator's core as
+        ``codec.RawSetpoint``, as its UDP endpoint does (``Endpoint.parse(raw=True)``)."""
         """Each network's emulator steps, then its datagrams reach the station,
         before the next network's (unsynchronised networks, within one tick)."""
         nets = sorted({v.net_index for v in mine})
@@ -231,7 +236,15 @@ class Sky:
         """A datagram from the station arrives at a vehicle's radio (server ``_receive``)."""
         if radio.silent:
             return
-        msgs = radio.parser.parse_buffer(data) or []
+        if self.raw_setpoints:
+            msgs: list[Any] = []
+            for piece in _split_setpoints(data):
+                if isinstance(piece, bytes):
+                    msgs.extend(radio.parser.parse_buffer(piece) or [])
+                else:
+                    msgs.append(piece)
+        else:
+            msgs = radio.parser.parse_buffer(data) or []
         radio.setpoints_in += sum(m.get_msgId() == _SETPOINT for m in msgs)
         assert radio.emu is not None
         radio.emu.receive(radio, msgs, radio.gcs, None)
