@@ -197,16 +197,8 @@ class EmulatorCore:
             ep.peers[addr] = None
             if len(ep.peers) > MAX_PEERS:
                 ep.peers.pop(next(iter(ep.peers)))
-        rows = []  # lockstep rule 3: an answer counts even if the link then loses it
-        vehicles, sysids = self.vehicles, ep.sysids
-        for m in msgs:
-            if m.get_msgId() == _SETPOINT_ID:
-                ts = m.target_system
-                for sysid in sysids if ts == 0 else (ts,):
-                    v = vehicles.get(sysids.get(sysid, -1))
-                    if v is not None and v.ep is ep:
-                        rows.append(v.row)
-        lockstep.answered(self.fleet, rows)
+        if self.lockstep:  # the ``awaiting`` flags block only a lockstep clock
+            self._answered(ep, msgs)
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             self.greet(ep, addr)
         elif good and ep.out == addr and id(ep) not in self._out_heard:
@@ -222,6 +214,20 @@ class EmulatorCore:
             stats.duplicated += 1
         for _ in range(fate.now):
             self._deliver(ep, msgs, wall_s)
+
+    def _answered(self, ep: Port, msgs: list[Any]) -> None:
+        """Lockstep rule 3: the vehicles of ``ep`` a setpoint of ``msgs`` is for have
+        answered (it counts even if the uplink then loses it)."""
+        rows = []
+        vehicles, sysids = self.vehicles, ep.sysids
+        for m in msgs:
+            if m.get_msgId() == _SETPOINT_ID:
+                ts = m.target_system
+                for sysid in sysids if ts == 0 else (ts,):
+                    v = vehicles.get(sysids.get(sysid, -1))
+                    if v is not None and v.ep is ep:
+                        rows.append(v.row)
+        lockstep.answered(self.fleet, rows)
 
     def _deliver(self, ep: Port, msgs: list[Any], wall_s: float | None) -> None:
         """Each message to the autopilots it is for, in order; a setpoint
@@ -305,7 +311,10 @@ class EmulatorCore:
                     self._sent_reports(lpn)
 
     def _sent_reports(self, keys: list[int]) -> None:
-        """Rule 3: a LOCAL_POSITION_NED left towards these vehicles; they await an answer."""
+        """Rule 3: a LOCAL_POSITION_NED left towards these vehicles; they await an answer
+        (a lockstep clock's flags: a real-time one keeps none)."""
+        if not self.lockstep:
+            return
         for key in keys:
             v = self.vehicles.get(key)
             if v is not None:
