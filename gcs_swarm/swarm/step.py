@@ -154,6 +154,8 @@ def send_rejoiners(
     [m/s], ``radius_m`` [m] (the farthest member from the leader): the
     controller's, when this core does not run the law (a link shard, from
     the controller's beats)."""
+    if core.members <= core.flying:  # the usual case, without two new sets a step
+        return
     rejoining = (core.members & core.flown) - core.flying
     if not rejoining:
         return
