@@ -252,17 +252,23 @@ class EmulatorCore:
                 if wall_s is not None:
                     ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
                 # the 50 Hz case, without a Kin (commands.stream_accel); a row in
-                # sync before takes only what the lane moves (_sync_stream)
+                # sync before takes only what the lane moves (_sync_target)
                 in_sync = v.seen_version == ap.version
                 if f is not None:
                     if stream_accel_fields(ap, f[12], f[15], ts, f[14], f[7], f[8], f[9],
                                            now, bool(landed[v.row])):  # fmt: skip
-                        self._sync_stream(v) if in_sync else self.sync(v, now)
+                        if in_sync:
+                            self._sync_target(v, holding_may_change=not v.row_holding)
+                        else:
+                            self.sync(v, now)
                         continue
                     if msg is m:
                         msg = m.message()
                 elif cls is _SETPOINT_CLASS and stream_accel(ap, m, now, bool(landed[v.row])):
-                    self._sync_stream(v) if in_sync else self.sync(v, now)
+                    if in_sync:
+                        self._sync_target(v, holding_may_change=not v.row_holding)
+                    else:
+                        self.sync(v, now)
                     continue
                 replies = ap.handle(msg, now, self.kin(v))
                 if replies:
@@ -320,38 +326,36 @@ class EmulatorCore:
             if v is not None:
                 self.fleet.awaiting[v.row] = True
 
-    def _sync_stream(self, v: HostedVehicle) -> None:
-        """``sync`` after the setpoint lane (``commands.stream_accel_fields``) took a
-        setpoint for ``v``, whose row was in sync before: the lane moves only the
-        deadline, the holding flag (to True), the version and the target (parameters,
-        report interval and stream kick untouched), so only those are copied."""
-        ap, f, row = v.ap, self.fleet, v.row
-        if ap.deadline != v.row_deadline:
-            f.deadline[row] = v.row_deadline = ap.deadline
-        if not v.row_holding:
-            holding = ap.holding
-            if holding != v.row_holding:
-                f.holding[row] = v.row_holding = holding
-        if ap.version != v.seen_version:
-            v.seen_version = ap.version
-            f.set_target(row, ap.target, v.row_target)
-            v.row_target = ap.target
+    def _sync_target(self, v: HostedVehicle, holding_may_change: bool = True) -> bool:
+        """The first part of ``sync``: the deadline, the holding flag (unless it cannot
+        have changed) and, when the version moved, the target; True in that case.
 
-    def sync(self, v: HostedVehicle, now: float) -> None:
-        """Copy an autopilot's published state into its fleet row (after handle/poll)."""
+        All of ``sync`` after the setpoint lane (``commands.stream_accel_fields``)
+        took a setpoint for a vehicle whose row was in sync before: the lane moves
+        only the deadline, the holding flag (to True: a holding row stays so), the
+        version and the target, not the parameters, the report interval or the
+        stream kick that the rest of ``sync`` copies."""
         ap, f, row = v.ap, self.fleet, v.row
         # Each row value is written only when it changed: a numpy item write costs
         # more than the comparison, and this runs for every setpoint.
         if ap.deadline != v.row_deadline:
             f.deadline[row] = v.row_deadline = ap.deadline
-        holding = ap.holding
-        if holding != v.row_holding:
-            f.holding[row] = v.row_holding = holding
+        if holding_may_change:
+            holding = ap.holding
+            if holding != v.row_holding:
+                f.holding[row] = v.row_holding = holding
         if ap.version == v.seen_version:
-            return
+            return False
         v.seen_version = ap.version
         f.set_target(row, ap.target, v.row_target)
         v.row_target = ap.target
+        return True
+
+    def sync(self, v: HostedVehicle, now: float) -> None:
+        """Copy an autopilot's published state into its fleet row (after handle/poll)."""
+        if not self._sync_target(v):
+            return
+        ap, f, row = v.ap, self.fleet, v.row
         iv = ap.lpn_interval_s
         prm = ap.params
         # The row's telemetry values come from the parameters and the interval only:

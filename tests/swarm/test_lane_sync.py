@@ -1,7 +1,7 @@
 """The emulator's setpoint lane copies into its fleet row all that the full ``sync`` would.
 
 After the lane takes a setpoint for a vehicle whose row was in sync, the core
-copies only what the lane moves (``EmulatorCore._sync_stream``: deadline,
+copies only what the lane moves (``EmulatorCore._sync_target``: deadline,
 holding flag, target). Flown here against the station's core
 (``swarm_harness.Sky``, hand clock) through a start, a vehicle's leave, a
 radio silence longer than GUID_TIMEOUT (brake, stale, heard again) and lossy
