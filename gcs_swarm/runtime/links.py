@@ -301,7 +301,10 @@ class Link:
         """The datagram asyncio read, then those queued behind it (module
         docstring): from one bound peer they are decoded first, and the
         reports a newer one of the same vehicle follows are marked
-        ``superseded``; each datagram then goes to the state in order."""
+        ``superseded``; each datagram then goes to the state in order. All
+        of them arrived when they were read: one time for the lot (the
+        setpoints' latency counts the decoding of the datagrams before a
+        report's)."""
         batch = [(data, addr)]
         ahead = self._ahead
         while ahead is not None and len(batch) < READ_AHEAD:
@@ -309,10 +312,11 @@ class Link:
                 batch.append(ahead.recvfrom(65536))
             except OSError:  # nothing queued (or an ICMP error: asyncio's to report)
                 break
+        now = time.monotonic()  # one arrival time for what was read together
         state = self.state
         if len(batch) == 1 or not state.knows(addr) or any(a != addr for _, a in batch):
             for item, peer in batch:
-                self._on_bytes(item, peer, datagram=True)
+                self._on_bytes(item, peer, datagram=True, now=now)
             return
         decoded = [state.decode(item, addr) for item, _ in batch]
         newest: dict[int, int] = {}
@@ -327,7 +331,7 @@ class Link:
             if type(m) is RawPosition and newest[m.sysid] != id(m)
         }
         for (item, _), pre in zip(batch, decoded, strict=True):
-            self._on_bytes(item, addr, datagram=True, decoded=pre, superseded=superseded)
+            self._on_bytes(item, addr, datagram=True, decoded=pre, superseded=superseded, now=now)
 
     def _on_bytes(
         self,
@@ -337,9 +341,13 @@ class Link:
         datagram: bool,
         decoded: tuple[Any, list[Any]] | None = None,
         superseded: Collection[int] = (),
+        now: float | None = None,
     ) -> None:
+        """``data`` from ``peer`` through the state, arrived at ``now`` [s]
+        (``time.monotonic``; None: now)."""
         state = self.state
-        items = state.receive(data, peer, time.monotonic(), datagram=datagram,
+        now = time.monotonic() if now is None else now
+        items = state.receive(data, peer, now, datagram=datagram,
                               decoded=decoded, superseded=superseded)  # fmt: skip
         if state.peer_added:
             state.peer_added = False
