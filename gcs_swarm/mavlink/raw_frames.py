@@ -9,16 +9,29 @@ CRC extra and the payload unpacked with the dialect's own struct. No I/O.
 
 from __future__ import annotations
 
+from bisect import bisect_right
+from collections.abc import Sequence
 from operator import itemgetter
 from typing import Any, NamedTuple
 
+import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
 from gcs_swarm.mavlink.inbound import STATUS_FIELDS
 from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
 
-__all__ = ["RAW_LAYOUTS", "RawHeartbeat", "RawPosition", "RawStatus", "raw_frame"]
+__all__ = [
+    "LPN_PAYLOAD",
+    "RAW_LAYOUTS",
+    "FrameBatch",
+    "RawHeartbeat",
+    "RawPosition",
+    "RawStatus",
+    "frame_batch",
+    "raw_frame",
+]
 
 
 class RawPosition(NamedTuple):
@@ -137,3 +150,105 @@ RAW_LAYOUTS = {_LPN_ID0: _layout(_LPN, RawPosition), _HB_ID0: _layout(_HB, RawHe
 RAW_LAYOUTS.update((i, _layout(_dialect.mavlink_map[i], RawStatus, names))
                     for i, (_, names) in STATUS_FIELDS.items())  # fmt: skip
 """The messages ``decode`` takes raw, by their id's first byte (every id fits in it)."""
+
+
+LPN_PAYLOAD = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
+"""LOCAL_POSITION_NED's payload in wire order: time_boot_ms [ms], x, y, z [m],
+vx, vy, vz [m/s] NED (28 bytes; the telemetry table's row)."""
+_LPN_LAY = RAW_LAYOUTS[_LPN_ID0]
+assert _LPN_LAY.size == LPN_PAYLOAD.itemsize
+_LPN_SIZE = 12 + LPN_PAYLOAD.itemsize
+"""A whole (untrimmed) unsigned LOCAL_POSITION_NED frame [bytes]: 40."""
+_LPN_FRAME = np.dtype([("head", "u1", (10,)), ("payload", LPN_PAYLOAD), ("crc", "<u2")])
+_AT = np.arange(_LPN_SIZE, dtype=np.intp)
+
+
+class FrameBatch(NamedTuple):
+    """The first datagrams of a ``frame_batch`` call, joined (``blob``):
+    every frame's ``starts``/``ends`` in it and its header ``head (F, 10)``,
+    in order; the LOCAL_POSITION_NED frames (``lpn``, indices of frames) by
+    column, ``payload (L,)`` of ``LPN_PAYLOAD`` (a trimmed one's zeros put
+    back); every other frame as ``raw_frame`` decodes it, a ``RawHeartbeat``
+    or a ``RawStatus`` (``others``: (index, tuple)); and where each
+    datagram ends (``cuts``: the frames before its end; ``len(cuts)``
+    datagrams)."""
+
+    blob: bytes
+    starts: list[int]
+    ends: list[int]
+    head: npt.NDArray[np.uint8]
+    lpn: list[int]
+    payload: npt.NDArray[Any]
+    others: list[tuple[int, Any]]
+    cuts: list[int]
+
+
+def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
+    """The first datagrams of ``grams`` frame by frame as
+    ``Codec.decode(raw_positions=True)`` reads them, as far as each of their
+    frames is a whole unsigned MAVLink 2 frame with a good CRC that
+    ``raw_frame`` takes (a LOCAL_POSITION_NED, a HEARTBEAT or a status
+    message); None when the first datagram is not (then decode it). The
+    frames are found by their length bytes alone and their headers checked
+    as columns (``Codec.decode``'s test: the magic, no incompatibility flag,
+    an id of one byte); the untrimmed reports go column-wise (one gather,
+    their CRCs frame by frame with ``raw_frame``'s function), every other
+    frame through ``raw_frame``."""
+    blob = b"".join(grams)
+    starts: list[int] = []
+    cuts: list[int] = []
+    i = 0
+    for g in grams:
+        end_g = i + len(g)
+        while end_g - i >= 12:
+            starts.append(i)
+            i += 12 + blob[i + 1]
+        if i != end_g:  # a frame past its datagram's end, or a tail too short for one
+            del starts[cuts[-1] if cuts else 0 :]
+            break
+        cuts.append(len(starts))
+    if not cuts:
+        return None
+    u = np.frombuffer(blob, dtype=np.uint8)
+    at = np.array(starts, dtype=np.intp)
+    head = u[at[:, None] + _AT[:10]]
+    ok = (head[:, 0] == 0xFD) & (head[:, 2] == 0) & (head[:, 8] == 0) & (head[:, 9] == 0)
+    is_whole = ok & (head[:, 7] == _LPN_ID0) & (head[:, 1] == LPN_PAYLOAD.itemsize)
+    ends = (at + 12 + head[:, 1]).tolist()
+    bad = len(starts)  # the first frame that cannot go
+    others: list[tuple[int, Any]] = []
+    part: list[tuple[int, Any]] = []
+    okay, msgids = ok.tolist(), head[:, 7].tolist()
+    for j in np.flatnonzero(~is_whole).tolist():
+        lay = RAW_LAYOUTS.get(msgids[j]) if okay[j] else None
+        raw = None if lay is None else raw_frame(blob, starts[j], ends[j], lay)
+        if raw is None:  # a bad frame, or another message (its protocol's)
+            bad = j
+            break
+        (part if lay is _LPN_LAY else others).append((j, raw))
+    lpn = np.flatnonzero(is_whole | (head[:, 7] == _LPN_ID0)).tolist()
+    whole = np.flatnonzero(is_whole).tolist()
+    if whole:
+        at_w = at[whole]
+        frames = u[at_w[:, None] + _AT].view(_LPN_FRAME)[:, 0]
+        extra, crc = _LPN_LAY.extra, _CRC
+        if crc is None:
+            crcs = [_frame_crc(blob[a + 1 : a + _LPN_SIZE - 2], extra) for a in at_w.tolist()]
+        else:
+            crcs = [crc(extra, crc(blob[a + 1 : a + _LPN_SIZE - 2])) for a in at_w.tolist()]
+        good = frames["crc"].tolist()
+        if crcs != good:
+            first = next(k for k, (c, w) in enumerate(zip(crcs, good, strict=True)) if c != w)
+            bad = min(bad, whole[first])
+    if bad < len(starts):  # the datagrams before the bad frame's
+        keep = bisect_right(cuts, bad)
+        return None if keep == 0 else frame_batch(grams[:keep])
+    if part:
+        payload = np.zeros(len(lpn), dtype=LPN_PAYLOAD)
+        payload[np.searchsorted(lpn, whole)] = frames["payload"] if whole else payload[:0]
+        for j, raw in part:  # a trimmed report: raw_frame's values, the zeros put back
+            values = raw[4]
+            payload[bisect_right(lpn, j) - 1] = (values[0], values[1:])
+    else:
+        payload = frames["payload"] if whole else np.zeros(0, dtype=LPN_PAYLOAD)
+    return FrameBatch(blob, starts, ends, head, lpn, payload, others, cuts)

@@ -56,6 +56,8 @@ from gcs_swarm.mavlink.inbound import (
     seen_key,
 )
 from gcs_swarm.mavlink.inbound import Inbound as Message
+from gcs_swarm.mavlink.raw_frames import LPN_PAYLOAD
+from gcs_swarm.mavlink.telemetry_batch import RATE_WINDOW_MS, REBOOT_MS, _TableBatch
 
 if TYPE_CHECKING:
     from gcs_swarm.control.velocity_bias import VelocityBiasObserver
@@ -65,17 +67,13 @@ __all__ = ["RATE_WINDOW_MS", "REBOOT_MS", "TelemetryTable"]
 
 FloatArray = npt.NDArray[np.float64]
 
-RATE_WINDOW_MS = 2000
-"""Telemetry-rate window [ms of the vehicle's own time_boot_ms] (issue 15)."""
-REBOOT_MS = 10_000
-"""Telemetry older than the last by more than this is a reboot, not a reorder."""
-
 _ROW = struct.Struct("<I6f")
 """LOCAL_POSITION_NED's payload in wire order: time_boot_ms [ms], x, y, z [m],
 vx, vy, vz [m/s] NED (28 bytes)."""
 _ROW_SIZE = _ROW.size
 _PACK_ROW = _ROW.pack_into
-_ROW_DTYPE = np.dtype([("time_boot_ms", "<u4"), ("ned", "<f4", (6,))])
+_ROW_DTYPE = LPN_PAYLOAD
+assert _ROW_DTYPE.itemsize == _ROW_SIZE
 _LPN_ID = 32
 """LOCAL_POSITION_NED's message id."""
 _HB_ID = 0
@@ -94,7 +92,7 @@ Inbound = Callable[[int, int, int, int], None]
 """``inbound(sysid, compid, seq, msgid)``: the flight recorder's counts."""
 
 
-class TelemetryTable:
+class TelemetryTable(_TableBatch):
     """One row per vehicle of ``sysids`` (a slot each, fixed for the run).
 
     Columns (row k is vehicle ``sysids[k]``):
@@ -389,20 +387,31 @@ class TelemetryTable:
         queued (``attention``: the protocol is serviced after its next
         message, as before). ``seq``: the frame's sequence number, for
         ``on_inbound``."""
+        times = self.recognised(k, compid, msgid, values)
+        if times is None:
+            return False
+        times[k] = now
+        if self.on_inbound is not None:
+            self.on_inbound(self.sysids[k], compid, seq, msgid)
+        return True
+
+    def recognised(
+        self, k: int, compid: int, msgid: int, values: tuple[int, ...]
+    ) -> list[float] | None:
+        """``unchanged``'s test, changing nothing: the column whose row ``k``
+        it would set to ``now`` (``heard_s`` or ``said_s``), or None when it
+        would return False."""
         seen = self._seen[k]
         if seen is None:
-            return False
+            return None
         if msgid == _HB_ID:
             last, times = seen.get(Heartbeat), self.heard_s
             values = values[:5]  # not mavlink_version, which Heartbeat does not hold
         else:
             last, times = seen.get(_STATUS_TYPE[msgid]), self.said_s
         if last != (compid, *values) or (self.attention and self.sysids[k] in self.attention):
-            return False
-        times[k] = now
-        if self.on_inbound is not None:
-            self.on_inbound(self.sysids[k], compid, seq, msgid)
-        return True
+            return None
+        return times
 
     def take_fresh(self, groups: Collection[int] | None = None) -> dict[int, int]:
         """The fresh rows as {sysid: time_boot_ms}, and none fresh after;

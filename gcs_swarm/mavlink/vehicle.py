@@ -217,6 +217,11 @@ class VehicleProtocol(_Startup, _Ending):
         self._rate_t0_ms, self._rate_n = ms, 0
         self.rate_window(rate)
 
+    def rate_window_queues(self, rate: float) -> bool:
+        """Whether ``rate_window(rate)`` would queue something (return True),
+        changing nothing: a low window, or the first good one after low ones."""
+        return self.rate_low or not rate >= RATE_LOW_FRACTION * self.config.control_rate_hz
+
     def rate_window(self, rate: float) -> bool:
         """A window of the telemetry-rate watch ended at ``rate`` [Hz]. A low
         window asks for the mission rate again; ``RATE_WARN_WINDOWS`` low ones

@@ -22,6 +22,10 @@ HEARTBEATs behind them wait past their timeouts (measured, 1000 vehicles
 on 2 cores, 2026-12-03: reports read 10-17 s after they were sent, no end
 mode confirmed in 10 s). Flying vehicles' reports all go into the table
 (cheap: newest wins there); nothing changes while the station keeps up.
+What it reads together from one bound peer (a network's shared endpoint)
+goes first to ``LinkState.receive_batch``, which takes at once the
+datagrams that hold only flying vehicles' reports and unchanged status
+(swarm/link_batch.py); the rest as above.
 """
 
 from __future__ import annotations
@@ -54,6 +58,7 @@ from gcs_swarm.swarm.link_state import (
 )
 
 __all__ = [
+    "BATCH_BYTES",
     "MESSAGE_QUEUE_SIZE",
     "READ_AHEAD",
     "REBIND_S",
@@ -79,6 +84,12 @@ READ_AHEAD = 64
 """Datagrams a UDP link takes from its socket at once at most (module
 docstring): 64 datagrams of a shared endpoint are about 1,800 reports, seven
 of each of 250 vehicles; the loop's other work waits no longer than that."""
+
+BATCH_BYTES = 400
+"""Datagrams of one peer of at least this many bytes together (ten
+LOCAL_POSITION_NED frames) are first offered whole to
+``LinkState.receive_batch`` (module docstring): its array work costs about
+as much as ten frames' decoding."""
 
 _RECONNECT_S = 1.0
 
@@ -304,7 +315,8 @@ class Link:
         ``superseded``; each datagram then goes to the state in order. All
         of them arrived when they were read: one time for the lot (the
         setpoints' latency counts the decoding of the datagrams before a
-        report's)."""
+        report's). Those of at least ``BATCH_BYTES`` together go first to
+        ``LinkState.receive_batch``, which takes as many as it can at once."""
         batch = [(data, addr)]
         ahead = self._ahead
         while ahead is not None and len(batch) < READ_AHEAD:
@@ -314,7 +326,17 @@ class Link:
                 break
         now = time.monotonic()  # one arrival time for what was read together
         state = self.state
-        if len(batch) == 1 or not state.knows(addr) or any(a != addr for _, a in batch):
+        if not state.knows(addr) or any(a != addr for _, a in batch):
+            for item, peer in batch:
+                self._on_bytes(item, peer, datagram=True, now=now)
+            return
+        if sum(len(item) for item, _ in batch) >= BATCH_BYTES:
+            taken = state.receive_batch([item for item, _ in batch], addr, now)
+            if taken:
+                if self._on_telemetry is not None:
+                    self._on_telemetry(self)
+                del batch[:taken]
+        if len(batch) <= 1:
             for item, peer in batch:
                 self._on_bytes(item, peer, datagram=True, now=now)
             return

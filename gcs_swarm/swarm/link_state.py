@@ -41,8 +41,8 @@ vehicle's liveness time moves); anything else comes out of ``receive`` as the
 message pymavlink's own decoder makes of the frame, in order. A vehicle's
 report or HEARTBEAT after another message of it in the same datagram comes
 out as a message too, so that what the protocol hears keeps the datagram's
-order (a HEARTBEAT may end its flight).
-
+order (a HEARTBEAT may end its flight). ``receive_batch`` (swarm/link_batch.py)
+takes many datagrams of one peer at once while they hold nothing else.
 Datagram joining: one control step's frames to one peer go out joined into
 datagrams of at most ``mavwire.MAX_DATAGRAM_BYTES``.
 """
@@ -63,6 +63,7 @@ from gcs_swarm.mavlink.builders import MAV_FRAME_LOCAL_NED, TYPE_MASK_ACCEL, TYP
 from gcs_swarm.mavlink.builders import MSG_ID_LOCAL_POSITION_NED as LPN_ID
 from gcs_swarm.mavlink.codec import Codec, MessageSpec, RawHeartbeat, RawPosition, RawStatus
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
+from gcs_swarm.swarm.link_batch import _LinkBatch
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 
 __all__ = ["MESSAGE_QUEUE_SIZE", "REBIND_S", "LinkState", "LinkStats", "Write"]
@@ -98,10 +99,11 @@ class LinkStats:
     signature_rejected: int = 0
     unencodable: int = 0
     reports_superseded: int = 0  # not flying, dropped unread: a newer one followed (receive)
+    frames_batched: int = 0  # of ``received``, taken many datagrams at once (receive_batch)
     peers: set[str] = field(default_factory=set)
 
 
-class LinkState:
+class LinkState(_LinkBatch):
     """The policy of one MAVLink link shared by any number of vehicles."""
 
     def __init__(
@@ -136,11 +138,9 @@ class LinkState:
         self._sysids = None if sysids is None else frozenset(s - base for s in sysids)
         self._allow_rebind = allow_rebind and signing_key is not None
         self._table = telemetry
-        self._rows: dict[int, int] = {}
+        slot = {} if telemetry is None or self._sysids is None else telemetry.slot
+        self._rows = {s: slot[s + base] for s in self._sysids or () if s + base in slot}
         """Table row of each system id this link serves."""
-        if telemetry is not None and self._sysids is not None:
-            slot = telemetry.slot
-            self._rows = {s: slot[s + base] for s in self._sysids if s + base in slot}
         self.positions_written = 0
         """Reports the last ``receive`` wrote into the table."""
         self._on_frame = on_frame
