@@ -161,6 +161,10 @@ _LPN_SIZE = 12 + LPN_PAYLOAD.itemsize
 """A whole (untrimmed) unsigned LOCAL_POSITION_NED frame [bytes]: 40."""
 _LPN_FRAME = np.dtype([("head", "u1", (10,)), ("payload", LPN_PAYLOAD), ("crc", "<u2")])
 _AT = np.arange(_LPN_SIZE, dtype=np.intp)
+_CHECKED = np.array([0, 2, 8, 9], dtype=np.intp)
+_UNSIGNED = np.array([0xFD, 0, 0, 0], dtype=np.uint8)
+"""``Codec.decode``'s test of a frame's header bytes 0, 2, 8 and 9: the
+MAVLink 2 magic, no incompatibility flag (unsigned), an id of one byte."""
 
 
 class FrameBatch(NamedTuple):
@@ -212,7 +216,7 @@ def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
     u = np.frombuffer(blob, dtype=np.uint8)
     at = np.array(starts, dtype=np.intp)
     head = u[at[:, None] + _AT[:10]]
-    ok = (head[:, 0] == 0xFD) & (head[:, 2] == 0) & (head[:, 8] == 0) & (head[:, 9] == 0)
+    ok = (head[:, _CHECKED] == _UNSIGNED).all(axis=1)
     is_whole = ok & (head[:, 7] == _LPN_ID0) & (head[:, 1] == LPN_PAYLOAD.itemsize)
     ends = (at + 12 + head[:, 1]).tolist()
     bad = len(starts)  # the first frame that cannot go

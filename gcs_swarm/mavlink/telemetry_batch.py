@@ -27,6 +27,10 @@ REBOOT_MS = 10_000
 """Telemetry older than the last by more than this is a reboot, not a reorder."""
 
 
+_LIMITS = np.array([POSITION_LIMIT_M] * 3 + [SPEED_LIMIT_MPS] * 3)
+"""``inbound.plausible``'s bounds of x, y, z [m] and vx, vy, vz [m/s]."""
+
+
 class _TableBatch:
     """``TelemetryTable``'s ``write_many``, over the columns it declares
     (the table's, made in its ``__init__``)."""
@@ -88,9 +92,7 @@ class _TableBatch:
             return False
         # inbound.plausible, column-wise: the float32s as doubles (the scalar
         # path's floats), so NaN and inf fail as the chained comparisons do.
-        ned = payload["ned"].astype(np.float64)
-        if not ((np.abs(ned[:, :3]) <= POSITION_LIMIT_M).all()
-                and (np.abs(ned[:, 3:]) <= SPEED_LIMIT_MPS).all()):  # fmt: skip
+        if not (np.abs(payload["ned"].astype(np.float64)) <= _LIMITS).all():
             return False
         if quiet:
             slot = dict(zip(ks, ms, strict=True))

@@ -54,8 +54,9 @@ class _LinkBatch:
         the frames' order) as ``receive`` of each; ``positions_written`` the
         reports. Returns how many datagrams were taken (the caller calls
         ``receive`` for the rest). For a link that reads many vehicles'
-        datagrams at a time from one peer (a network's shared endpoint:
-        about ten frames for a microsecond of array work)."""
+        datagrams at a time from one peer (a network's shared endpoint);
+        its array work costs about what 30 frames one by one do
+        (``runtime.links.BATCH_BYTES``)."""
         self.positions_written = 0
         table, codec = self._table, self._codecs.get(peer)
         if table is None or codec is None or codec.signing_key is not None:
