@@ -101,7 +101,7 @@ class _TableBatch:
                 if m is not None and t0 is not None and m - t0 >= RATE_WINDOW_MS:  # m >= t0
                     vp = owners[k]
                     assert vp is not None
-                    if vp.rate_window_queues((self._rate_n[k] + 1) / ((m - t0) * 1e-3)):
+                    if vp.rate_window_queues(self._window_rate(k, m, t0)):
                         return False
         # write's rule: at a row whose last report is still pending, every
         # pending one is observed first (those written before it included).
@@ -111,15 +111,33 @@ class _TableBatch:
             self._put(ks[first:], ms[first:], compids[first:], payload[first:], now, rx_s)
         return True
 
+    def _window_rate(self, k: int, m: int, t0: int) -> float:
+        """Row ``k``'s telemetry rate [Hz] over its rate window from ``t0`` to
+        the report at ``m`` [ms of vehicle time], that report counted."""
+        return (self._rate_n[k] + 1) / ((m - t0) * 1e-3)
+
+    def _end_window(self, k: int, m: int, t0: int) -> None:
+        """Row ``k``'s rate window (from ``t0``) ends at its report at ``m``
+        [ms]: the next starts there, and the protocol judges the rate
+        (``VehicleProtocol.rate_window``); one that queued something waits in
+        ``attention`` for its owner. ``write`` and ``write_many`` both end
+        windows here."""
+        rate = self._window_rate(k, m, t0)
+        self._rate_t0[k], self._rate_n[k] = m, 0
+        vp = self.owners[k]
+        assert vp is not None
+        if vp.rate_window(rate):
+            self.attention.append(vp.sysid)
+
     def _put(self, ks: Sequence[int], ms: list[int], compids: Sequence[int],
              payload: npt.NDArray[Any], now: float, rx_s: float) -> None:  # fmt: skip
         """``write_many``'s writes (its checks passed), none of rows ``ks``
-        pending: ``write``'s, its rate window and fresh flag written out
-        again for many rows (tests/swarm/test_receive_batch.py holds the
+        pending: ``write``'s, its rate window's count and fresh flag written
+        out again for many rows (tests/swarm/test_receive_batch.py holds the
         two to the same state)."""
         if not ks:
             return
-        owners, pend, last_ms = self.owners, self._pend, self._ms
+        pend, last_ms = self._pend, self._ms
         self.rows[ks] = payload
         self.arrival_s[ks] = rx_s
         self._pending.extend(ks)
@@ -137,12 +155,7 @@ class _TableBatch:
             elif m - t0 < RATE_WINDOW_MS:
                 rate_n[k] += 1
             else:
-                count = rate_n[k] + 1
-                rate_t0[k], rate_n[k] = m, 0
-                vp = owners[k]
-                assert vp is not None
-                if vp.rate_window(count / ((m - t0) * 1e-3)):
-                    self.attention.append(vp.sysid)
+                self._end_window(k, m, t0)
             if not fresh[k]:
                 fresh[k] = True
                 self._fresh_rows.append(k)

@@ -347,10 +347,7 @@ class TelemetryTable(_TableBatch):
         elif ms - t0 < RATE_WINDOW_MS:
             self._rate_n[k] += 1
         else:
-            count = self._rate_n[k] + 1
-            rate_t0[k], self._rate_n[k] = ms, 0
-            if vp.rate_window(count / ((ms - t0) * 1e-3)):
-                self.attention.append(vp.sysid)
+            self._end_window(k, ms, t0)
         if self._incomplete and k in self._incomplete and not math.isnan(self.offset_m[k, 0]):
             self._incomplete.discard(k)  # the first report of a row attached without one
         fresh = self.fresh

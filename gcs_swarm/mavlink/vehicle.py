@@ -225,7 +225,9 @@ class VehicleProtocol(_Startup, _Ending):
     def rate_window(self, rate: float) -> bool:
         """A window of the telemetry-rate watch ended at ``rate`` [Hz]. A low
         window asks for the mission rate again; ``RATE_WARN_WINDOWS`` low ones
-        in a row raise one warning. True if something was queued."""
+        in a row raise one warning. True if something was queued
+        (``rate_window_queues``, asked before)."""
+        queues = self.rate_window_queues(rate)
         self.telemetry_rate_hz = rate
         self.telemetry_rate_min_hz = min(self.telemetry_rate_min_hz, rate)
         want = self.config.control_rate_hz
@@ -235,7 +237,7 @@ class VehicleProtocol(_Startup, _Ending):
                 self._event("info", f"vehicle {self.label}: LOCAL_POSITION_NED back at "
                                     f"{rate:.1f} Hz")  # fmt: skip
             self.rate_low, self._rate_lows = False, 0
-            return was_low
+            return queues
         self._rate_lows += 1
         self.rate_requests += 1
         # Not awaited: asked again every low window (MAVProxy, for one, lowers
@@ -251,7 +253,7 @@ class VehicleProtocol(_Startup, _Ending):
                 f"rate {want:g} Hz for {self._rate_lows * RATE_WINDOW_MS / 1000:g} s; interval "
                 "asked again (a router lowering the stream rate?)",
             )
-        return True
+        return queues
 
     def handle_timer(self, now: float) -> None:
         """Do whatever is due at ``now``: resends, retries, stale checks."""

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from gcs_swarm.mavlink.builders import MAV_CMD_SET_MESSAGE_INTERVAL
 from gcs_swarm.mavlink.inbound import LocalPositionNed
 from gcs_swarm.mavlink.raw_frames import frame_batch
 from gcs_swarm.mavlink.states import Phase
@@ -260,6 +261,11 @@ def test_a_batch_leaves_what_receive_of_each_datagram_leaves(seed: int) -> None:
     stats = many.link.stats
     assert 0.1 < stats.frames_batched / stats.received < 0.9 and one.link.stats.frames_batched == 0
     assert one.core.vehicles[one.base + 2].rate_requests > 0  # a low window queued its request
+    # ... which the core took out at once (the window's answer asked for it), on both paths.
+    for w in (one, many):
+        asked = [s for _, spec, s in w.core.outbound
+                 if spec.fields.get("command") == MAV_CMD_SET_MESSAGE_INTERVAL]  # fmt: skip
+        assert w.base + 2 in asked and w.base + 3 in asked
     assert one.link.stats.bad_packets > 0
     assert sum(vp.stale_telemetry + vp.rejected_values for vp in one.core.vehicles.values()) > 50
 
