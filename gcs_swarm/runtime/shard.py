@@ -263,6 +263,8 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                     await _until(start.wait(), ended)
                     if start.is_set() and not ended.is_set():
                         station.begin()
+                        opening = encode_state(side.opening(station.now()))
+                        bus.put(f"{up}/state", opening, droppable=False)
                         station.release()
                         side.heard(station.now())
                         await ended.wait()

@@ -8,10 +8,10 @@ listens for shards on a Zenoh endpoint (``runtime.zbus``; by default
 (``gcs-swarm shard --connect ENDPOINT``; with ``spawn=False`` it waits for
 shards started elsewhere), gives each whole networks, waits until every
 shard has readied its vehicles, starts the formation and runs the law
-(``swarm.controller.ControllerCore``) on their state batches until the
-mission's duration; then it sends every shard the end action and gathers
-their reports into one ``RunSummary``. It always ends the shards, also
-when cancelled (Ctrl-C) or when the start-up fails.
+(``swarm.controller.ControllerCore``: with ``step: network`` a step per
+state batch) until the mission's duration; then it sends every shard the
+end action and gathers their reports into one ``RunSummary``. It always
+ends the shards, also when cancelled (Ctrl-C) or when start-up fails.
 
 With a run folder each shard logs its networks' frames, the controller its
 notes (``controller.tlog``) and, at the end, the summary, the picture and
@@ -24,8 +24,8 @@ With the operator view each shard sends its vehicles' half of a frame
 Join/leave events and reserves are each run by the shard owning the
 vehicle (``swarm.shard``); ``check_shards`` refuses the events a shard
 cannot run as one station would (a rejoin after a leave, a join while
-nobody of its shard flies). Not (yet) in a sharded run: TIMESYNC delay
-compensation across the split (each shard predicts its own reports).
+nobody of its shard flies). Not (yet) sharded: TIMESYNC delay compensation
+(each shard predicts its own reports).
 """
 
 from __future__ import annotations
@@ -316,8 +316,7 @@ class ShardedRun:
         if self.exited() and not self.failed:
             raise StartupError(f"shard process exited during start-up: {self.exited()}")
         if self.failed:
-            raise StartupError("; ".join(f"shard {i}: {t}" for i, t in
-                                         sorted(self.failed.items())))  # fmt: skip
+            raise StartupError("; ".join(f"shard {i}: {t}" for i, t in sorted(self.failed.items())))
         env = Envelope()
         for msg in self.ready.values():
             env = env.tighter(Envelope(**msg["envelope"]))
@@ -400,7 +399,8 @@ async def run_sharded(
     core = ControllerCore(mission.law, {v.key: v.q for v in vs}, s.rate, shards=shards,
                           duration_s=s.duration, stale_timeout_s=s.stale_timeout,
                           lockstep=lockstep, recorder=log.recorder, departures=departures,
-                          labels={v.key: mission.label(v.key) for v in vs})  # fmt: skip
+                          labels={v.key: mission.label(v.key) for v in vs},
+                          step_per_network=s.step == "network")  # fmt: skip
     outcome = "cancelled"
     emulators: dict[int, Emulator] = {}
     summary: RunSummary | None = None

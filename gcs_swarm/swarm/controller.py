@@ -18,6 +18,16 @@ and ``heard(shard, now)`` as messages arrive, ``handle_timer(now)`` at
   table row does), the mission clock advances on the union of the fresh
   reports (``ControlLoop.advance_clock``), and each shard is answered for
   its fresh vehicles only;
+- with ``step_per_network`` (the mission's ``step: network``) a state batch
+  is stepped as it comes, once every live shard with flying vehicles has
+  delivered one (the law never flies without a shard's vehicles): each
+  shard's core already delivers one per network whose reports are all in
+  (``SwarmCore.take_step``); the law commands only that batch's fresh
+  vehicles against every other shard's latest states
+  (``ControlLoop.command``'s rows: formation-law.md section 3b, as one
+  station's step of a network) and only that shard is answered, so no
+  shard waits for another's phase (a shard's own fallback sends what it
+  has when one of its vehicles is late);
 - a shard silent (no state batch, no heartbeat) for ``stale_timeout_s`` is
   dead: its vehicles leave the formation (the law gets the rest, which
   re-form: formation-law.md s9) and are never waited for again; each is
@@ -94,6 +104,7 @@ class ControllerCore:
         recorder: FlightRecorder | None = None,
         departures: Mapping[int, tuple[float, bool]] | None = None,
         labels: Mapping[int, str] | None = None,
+        step_per_network: bool = False,
     ) -> None:
         """``recorder`` (a run with a folder) gets every step of the law and
         every vehicle that comes into or goes out of it, as one station's
@@ -101,7 +112,8 @@ class ControllerCore:
         ``departures``: Eq. K1's (coast [s], climbs) per vehicle key
         (``departures.departure_terms``), for the columns of a dead shard's
         vehicles; a key not named coasts ``ProtocolConfig.guid_timeout_s``.
-        ``labels``: how the log names each key (``blue:7``; default the key)."""
+        ``labels``: how the log names each key (``blue:7``; default the key).
+        ``step_per_network``: a step per state batch (module docstring)."""
         self.departures = dict(departures or {})
         self.labels = dict(labels or {})
         # The plane look-ahead as one station runs it: in real time off the step
@@ -114,6 +126,7 @@ class ControllerCore:
         self.duration_s = duration_s
         self.stale_timeout_s = stale_timeout_s
         self.lockstep = lockstep
+        self.step_per_network = step_per_network
         self.recorder = recorder
         self.shards = {i: ShardView(i) for i in range(shards)}
         self.started = False
@@ -154,16 +167,20 @@ class ControllerCore:
             self._maybe_step(now)
 
     def receive_state(self, batch: StateBatch, now: float) -> None:
-        """A shard's state batch (a dead shard's is ignored: it stays out)."""
+        """A shard's state batch (a dead shard's is ignored: it stays out).
+        One without a fresh report (``ShardSide.opening``) only gives its
+        vehicles' states: nothing to answer, no step."""
         view = self.shards.get(batch.shard)
         if view is None or not view.alive:
             return
         view.heard_at = now
         view.batch = batch
         view.flying = len(batch.keys)
-        view.fresh.update(batch.fresh())
-        view.delivered = True
-        self._maybe_step(now)
+        fresh = batch.fresh()
+        if fresh:
+            view.fresh.update(fresh)
+            view.delivered = True
+            self._maybe_step(now)
 
     # ------------------------------------------------------------- timers
     def start(self, now: float, flying: Mapping[int, int]) -> None:
@@ -272,6 +289,8 @@ class ControllerCore:
             return
         if all(v.delivered or v.flying == 0 for v in live):
             self.step_wanted = True
+        elif self.step_per_network and all(v.batch is not None or v.flying == 0 for v in live):
+            self.step_wanted = True  # a step per batch, once every shard's states are in
         elif self._fallback_at is None:
             # Longer than a shard's own fallback (SwarmCore._maybe_step: 0.2 s in
             # lockstep, half a period in real time), so that a shard missing a
@@ -289,8 +308,9 @@ class ControllerCore:
         return inforce
 
     def control_step(self, now: float) -> list[SetpointReply]:
-        """One step of the law over every live shard's flying vehicles; the
-        replies to the shards that delivered (empty while finished)."""
+        """One step of the law over every live shard's flying vehicles (with
+        ``step_per_network``, commanding the fresh ones); the replies to the
+        shards that delivered (empty while finished)."""
         self.step_wanted = False
         self._fallback_at = None
         if self.finished:
@@ -312,7 +332,14 @@ class ControllerCore:
         t = self.control.advance_clock(fresh)
         replies: list[SetpointReply] = []
         if ids:
-            commanded = command(self, ids, pos, vel, t, fresh.keys())
+            row = {s: i for i, s in enumerate(ids)}
+            rows = None  # every vehicle commanded
+            if self.step_per_network:  # the fresh ones only, when not every one
+                some = np.array(sorted(row[s] for s in fresh if s in row), dtype=np.int64)
+                if len(some) < len(ids):
+                    rows = some
+                    row = {ids[i]: j for j, i in enumerate(some.tolist())}  # key -> accel row
+            commanded = command(self, ids, pos, vel, t, fresh.keys(), rows)
             if commanded is None:
                 return []
             out, accel, report = commanded
@@ -320,7 +347,6 @@ class ControllerCore:
             job = self.control.pending_lookahead()
             if job is not None:
                 self.lookahead.append(job)
-            row = {s: i for i, s in enumerate(ids)}
             for v in live:
                 if not v.delivered:
                     continue

@@ -34,6 +34,7 @@ end action), as a vehicle's own GCS failsafe would once the shard stopped.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -71,8 +72,10 @@ class ShardSide:
         """When the controller was last heard (None: not yet)."""
         self.replies = 0
         self.states = 0
-        self._vel: dict[int, FloatArray] = {}
-        """The velocity [m/s] each vehicle's last state carried: Eq. V1 starts there."""
+        self._unanswered: deque[tuple[int, StateBatch]] = deque()
+        """(fresh reports, batch) of the state batches sent after the last one
+        answered: a reply answers its batch's vehicles from the velocities
+        that batch carried (Eq. V1 starts there)."""
 
     def take_state(self, now: float) -> StateBatch | None:
         """The step the core wants, as the controller's input: None while
@@ -84,14 +87,27 @@ class ShardSide:
         # The step's mission time on the shard's own clock, and its events: a
         # vehicle leaving or joining now is out of, or in, this batch.
         core.advance_clock_and_events(fresh, now)
+        batch = self._batch(now, fresh)
+        self.states += 1
+        self._unanswered.append((len(fresh), batch))
+        return batch
+
+    def opening(self, now: float) -> StateBatch:
+        """The flying vehicles' states as the formation starts, none of them a
+        fresh report (nothing to answer): sent before the first step, so the
+        controller knows every shard's vehicles from its first step on (with
+        ``step: network`` it steps the first network's batch at once, with
+        the others' states: ``swarm.controller``)."""
+        return self._batch(now, {})
+
+    def _batch(self, now: float, fresh: dict[int, int]) -> StateBatch:
+        core = self.core
         ids = sorted(core.flying)
         if ids:
             _, pos, vel = flying_states(core, ids, now)
         else:
             pos, vel = np.zeros((0, 3)), np.zeros((0, 3))
-        self._vel = {s: vel[i] for i, s in enumerate(ids)}
         self.seq += 1
-        self.states += 1
         return StateBatch(
             self.index,
             self.seq,
@@ -105,25 +121,39 @@ class ShardSide:
         """The controller's setpoints for this shard, handed to ``write`` link
         by link; a vehicle that left the formation since is skipped."""
         self.heard(now)
+        batch = None
+        waiting = self._unanswered
+        while waiting and waiting[0][1].seq <= reply.seq:  # answered, or its reply lost
+            _, older = waiting.popleft()
+            if older.seq == reply.seq:
+                batch = older
         core = self.core
-        if core.ending or not len(reply.keys):
+        if core.ending or not len(reply.keys) or batch is None or not len(batch.keys):
             return
         self.replies += 1
         # The mission time the shard's notes give until its next step. Its own
         # clock (advance_clock's offsets and milliseconds) is not touched: the
         # events run on that, as in one process (module docstring).
         core.control.t_s = reply.t_s
-        flying, vel = core.flying, self._vel
-        keys = reply.keys.tolist()
-        rows = [i for i, s in enumerate(keys) if s in flying and s in vel]
+        # Each key's row in its batch (sorted keys); one that left since is skipped.
+        at = np.minimum(np.searchsorted(batch.keys, reply.keys), len(batch.keys) - 1)
+        there = (batch.keys[at] == reply.keys).tolist()
+        flying, keys = core.flying, reply.keys.tolist()
+        rows = [i for i, s in enumerate(keys) if there[i] and s in flying]
         if not rows:
             return
         ids = [keys[i] for i in rows]
         whole = len(rows) == len(keys)
         accel = reply.accel_mps2 if whole else reply.accel_mps2[rows]
-        ks = core.table.slots(ids)
-        v = np.array([vel[s] for s in ids], dtype=np.float64).reshape(len(ids), 3)
-        answer(core, ids, ks, accel, now, reply.t_s, v, write)
+        vel = batch.vel_mps[at if whole else at[rows]]
+        answer(core, ids, core.table.slots(ids), accel, now, reply.t_s, vel, write)
+
+    def in_flight(self) -> int:
+        """Fresh reports in the state batches sent after the last one the
+        controller answered: their setpoints on their way (at the mission's
+        end, never sent). A batch whose reply was lost is not counted once a
+        later one is answered."""
+        return sum(n for n, _ in self._unanswered)
 
     def leader_at(
         self,

@@ -382,9 +382,13 @@ def test_two_networks_with_the_same_ids_fly_one_tetrahedron_on_two_shards(tmp_pa
             v["final_radius_m"], abs=1e-3), label  # fmt: skip
 
 
-def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(tmp_path: Path) -> None:
+@pytest.mark.parametrize("shards", [None, 2], ids=["one process", "two shards"])
+def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(
+    tmp_path: Path, shards: int | None
+) -> None:
     """The same four instances and mission with ``mission.step: network``, one
-    station process: each network is stepped when its two instances'
+    station process, or ``--shards 2`` (the controller steps each shard's
+    batch as it comes): each network is stepped when its two instances'
     reports are in (their phases are their own), the other network's at
     their latest. It completes, every radius's mean over the last 20 s is
     within 1 % of the law's equilibrium, the separation never falls below
@@ -403,7 +407,8 @@ def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(tmp_pa
     assert mission.settings.step == "network"
     r_eq = _equilibrium_radius(mission)
     with sitl_swarm(2, tmp_path / "blue"), sitl_swarm(2, tmp_path / "red", first=2):
-        rc, out, folder = gcs_swarm_run(path, tmp_path / "runs", timeout_s=900)
+        extra = () if shards is None else ("--shards", str(shards))
+        rc, out, folder = gcs_swarm_run(path, tmp_path / "runs", timeout_s=900, extra=extra)
     assert rc == 0, out[-4000:]
     assert folder is not None
     s = summary_of(folder)
@@ -418,7 +423,8 @@ def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(tmp_pa
         "setpoint_rate_hz_min": o["setpoints"]["rate_hz_min"],
         "largest_gap_s": o["setpoints"]["largest_gap_s"], "folder": str(folder),
     }  # fmt: skip
-    write_figures(tmp_path, "sitl_two_networks_step_per_network", figures)
+    name = "sitl_two_networks_step_per_network" + ("" if shards is None else "_two_shards")
+    write_figures(tmp_path, name, figures)
     assert s["outcome"] == "completed"
     np.testing.assert_allclose(window["radii_last_20s_mean_m"], r_eq, rtol=0.01)
     assert o["min_separation_m"] >= mission.law.safety.separation

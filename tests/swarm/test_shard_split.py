@@ -8,10 +8,9 @@ The processes over Zenoh are tests/station/test_shards.py."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 import pytest
+from shard_harness import Split
 from swarm_harness import Sky, mission_from
 
 from gcs_swarm.control.params import LawConfig
@@ -49,9 +48,10 @@ vehicles:
     return parse_mission(text).law
 
 
-def _controller(lockstep: bool = True) -> ControllerCore:
+def _controller(lockstep: bool = True, step_per_network: bool = False) -> ControllerCore:
     core = ControllerCore(_law(), {1: 1.0, 2: 1.0, 257: 1.0, 258: 1.0}, 50.0, shards=2,
-                          duration_s=10.0, stale_timeout_s=STALE_S, lockstep=lockstep)  # fmt: skip
+                          duration_s=10.0, stale_timeout_s=STALE_S, lockstep=lockstep,
+                          step_per_network=step_per_network)  # fmt: skip
     core.start(0.0, {0: 2, 1: 2})
     return core
 
@@ -59,8 +59,10 @@ def _controller(lockstep: bool = True) -> ControllerCore:
 _POS = {1: (2.0, 1.0, 2.0), 2: (-1.0, -1.0, -1.0), 257: (3.0, 4.0, 2.0), 258: (4.0, 2.0, 2.0)}
 
 
-def _state(shard: int, seq: int, keys: list[int], ms: int, fresh: bool = True) -> StateBatch:
-    pos = np.array([_POS[k] for k in keys], dtype=np.float64).reshape(len(keys), 3)
+def _state(
+    shard: int, seq: int, keys: list[int], ms: int, fresh: bool = True, shift: float = 0.0
+) -> StateBatch:
+    pos = np.array([_POS[k] for k in keys], dtype=np.float64).reshape(len(keys), 3) + shift
     return StateBatch(shard, seq, np.array(keys, dtype=np.int32),
                       np.full(len(keys), ms if fresh else -1, dtype=np.int64),
                       pos, np.zeros((len(keys), 3)))  # fmt: skip
@@ -138,6 +140,43 @@ def test_the_fallback_steps_without_a_late_shard_and_answers_only_the_fresh() ->
     # The law flew all four (shard 1 with its last states); shard 0 is answered.
     assert core.flying == [1, 2, 257, 258]
     assert [(r.shard, r.keys.tolist()) for r in replies] == [(0, [1, 2])]
+
+
+def test_each_shard_s_batch_is_stepped_as_it_comes_and_only_that_shard_answered() -> None:
+    """``step: network`` (tests/swarm/test_shard_step_per_network.py flies it
+    whole): a batch makes a step at once, commanding its vehicles only."""
+    per, whole = _controller(False, True), _controller(False)
+    # The first period: both shards' batches before either controller steps.
+    for core in (per, whole):
+        core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
+        core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+        core.control_step(0.0)
+    # The next: shard 0's vehicles moved, shard 1's did not (so the step of
+    # shard 0 alone sees shard 1's states as the whole step does).
+    s0, s1 = _state(0, 2, [1, 2], 1020, shift=0.01), _state(1, 2, [257, 258], 5020)
+    whole.receive_state(s0, 0.02)
+    assert not whole.step_wanted  # it waits for shard 1 (or a period)
+    assert whole.get_timer() == pytest.approx(0.04)
+    per.receive_state(s0, 0.02)
+    assert per.step_wanted  # at once, without a fallback to wait for
+    assert per.get_timer() == pytest.approx(1.0)  # only shard 1's stale timeout (heard at 0)
+    (r0,) = per.control_step(0.02)
+    assert (r0.shard, r0.seq, r0.keys.tolist()) == (0, 2, [1, 2])
+    assert per.flying == [1, 2, 257, 258]  # the law flew all four, shard 1 at its last
+    per.receive_state(s1, 0.03)
+    assert per.step_wanted
+    (r1,) = per.control_step(0.03)
+    assert (r1.shard, r1.seq, r1.keys.tolist()) == (1, 2, [257, 258])
+    assert r0.t_s == r1.t_s == pytest.approx(0.02)  # each on its own reports' time
+    whole.receive_state(s1, 0.03)
+    w0, w1 = whole.control_step(0.03)
+    # The same law: each vehicle's command as the whole step gives it. Four
+    # vehicles are below the rows' own law (formation_rows.SMALL_N), so the
+    # rows are taken from the whole computation: equal to rounding (1e-12).
+    np.testing.assert_allclose(r0.accel_mps2, w0.accel_mps2, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(r1.accel_mps2, w1.accel_mps2, rtol=1e-12, atol=1e-12)
+    assert per.control.steps == 3 and whole.control.steps == 2
+    assert per.fallbacks == whole.fallbacks == 0
 
 
 def test_a_silent_shard_is_dead_after_the_stale_timeout_and_its_vehicles_leave() -> None:
@@ -374,51 +413,13 @@ def test_the_split_runs_each_shard_s_events_at_the_station_s_steps() -> None:
     one.start()
     one.run_until(lambda: one.core.finished, 30.0)
 
-    skies = [Sky(mission, keys=keys) for keys in (BLUE, RED)]
-    s = mission.settings
-    sides = [ShardSide(sky.core, i, s.stale_timeout) for i, sky in enumerate(skies)]
-    ctl = ControllerCore(mission.law, {v.key: v.q for v in mission.vehicles}, s.rate, shards=2,
-                         duration_s=s.duration, stale_timeout_s=s.stale_timeout,
-                         lockstep=False)  # fmt: skip
-    split_steps: list[tuple[float, tuple[int, ...]]] = []
-
-    def shard_step(i: int) -> Callable[[float, Write], None]:
-        def step(now: float, write: Write) -> None:
-            batch = sides[i].take_state(now)
-            if batch is None:
-                return
-            ctl.receive_state(decode_state(encode_state(batch)), now)
-            if not ctl.step_wanted:
-                return
-            for reply in ctl.control_step(now):
-                j = reply.shard
-                sides[j].apply(decode_reply(encode_reply(reply)), now, skies[j]._write)
-            if ctl.control.last is not None and ctl.control.steps > len(split_steps):
-                split_steps.append((ctl.control.last.t_s, ctl.control.last.ids))
-            if ctl.finished:
-                for sky in skies:
-                    sky.core.finished = True
-
-        return step
-
-    def together(done: Callable[[], bool]) -> None:
-        """Both shards' skies a physics step at a time on one clock."""
-        while not done():
-            assert skies[0].now < 30.0, [sky.phases() for sky in skies]
-            for sky in skies:
-                sky.advance(sky.dt)
-            assert skies[0].now == skies[1].now
-
-    for i, sky in enumerate(skies):
-        sky.control_step = shard_step(i)
-    together(lambda: all(p is Phase.READY for sky in skies for p in sky.phases().values()))
-    assert skies[0].now == ready_at  # readied (the reserve took off) in the same time
-    envelope = skies[0].core.apply_envelope().tighter(skies[1].core.apply_envelope())
-    ctl.set_envelope(envelope)
-    for sky in skies:
-        sky.start()
-    ctl.start(skies[0].now, {i: len(sky.core.flying) for i, sky in enumerate(skies)})
-    together(lambda: ctl.finished)
+    split = Split(mission, [BLUE, RED])
+    skies, ctl = split.skies, split.ctl
+    split.ready()
+    assert split.now == ready_at  # readied (the reserve took off) in the same time
+    split.start()
+    split.together(lambda: ctl.finished)
+    split_steps = [(t, ids) for t, ids, _ in split.steps]
 
     # Each shard's core held only its own vehicles' events.
     assert [sky.core.config.events for sky in skies] == [((LEAVE_T_S, "leave", 2),),
