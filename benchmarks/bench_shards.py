@@ -12,22 +12,27 @@ bench_station's child process (pinned to core 0, one emulator per network
 on a shared port each, real time), flown by ``run_sharded`` with
 each of ``--shards 1,2,4`` link shard processes (the controller in this
 process; shards and controller not pinned) for ``--seconds`` of formation
-at ``--rate`` Hz. Reported per shard count: controller steps per second,
-steps taken on the fallback (a shard late), setpoints per vehicle per
-second (the rate when every report is answered), and the shards' setpoint
-latency (telemetry arrival to setpoint write, measured in each shard over
-the last 16384 setpoints of each link, the end of the flight: p50 the
-median of the shards', p99 and max the largest). Each network's emulator
+at ``--rate`` Hz. Reported per shard count: controller steps per second
+and those taken on the fallback (a shard late), then what each shard
+measured over the formation's last 10 s (``runtime.shard.FlightEnd``: the
+default 12 s of formation less its first 2): setpoints per vehicle per
+second (the rate when every report is answered), the setpoint latency
+(telemetry arrival to setpoint write: p50 the median of the shards', p99
+and max the largest), the setpoints and the missed vehicle-cycles (reports
+taken less setpoints written, bench_station's count), summed. Each network's emulator
 keeps its own clock, so their reports arrive at different phases of the
-period; a step waits for every network's (or half a period), so the
-latency includes that wait and there can be more steps than the rate
-(each vehicle still answered once per report), as with unsynchronised
-real vehicles. "in shm": the share of the samples the controller received
+period, as with unsynchronised real vehicles; with ``--step swarm`` a step
+waits for every network's (or a period), so the latency includes that
+wait; with ``--step network`` (as bench_station's) the controller steps
+each shard's batch as it comes, a step per network and period. The
+mission options ``--cutoff``, ``--settle``, ``--spread``, ``--phases`` are
+bench_station's. "in shm": the share of the samples the controller received
 (state batches, beats, reports) that came in Zenoh's shared memory; a
 shard's batch does from 51 vehicles on (``gcs_swarm.runtime.zbus``).
 ``--no-shm`` turns shared memory off for comparison.
 
-    .venv/bin/python benchmarks/bench_shards.py --realtime 500 --networks 4 --shards 1,2,4
+    .venv/bin/python benchmarks/bench_shards.py --realtime 500 --networks 4 --shards 1,2,4 \
+        --step network
 
 Not part of the tests; wall-clock figures move with the machine's load.
 """
@@ -51,6 +56,7 @@ import bench_station
 
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
+from gcs_swarm.runtime.shard import WINDOW_S
 from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 
 _STARTS = ["[2, 1, 2]", "[-1, -1, -1]", "[3, 4, 2]", "[4, 2, 2]", "[3, 3, 3]", "[-2, -2, -2]"]
@@ -82,21 +88,38 @@ async def _sharded(mission: Mission) -> tuple[float, RunSummary, ShardedRun]:
 
 
 def _rt_mission(n: int, nets: int, rate: float, duration: float) -> Mission:
-    """N vehicles on bench_station's 3 m grid as ``nets`` networks of N/nets."""
+    """N vehicles on bench_station's 3 m grid (or its settled sphere, ``--cutoff``)
+    as ``nets`` networks of N/nets."""
     bench_station.RATE_HZ, bench_station.GROUP = rate, math.ceil(n / nets)
     return parse_mission(bench_station.mission_yaml(n, networks=True, duration=duration))
 
 
+def _station_options(args: argparse.Namespace) -> list[str]:
+    """bench_station's mission and phase options, set here and for its emulator child."""
+    st = bench_station
+    st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
+    st.SPREAD, st.PHASES = args.spread, args.phases
+    child = ["--step", args.step] + (["--spread"] if args.spread else [])
+    child += ["--phases", str(args.phases)] if args.phases is not None else []
+    if args.cutoff is not None:
+        child += ["--cutoff", repr(args.cutoff), "--settle", repr(args.settle)]
+    return child
+
+
 async def _realtime(
-    n: int, nets: int, shards: int, rate: float, seconds: float, shm: bool = True
-) -> dict[str, float]:
+    n: int, nets: int, shards: int, rate: float, seconds: float, shm: bool = True,
+    options: tuple[str, ...] = (),
+) -> dict[str, float]:  # fmt: skip
     import logging
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     per = math.ceil(n / nets)
+    if bench_station.CUTOFF is not None:  # the settled start cached before the child reads it
+        _rt_mission(n, nets, rate, seconds)
     child = await asyncio.create_subprocess_exec(
         sys.executable, bench_station.__file__, "--emulator", str(n), "--networks",
-        "--group", str(per), "--rate", f"{rate:g}", stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        "--group", str(per), "--rate", f"{rate:g}", *options,
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert child.stdout is not None and child.stdin is not None
     try:
@@ -111,34 +134,39 @@ async def _realtime(
         await child.wait()
     run = runs[0]
     flight = (run.flight_s[1] - run.flight_s[0]) if run.flight_s is not None else math.nan
-    lat = [d.get("latency_ms", {}) for d in run.done.values()]
+    ends = [d["flight_end"] for d in run.done.values()]
+    nan = math.nan
     return {
         "outcome_ok": float(summary.outcome == "completed"),
         "steps_per_s": summary.steps / flight,
-        "answers_hz": sum(x.get("count", 0.0) for x in lat) / n / flight,
+        "answers_hz": sum(e["setpoints"] or nan for e in ends) / n / WINDOW_S,
         "fallbacks": float(run.core.fallbacks),
-        "p50_ms": statistics.median(x.get("p50", math.nan) for x in lat) if lat else math.nan,
-        "p99_ms": max((x.get("p99", math.nan) for x in lat), default=math.nan),
-        "max_ms": max((x.get("max", math.nan) for x in lat), default=math.nan),
-        "setpoints": sum(x.get("count", 0.0) for x in lat),
+        "p50_ms": statistics.median(e["p50_ms"] for e in ends) if ends else nan,
+        "p99_ms": max((e["p99_ms"] for e in ends), default=nan),
+        "max_ms": max((e["max_ms"] for e in ends), default=nan),
+        "setpoints": sum(e["setpoints"] or nan for e in ends),
+        "missed": sum(e["missed"] if e["missed"] is not None else nan for e in ends),
         "shm_share": run.bus.shm_in / max(run.bus.samples_in, 1),
     }
 
 
 def realtime_main(args: argparse.Namespace) -> None:
+    options = tuple(_station_options(args))
     shm = "off (--no-shm)" if args.no_shm else "on"
     print(f"link shards in real time: N = {args.realtime} as {args.networks} networks, "
           f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0; "
-          f"Zenoh shared memory {shm}")  # fmt: skip
+          f"Zenoh shared memory {shm}; {' '.join(options)}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
-          f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'in shm':>6}")  # fmt: skip
+          f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'missed':>6} "
+          f"{'in shm':>6}")  # fmt: skip
     for k in (int(x) for x in args.shards.split(",")):
         r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds,
-                                  shm=not args.no_shm))  # fmt: skip
+                                  shm=not args.no_shm, options=options))  # fmt: skip
         ok = "ok" if r["outcome_ok"] else "degraded"
         print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
               f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "
-              f"{r['setpoints']:8.0f} {100 * r['shm_share']:5.0f}%", flush=True)  # fmt: skip
+              f"{r['setpoints']:8.0f} {r['missed']:6.0f} {100 * r['shm_share']:5.0f}%",
+              flush=True)  # fmt: skip
 
 
 def main() -> None:
@@ -150,9 +178,10 @@ def main() -> None:
     ap.add_argument("--networks", type=int, default=4, help="--realtime: networks (default 4)")
     ap.add_argument("--shards", default="1,2,4", help="--realtime: shard counts (default 1,2,4)")
     ap.add_argument("--rate", type=float, default=50.0, help="--realtime: control rate [Hz]")
-    ap.add_argument("--seconds", type=float, default=10.0, help="--realtime: formation [s]")
+    ap.add_argument("--seconds", type=float, default=12.0, help="--realtime: formation [s]")
     ap.add_argument("--no-shm", action="store_true",
                     help="--realtime: every batch as bytes over TCP")  # fmt: skip
+    bench_station.mission_options(ap)  # --realtime: the swarm as bench_station's
     args = ap.parse_args()
     if args.realtime is not None:
         realtime_main(args)

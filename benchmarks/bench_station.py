@@ -93,6 +93,21 @@ def _gains(cutoff_m: float | None = None):  # type: ignore[no-untyped-def]
     return Gains(M=1, D=1, k=9, k_s=1, k_r=0.2, alpha=2, q_default=10, repulsion_cutoff=cutoff_m)
 
 
+def mission_options(ap: argparse.ArgumentParser) -> None:
+    """The swarm's options (``--cutoff``, ``--step``, ``--settle``,
+    ``--spread``, ``--phases``), also bench_shards.py's."""
+    ap.add_argument("--cutoff", type=float, default=None, metavar="F",
+                    help="start on the equilibrium sphere, repulsion cut at F x d_nn")  # fmt: skip
+    ap.add_argument("--step", choices=("swarm", "network"), default="swarm",
+                    help="the mission's step: swarm (default) or network")  # fmt: skip
+    ap.add_argument("--settle", type=float, default=0.0, metavar="S",
+                    help="with --cutoff: start where its law settles after S s")  # fmt: skip
+    ap.add_argument("--spread", action="store_true",
+                    help="the networks' emulators a share of a period apart")  # fmt: skip
+    ap.add_argument("--phases", type=int, default=None, metavar="SEED",
+                    help="the networks' emulators at random shares of a period")  # fmt: skip
+
+
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
     """N vehicles on a 3 m grid; with ``networks``, one mission whose
     networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
@@ -406,16 +421,7 @@ def main() -> None:
                     help="vehicles per network or station group (default 250)")  # fmt: skip
     ap.add_argument("--networks", action="store_true",
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
-    ap.add_argument("--cutoff", type=float, default=None, metavar="F",
-                    help="start on the equilibrium sphere, repulsion cut at F x d_nn")  # fmt: skip
-    ap.add_argument("--step", choices=("swarm", "network"), default="swarm",
-                    help="the mission's step: swarm (default) or network")  # fmt: skip
-    ap.add_argument("--settle", type=float, default=0.0, metavar="S",
-                    help="with --cutoff: start where its law settles after S s")  # fmt: skip
-    ap.add_argument("--spread", action="store_true",
-                    help="the networks' emulators a share of a period apart")  # fmt: skip
-    ap.add_argument("--phases", type=int, default=None, metavar="SEED",
-                    help="the networks' emulators at random shares of a period")  # fmt: skip
+    mission_options(ap)
     args = ap.parse_args()
     global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step

@@ -44,6 +44,7 @@ from gcs_swarm.mavlink.coordinates import GeoOrigin
 from gcs_swarm.mission import parse_mission
 from gcs_swarm.report.record import FlightRecorder
 from gcs_swarm.runtime.config import StationConfig
+from gcs_swarm.runtime.endpoints import LatencyRing
 from gcs_swarm.runtime.plans import shard_config, station_config
 from gcs_swarm.runtime.run_report import frame_sink, vehicle_param_records
 from gcs_swarm.runtime.station import Station
@@ -53,7 +54,7 @@ from gcs_swarm.swarm.departures import live_columns
 from gcs_swarm.swarm.shard import ShardSide
 from gcs_swarm.swarm.shard_wire import decode_reply, encode_state, keep_out_json
 
-__all__ = ["BEAT_S", "HELLO_TIMEOUT_S", "run_shard", "shard_command"]
+__all__ = ["BEAT_S", "HELLO_TIMEOUT_S", "WINDOW_S", "FlightEnd", "run_shard", "shard_command"]
 
 _log = logging.getLogger("gcs_swarm.shard")
 
@@ -61,6 +62,9 @@ BEAT_S = 0.1
 """Heartbeat period [s] both ways: ten within the default 1 s stale timeout."""
 HELLO_TIMEOUT_S = 30.0
 """How long a shard says hello before it gives up on its controller [s]."""
+WINDOW_S = 10.0
+"""The end of the formation [s of mission time] the shard's report measures
+(``FlightEnd``): its setpoint latencies and missed vehicle-cycles."""
 
 
 FrameSource = Callable[[Station], Callable[[float], dict[str, Any]]]
@@ -119,6 +123,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
     end_mode: list[int | None] = [None]
     station: Station | None = None
     side: ShardSide | None = None
+    window: FlightEnd | None = None
 
     def step(now: float, write: Any) -> None:
         assert side is not None
@@ -132,6 +137,8 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
             return
         reply, shard = decode_reply(data), side
         station.apply(lambda now, write: shard.apply(reply, now, write))
+        if window is not None:
+            window.reply(reply.t_s)
 
     relayed: asyncio.Future[GeoOrigin] = asyncio.get_running_loop().create_future()
     """The mission origin as the controller's beats carry it (``_relayed_origin``)."""
@@ -189,6 +196,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                       on_frame_for=frames_for if tlogs else None)  # fmt: skip
     station.hold_when_ready = cfg.lockstep
     side = ShardSide(station.core, index, cfg.stale_timeout_s)
+    window = FlightEnd(station, side, cfg.duration_s, cfg.rate_hz)
     bus.subscribe(f"down/{index}/reply", on_reply)
     if waited is not None:
         station.core.note("mission origin = the mission's first vehicle's EKF origin, "
@@ -270,6 +278,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                         await ended.wait()
         finally:
             flying_drops[0] = sum(lk.stats.setpoints_dropped for lk in station.links.values())
+            window.close()
             station.release()  # what a lockstep shard held before the start
             # The ending runs to its end (it has its own timeout): a signal that
             # arrives meanwhile (Ctrl-C reaches the controller and its shards
@@ -283,6 +292,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                 await beating
             done = _done(station, side)
             done["setpoints_dropped_before_end"] = flying_drops[0]
+            done["flight_end"] = window.report()
             done["logging_error"] = next((t.error for t in tlogs.values() if t.error), None)
             bus.put_json(f"{up}/msg", done)
         outcome_ok = outcome_ok and station.outcome() == "completed"
@@ -360,7 +370,6 @@ def _done(station: Station, side: ShardSide) -> dict[str, Any]:
         "rebinds_refused": {str(k): n for k, n in station.rebinds_refused().items()},
         "states": side.states,
         "replies": side.replies,
-        "latency_ms": _latency_ms(station),
         "log": list(station.log),
         "vehicle_params": params,
         "telemetry": {}
@@ -369,22 +378,62 @@ def _done(station: Station, side: ShardSide) -> dict[str, Any]:
     }
 
 
-def _latency_ms(station: Station) -> dict[str, float]:
-    """The shard's setpoint latencies [ms] (telemetry arrival to setpoint
-    write, ``Link.latency``): p50 and p99 of each link's last samples (its
-    ring: the end of the flight), the max and count over the whole run."""
-    lat = sorted(station.setpoint_latencies_s())
-    rings = [lk.latency for lk in station.links.values()]
+class FlightEnd:
+    """The last ``WINDOW_S`` of the formation, measured in the shard's report
+    (``report``): from the first reply whose mission time is within
+    ``WINDOW_S`` of the duration (a shorter mission: its first) to the
+    ending's start (``close``), each link's setpoint latencies (telemetry
+    arrival to setpoint write: a fresh ``Link.latency`` ring then, holding
+    the window's) and the vehicle-cycles missed (reports taken less
+    setpoints written, less the change in the reports the controller had
+    not answered yet: bench_station's count)."""
 
-    def pct(q: float) -> float:
-        return 1e3 * lat[min(len(lat) - 1, int(q * len(lat)))] if lat else math.nan
+    def __init__(self, station: Station, side: ShardSide, duration_s: float, rate_hz: float):
+        self.station, self.side = station, side
+        self.opens_at_s = duration_s - WINDOW_S
+        self.rate_hz = rate_hz
+        self.opened_t_s: float | None = None
+        self._start = (0, 0)  # reports taken, in flight
+        self._end: tuple[int, int, int] | None = None  # and setpoints written
 
-    return {
-        "p50": pct(0.50),
-        "p99": pct(0.99),
-        "max": 1e3 * max((r.max_s for r in rings), default=math.nan),
-        "count": float(sum(r.count for r in rings)),
-    }
+    def _counts(self) -> tuple[int, int]:
+        st = self.station
+        return st.reports_in - st.reports_waiting, self.side.in_flight()
+
+    def reply(self, t_s: float) -> None:
+        """A reply of mission time ``t_s`` [s] was applied."""
+        if self.opened_t_s is not None or t_s < self.opens_at_s or self._end is not None:
+            return
+        self.opened_t_s = t_s
+        core = self.station.core
+        for key, lk in self.station.links.items():
+            n = sum(1 for link in core.link_of.values() if link == key)
+            lk.latency = LatencyRing(max(16384, math.ceil(self.rate_hz * n * (WINDOW_S + 1.0))))
+        self._start = self._counts()
+
+    def close(self) -> None:
+        """The ending begins: the window's counts end here."""
+        if self.opened_t_s is not None and self._end is None:
+            written = sum(lk.latency.count for lk in self.station.links.values())
+            self._end = (*self._counts(), written)
+
+    def report(self) -> dict[str, float | None]:
+        """p50, p99 and max latency [ms], setpoints, missed (NaN, None: never opened)."""
+        lat = sorted(self.station.setpoint_latencies_s())
+        rings = [lk.latency for lk in self.station.links.values()]
+
+        def pct(q: float) -> float:
+            return 1e3 * lat[min(len(lat) - 1, int(q * len(lat)))] if lat else math.nan
+
+        peak = 1e3 * max((r.max_s for r in rings), default=0.0)
+        out: dict[str, float | None] = {"from_t_s": self.opened_t_s, "p50_ms": pct(0.50),
+                                        "p99_ms": pct(0.99), "max_ms": peak,
+                                        "setpoints": None, "missed": None}  # fmt: skip
+        if self._end is not None:
+            (r0, f0), (r1, f1, written) = self._start, self._end
+            out["setpoints"] = float(written)
+            out["missed"] = float((r1 - r0) - written - (f1 - f0))
+        return out
 
 
 def shard_command(

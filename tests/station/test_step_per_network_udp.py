@@ -11,9 +11,11 @@ import asyncio
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
+from gcs_swarm.runtime.shard import WINDOW_S
 from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 
 _STARTS = [
@@ -84,3 +86,12 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     # show as steps on the fallback.
     assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
     assert runs[0].core.fallbacks == 0
+    # Each shard's report measures the formation's last WINDOW_S (from the
+    # first reply at or past 2 s of mission time): every report its six
+    # vehicles sent in it (50 Hz) is either answered or counted missed (2 %:
+    # a period at either edge), and the latencies are that window's.
+    for end in (d["flight_end"] for d in runs[0].done.values()):
+        assert DURATION_S - WINDOW_S <= end["from_t_s"] < DURATION_S - WINDOW_S + 0.1
+        assert end["missed"] >= 0
+        assert end["setpoints"] + end["missed"] == pytest.approx(6 * 50 * WINDOW_S, rel=0.02)
+        assert 0.0 < end["p50_ms"] <= end["p99_ms"] <= end["max_ms"]
