@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs_swarm.control.lookahead import LookaheadJob, LookaheadResult
 from gcs_swarm.control.loop import ControlLoop
@@ -137,6 +138,13 @@ class ControllerCore:
         self.log: deque[str] = deque(maxlen=2000)
         self.flying: list[int] = []
         """The vehicles the law flew at the last step (keys, sorted)."""
+        self._keys = np.zeros(0, dtype=np.int64)
+        """The last step's batches' keys, as they came (``_order``)."""
+        self._ids: tuple[int, ...] = ()
+        self._sort = np.zeros(0, dtype=np.intp)
+        self._row: dict[int, int] = {}
+        self._flown: tuple[int, ...] = ()
+        """``flying`` as the tuple the law flew (``_membership``)."""
         self.fallbacks = 0
         """Steps taken on the fallback delay, without every shard's states."""
         self._fallback_at: float | None = None
@@ -321,18 +329,15 @@ class ControllerCore:
             fresh.update(v.fresh)
         batches = [v.batch for v in live if v.batch is not None and len(v.batch.keys)]
         if batches:
-            keys = np.concatenate([b.keys for b in batches]).astype(np.int64)
-            order = np.argsort(keys, kind="stable")
-            ids = keys[order].tolist()
+            ids, order, row = self._order(np.concatenate([b.keys for b in batches]))
             pos = np.concatenate([b.pos_m for b in batches])[order]
             vel = np.concatenate([b.vel_mps for b in batches])[order]
         else:
-            ids, pos, vel = [], np.zeros((0, 3)), np.zeros((0, 3))
+            ids, row, pos, vel = (), {}, np.zeros((0, 3)), np.zeros((0, 3))
         self._membership(ids)
         t = self.control.advance_clock(fresh)
         replies: list[SetpointReply] = []
         if ids:
-            row = {s: i for i, s in enumerate(ids)}
             rows = None  # every vehicle commanded
             if self.step_per_network:  # the fresh ones only, when not every one
                 some = np.array(sorted(row[s] for s in fresh if s in row), dtype=np.int64)
@@ -363,12 +368,29 @@ class ControllerCore:
             self.finished = True
         return replies
 
-    def _membership(self, ids: list[int]) -> None:
+    def _order(
+        self, keys: npt.NDArray[np.int32]
+    ) -> tuple[tuple[int, ...], npt.NDArray[np.intp], dict[int, int]]:
+        """The law's vehicles in key order from the batches' ``keys`` as they
+        came: (keys sorted, the order that sorts them, key -> row). The same
+        keys as the last step's give the same objects back: a step per
+        network reads all N several times a period, and the law knows its
+        ids tuple at once (``supervisor.ids_key``)."""
+        if not np.array_equal(keys, self._keys):
+            self._keys = keys.astype(np.int64)
+            self._sort = np.argsort(self._keys, kind="stable")
+            self._ids = tuple(self._keys[self._sort].tolist())
+            self._row = {s: i for i, s in enumerate(self._ids)}
+        return self._ids, self._sort, self._row
+
+    def _membership(self, ids: tuple[int, ...]) -> None:
         """The law's vehicles this step: those no shard reports any more
         (lost, ended, or of a dead shard) leave it, with their clock and
         shaper forgotten (they start afresh if they come back); new ones
         come in. Both told to the recorder at the mission time they were
         last flown at (``SwarmCore``'s ``_join`` and leaving do so)."""
+        if ids is self._flown:
+            return  # the same vehicles as the last step (the usual case)
         before, now_in = set(self.flying), set(ids)
         for gone in sorted(before - now_in):
             self.control.forget(gone)
@@ -377,13 +399,13 @@ class ControllerCore:
         if self.recorder is not None:
             for key in sorted(now_in - before):
                 self.recorder.member(self.control.t_s, key, True)
-        self.flying = ids
+        self.flying, self._flown = list(ids), ids
 
     def end(self) -> None:
         """The run ends: no more steps, and every vehicle still in the law
         leaves it (told to the recorder, as one station's ending does)."""
         self.finished = True
-        self._membership([])
+        self._membership(())
 
     def abort(self, why: str) -> None:
         """End the mission now, as failed (the shell brakes every vehicle)."""
