@@ -53,7 +53,7 @@ def _formed(summary: RunSummary) -> None:
 
 
 def test_two_networks_stepped_each_on_its_own_reports_form_the_sphere(tmp_path: Path) -> None:
-    async def fly() -> object:
+    async def fly() -> RunSummary:
         async with asyncio.timeout(90):
             return await run_mission(_mission(), log_dir=tmp_path, picture=False,
                                      end_timeout_s=5.0)  # fmt: skip
@@ -87,11 +87,13 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
     assert runs[0].core.fallbacks == 0
     # Each shard's report measures the formation's last WINDOW_S (from the
-    # first reply at or past 2 s of mission time): every report its six
-    # vehicles sent in it (50 Hz) is either answered or counted missed (2 %:
-    # a period at either edge), and the latencies are that window's.
+    # first reply at or past 2 s of mission time: a step later, 0.02 s, on an
+    # idle machine; 0.5 s leaves room for a loaded one): every report its
+    # six vehicles sent in it (50 Hz) is either answered or counted missed
+    # (2 %: a period at either edge), and the latencies are that window's.
     for end in (d["flight_end"] for d in runs[0].done.values()):
-        assert DURATION_S - WINDOW_S <= end["from_t_s"] < DURATION_S - WINDOW_S + 0.1
+        assert DURATION_S - WINDOW_S <= end["from_t_s"] < DURATION_S - WINDOW_S + 0.5
         assert end["missed"] >= 0
-        assert end["setpoints"] + end["missed"] == pytest.approx(6 * 50 * WINDOW_S, rel=0.02)
+        window_s = DURATION_S - end["from_t_s"]
+        assert end["setpoints"] + end["missed"] == pytest.approx(6 * 50 * window_s, rel=0.02)
         assert 0.0 < end["p50_ms"] <= end["p99_ms"] <= end["max_ms"]
