@@ -177,7 +177,8 @@ class ControllerCore:
     def receive_state(self, batch: StateBatch, now: float) -> None:
         """A shard's state batch (a dead shard's is ignored: it stays out).
         One without a fresh report (``ShardSide.opening``) only gives its
-        vehicles' states: nothing to answer, no step."""
+        vehicles' states: nothing of it to answer (with a step per network,
+        the last states a delivered batch waited for)."""
         view = self.shards.get(batch.shard)
         if view is None or not view.alive:
             return
@@ -188,7 +189,7 @@ class ControllerCore:
         if fresh:
             view.fresh.update(fresh)
             view.delivered = True
-            self._maybe_step(now)
+        self._maybe_step(now)
 
     # ------------------------------------------------------------- timers
     def start(self, now: float, flying: Mapping[int, int]) -> None:

@@ -146,14 +146,26 @@ def test_each_shard_s_batch_is_stepped_as_it_comes_and_only_that_shard_answered(
     """``step: network`` (tests/swarm/test_shard_step_per_network.py flies it
     whole): a batch makes a step at once, commanding its vehicles only."""
     per, whole = _controller(False, True), _controller(False)
-    # The first period: both shards' batches before either controller steps.
+    # The start: shard 0's first batch waits until every shard's states are
+    # in, here shard 1's opening (its states, none fresh: ShardSide.opening),
+    # which then steps shard 0's batch at once, with all four vehicles.
     for core in (per, whole):
         core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
-        core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+        assert not core.step_wanted
+        assert core.get_timer() == pytest.approx(0.02)  # the fallback: a period
+        core.receive_state(_state(1, 1, [257, 258], 5000, fresh=False), 0.001)
+    assert not whole.step_wanted  # the whole swarm's step waits for shard 1's reports
+    assert per.step_wanted
+    (first,) = per.control_step(0.001)
+    assert first.keys.tolist() == [1, 2] and per.flying == [1, 2, 257, 258]
+    # The first period: both shards' batches, then each controller steps.
+    for core in (per, whole):
+        core.receive_state(_state(0, 2, [1, 2], 1000), 0.0)
+        core.receive_state(_state(1, 2, [257, 258], 5000), 0.0)
         core.control_step(0.0)
     # The next: shard 0's vehicles moved, shard 1's did not (so the step of
     # shard 0 alone sees shard 1's states as the whole step does).
-    s0, s1 = _state(0, 2, [1, 2], 1020, shift=0.01), _state(1, 2, [257, 258], 5020)
+    s0, s1 = _state(0, 3, [1, 2], 1020, shift=0.01), _state(1, 3, [257, 258], 5020)
     whole.receive_state(s0, 0.02)
     assert not whole.step_wanted  # it waits for shard 1 (or a period)
     assert whole.get_timer() == pytest.approx(0.04)
@@ -161,12 +173,12 @@ def test_each_shard_s_batch_is_stepped_as_it_comes_and_only_that_shard_answered(
     assert per.step_wanted  # at once, without a fallback to wait for
     assert per.get_timer() == pytest.approx(1.0)  # only shard 1's stale timeout (heard at 0)
     (r0,) = per.control_step(0.02)
-    assert (r0.shard, r0.seq, r0.keys.tolist()) == (0, 2, [1, 2])
+    assert (r0.shard, r0.seq, r0.keys.tolist()) == (0, 3, [1, 2])
     assert per.flying == [1, 2, 257, 258]  # the law flew all four, shard 1 at its last
     per.receive_state(s1, 0.03)
     assert per.step_wanted
     (r1,) = per.control_step(0.03)
-    assert (r1.shard, r1.seq, r1.keys.tolist()) == (1, 2, [257, 258])
+    assert (r1.shard, r1.seq, r1.keys.tolist()) == (1, 3, [257, 258])
     assert r0.t_s == r1.t_s == pytest.approx(0.02)  # each on its own reports' time
     whole.receive_state(s1, 0.03)
     w0, w1 = whole.control_step(0.03)
@@ -175,12 +187,15 @@ def test_each_shard_s_batch_is_stepped_as_it_comes_and_only_that_shard_answered(
     # rows are taken from the whole computation: equal to rounding (1e-12).
     np.testing.assert_allclose(r0.accel_mps2, w0.accel_mps2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(r1.accel_mps2, w1.accel_mps2, rtol=1e-12, atol=1e-12)
-    assert per.control.steps == 3 and whole.control.steps == 2
+    assert per.control.steps == 4 and whole.control.steps == 2
     assert per.fallbacks == whole.fallbacks == 0
 
 
-def test_a_silent_shard_is_dead_after_the_stale_timeout_and_its_vehicles_leave() -> None:
-    core = _controller()
+@pytest.mark.parametrize("per_network", [False, True], ids=["whole swarm", "per network"])
+def test_a_silent_shard_is_dead_after_the_stale_timeout_and_its_vehicles_leave(
+    per_network: bool,
+) -> None:
+    core = _controller(step_per_network=per_network)
     core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
     core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
     core.control_step(0.0)
