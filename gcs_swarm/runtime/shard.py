@@ -265,6 +265,7 @@ async def _serve(bus: Bus, a: dict[str, Any], frames: FrameSource | None) -> int
                 outcome_ok = False
             else:
                 if not ended.is_set():
+                    station.freeze_heap()  # now, not at the start (Station.freeze_heap)
                     env = station.apply_envelope()
                     bus.put_json(f"{up}/msg", {"kind": "ready", "envelope": asdict(env),
                                                "members": len(station.members)})  # fmt: skip

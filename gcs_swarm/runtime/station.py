@@ -268,11 +268,18 @@ class Station:
 
     def begin(self) -> None:
         """Start the formation now (``fly`` without waiting for its end)."""
-        gc.collect()
-        gc.freeze()
-        self._froze = True
+        self.freeze_heap()
         self.core.start(self.now())
         self._after()
+
+    def freeze_heap(self) -> None:
+        """The start-up heap collected once and frozen (``fly``'s comment), if
+        not yet: a link shard does it before it says READY, so that its start
+        (``begin``) is not later than the other shards' by the collection."""
+        if not self._froze:
+            gc.collect()
+            gc.freeze()
+            self._froze = True
 
     def apply(self, work: Callable[[float, Write], None]) -> None:
         """``work(now, write)`` on the core from outside (a controller's
