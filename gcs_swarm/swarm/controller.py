@@ -20,7 +20,9 @@ and ``heard(shard, now)`` as messages arrive, ``handle_timer(now)`` at
   its fresh vehicles only;
 - with ``step_per_network`` (the mission's ``step: network``) a state batch
   is stepped as it comes, once every live shard with flying vehicles has
-  delivered one (the law never flies without a shard's vehicles): each
+  sent its states (until then a batch waits, at most the fallback delay;
+  each shard's opening batch, ``ShardSide.opening``, gives them at the
+  start, so the law has every shard's vehicles from its first step): each
   shard's core already delivers one per network whose reports are all in
   (``SwarmCore.take_step``); the law commands only that batch's fresh
   vehicles against every other shard's latest states
