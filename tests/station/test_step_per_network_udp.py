@@ -80,12 +80,14 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     summary = asyncio.run(fly())
     _formed(summary)
     # A step for each shard's batch: two a period, 1,200 over the mission
-    # (a batch a real-time shard drops on a congested link is replaced by
-    # its next: 1.6 per period leaves 20 % for that). A step of the whole
-    # swarm would be one a period, and a shard waiting for the other would
-    # show as steps on the fallback.
+    # (measured 1,201; a batch a real-time shard drops on a congested link is
+    # replaced by its next: 1.6 per period leaves 20 % for that). A step of
+    # the whole swarm would be one a period (601 with the rule removed). The
+    # fallback steps only while a shard's states have not come yet, at the
+    # start (measured 0; 5 allows a shard starting 0.1 s late on a loaded
+    # machine).
     assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
-    assert runs[0].core.fallbacks == 0
+    assert runs[0].core.fallbacks <= 5
     # Each shard's report measures the formation's last WINDOW_S (from the
     # first reply at or past 2 s of mission time: a step later, 0.02 s, on an
     # idle machine; 0.5 s leaves room for a loaded one): every report its
