@@ -94,37 +94,30 @@ def _rt_mission(n: int, nets: int, rate: float, duration: float) -> Mission:
     return parse_mission(bench_station.mission_yaml(n, networks=True, duration=duration))
 
 
-def _station_options(args: argparse.Namespace) -> list[str]:
-    """bench_station's mission and phase options, set here and for its emulator child."""
+def _station_options(args: argparse.Namespace) -> str:
+    """bench_station's swarm options from ``args`` (its mission's and its
+    emulator child's: ``bench_station.emulator_child``); what they are."""
     st = bench_station
     st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
     st.SPREAD, st.PHASES = args.spread, args.phases
-    child = ["--step", args.step] + (["--spread"] if args.spread else [])
-    child += ["--phases", str(args.phases)] if args.phases is not None else []
-    if args.cutoff is not None:
-        child += ["--cutoff", repr(args.cutoff), "--settle", repr(args.settle)]
-    return child
+    return (f"step {args.step}, cut-off {args.cutoff}, settle {args.settle:g} s, "
+            f"spread {args.spread}, phases {args.phases}")  # fmt: skip
 
 
 async def _realtime(
-    n: int, nets: int, shards: int, rate: float, seconds: float, shm: bool = True,
-    options: tuple[str, ...] = (),
-) -> dict[str, float]:  # fmt: skip
+    n: int, nets: int, shards: int, rate: float, seconds: float, shm: bool = True
+) -> dict[str, float]:
     import logging
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
-    per = math.ceil(n / nets)
-    if bench_station.CUTOFF is not None:  # the settled start cached before the child reads it
-        _rt_mission(n, nets, rate, seconds)
+    mission = _rt_mission(n, nets, rate, seconds)  # sets bench_station's rate and group
     child = await asyncio.create_subprocess_exec(
-        sys.executable, bench_station.__file__, "--emulator", str(n), "--networks",
-        "--group", str(per), "--rate", f"{rate:g}", *options,
+        sys.executable, bench_station.__file__, *bench_station.emulator_child(n, networks=True),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert child.stdout is not None and child.stdin is not None
     try:
         ports = [int(p) for p in (await child.stdout.readline()).split()]
-        mission = _rt_mission(n, nets, rate, seconds)
         links = {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}" for v in mission.vehicles}
         runs: list[ShardedRun] = []
         summary = await run_sharded(mission, shards, links=links, lockstep=False, shm=shm,
@@ -151,17 +144,17 @@ async def _realtime(
 
 
 def realtime_main(args: argparse.Namespace) -> None:
-    options = tuple(_station_options(args))
+    options = _station_options(args)
     shm = "off (--no-shm)" if args.no_shm else "on"
     print(f"link shards in real time: N = {args.realtime} as {args.networks} networks, "
           f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0; "
-          f"Zenoh shared memory {shm}; {' '.join(options)}")  # fmt: skip
+          f"Zenoh shared memory {shm}; {options}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
           f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'missed':>6} "
           f"{'in shm':>6}")  # fmt: skip
     for k in (int(x) for x in args.shards.split(",")):
         r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds,
-                                  shm=not args.no_shm, options=options))  # fmt: skip
+                                  shm=not args.no_shm))  # fmt: skip
         ok = "ok" if r["outcome_ok"] else "degraded"
         print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
               f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "

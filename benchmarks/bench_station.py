@@ -108,6 +108,21 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
                     help="the networks' emulators at random shares of a period")  # fmt: skip
 
 
+def emulator_child(n: int, networks: bool) -> list[str]:
+    """The emulator child's arguments for N vehicles (this file with
+    ``--emulator``) from this module's settings (``RATE_HZ``, ``GROUP``,
+    ``SPREAD``, ``PHASES``, ``CUTOFF``, ``SETTLE_S``), also bench_shards.py's;
+    with a cut-off the settled start is cached first (the child reads it)."""
+    child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
+    child += ["--spread"] if SPREAD else []
+    child += ["--phases", str(PHASES)] if PHASES is not None else []
+    if CUTOFF is not None:
+        mission_yaml(n, networks)
+        child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
+    child += ["--networks"] if networks else []
+    return child
+
+
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
     """N vehicles on a 3 m grid; with ``networks``, one mission whose
     networks (``n0``, ``n1``, ...) hold ``GROUP`` vehicles each, the grid
@@ -291,13 +306,7 @@ async def station_run(
     from gcs_swarm.runtime.station import Station
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
-    child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
-    child += ["--spread"] if SPREAD else []
-    child += ["--phases", str(PHASES)] if PHASES is not None else []
-    if CUTOFF is not None:  # the settled start cached before the child reads it
-        mission_yaml(n, networks)
-        child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
-    child += ["--networks"] if networks else []
+    child = emulator_child(n, networks)
     proc = await asyncio.create_subprocess_exec(
         sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
