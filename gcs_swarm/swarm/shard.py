@@ -72,10 +72,10 @@ class ShardSide:
         """When the controller was last heard (None: not yet)."""
         self.replies = 0
         self.states = 0
-        self._unanswered: deque[tuple[int, StateBatch]] = deque()
-        """(fresh reports, batch) of the state batches sent after the last one
-        answered: a reply answers its batch's vehicles from the velocities
-        that batch carried (Eq. V1 starts there)."""
+        self._unanswered: deque[StateBatch] = deque()
+        """The state batches sent after the last one answered: a reply answers
+        its batch's vehicles from the velocities that batch carried (Eq. V1
+        starts there)."""
 
     def take_state(self, now: float) -> StateBatch | None:
         """The step the core wants, as the controller's input: None while
@@ -89,7 +89,7 @@ class ShardSide:
         core.advance_clock_and_events(fresh, now)
         batch = self._batch(now, fresh)
         self.states += 1
-        self._unanswered.append((len(fresh), batch))
+        self._unanswered.append(batch)
         return batch
 
     def opening(self, now: float) -> StateBatch:
@@ -123,8 +123,8 @@ class ShardSide:
         self.heard(now)
         batch = None
         waiting = self._unanswered
-        while waiting and waiting[0][1].seq <= reply.seq:  # answered, or its reply lost
-            _, older = waiting.popleft()
+        while waiting and waiting[0].seq <= reply.seq:  # answered, or its reply lost
+            older = waiting.popleft()
             if older.seq == reply.seq:
                 batch = older
         core = self.core
@@ -153,7 +153,7 @@ class ShardSide:
         controller answered: their setpoints on their way (at the mission's
         end, never sent). A batch whose reply was lost is not counted once a
         later one is answered."""
-        return sum(n for n, _ in self._unanswered)
+        return sum(int(np.count_nonzero(b.boot_ms >= 0)) for b in self._unanswered)
 
     def leader_at(
         self,
