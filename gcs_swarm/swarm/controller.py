@@ -138,18 +138,21 @@ class ControllerCore:
         self.step_wanted = False
         self.timer_moved = False
         self.log: deque[str] = deque(maxlen=2000)
-        self.flying: list[int] = []
-        """The vehicles the law flew at the last step (keys, sorted)."""
         self._keys = np.zeros(0, dtype=np.int64)
         """The last step's batches' keys, as they came (``_order``)."""
         self._ids: tuple[int, ...] = ()
         self._sort = np.zeros(0, dtype=np.intp)
         self._row: dict[int, int] = {}
         self._flown: tuple[int, ...] = ()
-        """``flying`` as the tuple the law flew (``_membership``)."""
+        """The vehicles the law flew at the last step (``flying``)."""
         self.fallbacks = 0
         """Steps taken on the fallback delay, without every shard's states."""
         self._fallback_at: float | None = None
+
+    @property
+    def flying(self) -> list[int]:
+        """The vehicles the law flew at the last step (keys, sorted)."""
+        return list(self._flown)
 
     # ------------------------------------------------------------ inbound
     def heard(
@@ -394,7 +397,7 @@ class ControllerCore:
         last flown at (``SwarmCore``'s ``_join`` and leaving do so)."""
         if ids is self._flown:
             return  # the same vehicles as the last step (the usual case)
-        before, now_in = set(self.flying), set(ids)
+        before, now_in = set(self._flown), set(ids)
         for gone in sorted(before - now_in):
             self.control.forget(gone)
             if self.recorder is not None:
@@ -402,7 +405,7 @@ class ControllerCore:
         if self.recorder is not None:
             for key in sorted(now_in - before):
                 self.recorder.member(self.control.t_s, key, True)
-        self.flying, self._flown = list(ids), ids
+        self._flown = ids
 
     def end(self) -> None:
         """The run ends: no more steps, and every vehicle still in the law
