@@ -10,6 +10,7 @@ from collections.abc import Callable, Collection
 
 from swarm_harness import Sky
 
+from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mission import Mission
 from gcs_swarm.swarm.controller import ControllerCore
@@ -22,9 +23,9 @@ Steps = list[tuple[float, tuple[int, ...], bytes]]
 command's bytes (``StepResult.accel_mps2``)."""
 
 
-def _record(steps: Steps, control: object) -> None:
-    last = control.last  # type: ignore[attr-defined]
-    if last is not None and control.steps > len(steps):  # type: ignore[attr-defined]
+def _record(steps: Steps, control: ControlLoop) -> None:
+    last = control.last
+    if last is not None and control.steps > len(steps):
         steps.append((last.t_s, last.ids, last.accel_mps2.tobytes()))
 
 
