@@ -48,9 +48,9 @@ from gcs_swarm.errors import LinkError, StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
+from gcs_swarm.runtime import plans
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.lifetime import reap
-from gcs_swarm.runtime.plans import END_MODES, check_shard_events, emulator_config, param_settings
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
@@ -105,7 +105,7 @@ def check_shards(mission: Mission, shards: int) -> None:
             f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
             " (name more networks: docs/mission-format.md, networks)"
         )
-    check_shard_events(mission, shards)
+    plans.check_shard_events(mission, shards)
 
 
 class ShardedRun:
@@ -394,19 +394,19 @@ async def run_sharded(
         on_folder(folder)
     log = ControllerLog(mission, folder)
     vs, terms = mission.vehicles, departure_terms
-    departures = {v.key: terms(v.autopilot, param_settings(mission, v), s.startup.guid_timeout)
-                  for v in vs}  # fmt: skip
+    departures = {v.key: terms(v.autopilot, plans.param_settings(mission, v),
+                               s.startup.guid_timeout) for v in vs}  # fmt: skip
     core = ControllerCore(mission.law, {v.key: v.q for v in vs}, s.rate, shards=shards,
                           duration_s=s.duration, stale_timeout_s=s.stale_timeout,
                           lockstep=lockstep, recorder=log.recorder, departures=departures,
                           labels={v.key: mission.label(v.key) for v in vs},
-                          step_per_network=s.step == "network")  # fmt: skip
+                          step_per_network=plans.steps_per_network(mission, lockstep))  # fmt: skip
     outcome = "cancelled"
     emulators: dict[int, Emulator] = {}
     summary: RunSummary | None = None
     async with log, contextlib.AsyncExitStack() as stack:
         for j in sorted({v.net_index for v in sims}):
-            cfg = emulator_config(mission, network=j)
+            cfg = plans.emulator_config(mission, network=j)
             if cfg.clock == "lockstep":
                 cfg = replace(cfg, lockstep_timeout_s=LOCKSTEP_BARRIER_S)
             try:
@@ -471,9 +471,9 @@ async def run_sharded(
                 run.flight_s = (t_start, run.now())
                 outcome = "flown"
             if core.failure is not None:
-                end_mode = END_MODES["hold"]
+                end_mode = plans.END_MODES["hold"]
             elif request is not None and request.action is not None:
-                end_mode = END_MODES[request.action]  # the operator's button
+                end_mode = plans.END_MODES[request.action]  # the operator's button
                 core.note(f"ending on the operator's request: {request.action}")
         except StartupError:
             outcome, end_mode = "startup failed", b.COPTER_MODES["LAND"]
