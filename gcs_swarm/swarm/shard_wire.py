@@ -74,9 +74,11 @@ class StateBatch(NamedTuple):
     vel_mps: FloatArray
 
     def fresh(self) -> dict[int, int]:
-        """The fresh reports as ``SwarmCore.take_step`` gives them (key -> ms)."""
-        ks, ms = self.keys.tolist(), self.boot_ms.tolist()
-        return {k: m for k, m in zip(ks, ms, strict=True) if m >= 0}
+        """The fresh reports as ``SwarmCore.take_step`` gives them (key -> ms),
+        in the batch's order (a network's step: a sixth of a 1,500-vehicle
+        batch, picked out before anything becomes a Python int)."""
+        at = np.flatnonzero(self.boot_ms >= 0)
+        return dict(zip(self.keys[at].tolist(), self.boot_ms[at].tolist(), strict=True))
 
 
 class SetpointReply(NamedTuple):
