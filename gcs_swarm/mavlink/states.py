@@ -8,6 +8,7 @@ is what the station logs.
 from __future__ import annotations
 
 import enum
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from gcs_swarm.control.velocity_bias import BiasSettings
@@ -24,13 +25,16 @@ __all__ = [
     "IDLE_PHASES",
     "INCOMING_PHASES",
     "LANDED_STATE_NAMES",
+    "NAMED_AT_MOST",
     "READYING_PHASES",
     "TELEMETRY_PHASES",
     "Phase",
     "ProtocolConfig",
     "ProtocolEvent",
+    "describe_states",
     "judge_ground",
     "mode_name",
+    "state_words",
 ]
 
 EKF_READY_FLAGS = 1 | 2 | 4 | 16 | 32
@@ -188,3 +192,31 @@ def judge_ground(
     where = "on the ground" if ground else "in the air"
     up = round(height_m, 1) + 0.0  # never "-0.0 m"
     return ground, f"{where} ({up:.1f} m above its EKF origin, no landed state)"
+
+
+NAMED_AT_MOST = 8
+"""``describe_states`` names at most this many vehicles in one state (the
+rest counted): 250 vehicles of a network that failed alike make one clause
+of a one-line error, not 250 (``StartupError.reasons`` keeps each one)."""
+
+
+def state_words(phase: Phase, failure: str | None) -> str:
+    """A vehicle's state in words: its phase, and its failure in its own words."""
+    return phase.value + (f" ({failure})" if failure else "")
+
+
+def describe_states(what: str, states: Sequence[tuple[str, str]]) -> str:
+    """``what: vehicle 2 waiting`` from (label, ``state_words``) pairs;
+    vehicles in the same state share one clause, in order of first
+    appearance: ``what: 3 vehicles 2, 3, 4 failed (...); vehicle 5 takeoff``."""
+    labels_of: dict[str, list[str]] = {}
+    for label, state in states:
+        labels_of.setdefault(state, []).append(label)
+    clauses = []
+    for state, labels in labels_of.items():
+        named = ", ".join(labels[:NAMED_AT_MOST])
+        if len(labels) > NAMED_AT_MOST:
+            named += f" and {len(labels) - NAMED_AT_MOST} more"
+        count = "vehicle" if len(labels) == 1 else f"{len(labels)} vehicles"
+        clauses.append(f"{count} {named} {state}")
+    return f"{what}: {'; '.join(clauses)}" if clauses else what

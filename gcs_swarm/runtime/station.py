@@ -26,7 +26,7 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import MessageSpec
-from gcs_swarm.mavlink.states import FINAL_PHASES, Phase
+from gcs_swarm.mavlink.states import FINAL_PHASES, Phase, describe_states, state_words
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.report.record import FlightRecorder
@@ -478,13 +478,9 @@ class Station:
 
 
 def _not_ready(what: str, vps: list[VehicleProtocol]) -> str:
-    who = "; ".join(
-        f"vehicle {vp.label} {vp.phase.value}" + (f" ({vp.failure})" if vp.failure else "")
-        for vp in vps
-    )
-    return f"{what}: {who}" if who else what
+    return describe_states(what, [(vp.label, state_words(vp.phase, vp.failure)) for vp in vps])
 
 
 def _reasons(vps: list[VehicleProtocol]) -> dict[int, str]:
     """``StartupError.reasons``: each vehicle's phase, and its failure in its own words."""
-    return {vp.sysid: vp.phase.value + (f" ({vp.failure})" if vp.failure else "") for vp in vps}
+    return {vp.sysid: state_words(vp.phase, vp.failure) for vp in vps}
