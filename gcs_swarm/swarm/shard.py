@@ -111,8 +111,9 @@ class ShardSide:
         order = core.order
         order.update(core.flying, core.table)
         ids = order.ids
-        if ids is not self._ids:
+        if ids is not self._ids:  # one array for the batches of these vehicles: read-only
             self._ids, self._keys = ids, np.array(ids, dtype=np.int32)
+            self._keys.flags.writeable = False
         if ids:
             _, pos, vel = flying_states(core, ids, now, order.ks)
         else:
