@@ -72,9 +72,6 @@ class ShardSide:
         """When the controller was last heard (None: not yet)."""
         self.replies = 0
         self.states = 0
-        self._ids: tuple[int, ...] = ()
-        self._keys = np.zeros(0, dtype=np.int32)
-        """``_ids`` (the last batch's ``FlyingOrder.ids``) as the batch's keys."""
         self._unanswered: deque[StateBatch] = deque()
         """The state batches sent after the last one answered: a reply answers
         its batch's vehicles from the velocities that batch carried (Eq. V1
@@ -111,9 +108,6 @@ class ShardSide:
         order = core.order
         order.update(core.flying, core.table)
         ids = order.ids
-        if ids is not self._ids:  # one array for the batches of these vehicles: read-only
-            self._ids, self._keys = ids, np.array(ids, dtype=np.int32)
-            self._keys.flags.writeable = False
         if ids:
             _, pos, vel = flying_states(core, ids, now, order.ks)
         else:
@@ -125,7 +119,7 @@ class ShardSide:
             if row is not None:  # a fresh report of a vehicle that left since is not sent
                 boot_ms[row] = ms
         self.seq += 1
-        return StateBatch(self.index, self.seq, self._keys, boot_ms, pos, vel)
+        return StateBatch(self.index, self.seq, order.keys, boot_ms, pos, vel)
 
     def apply(self, reply: SetpointReply, now: float, write: Write) -> None:
         """The controller's setpoints for this shard, handed to ``write`` link

@@ -78,15 +78,18 @@ the step's bookkeeping: its setpoints, or None (write what is queued)."""
 
 
 class FlyingOrder:
-    """The flying vehicles in key order, their telemetry rows and each one's
-    index in that order: a step reads them every time (six times a period
-    with a step per network), and they change only on a join or a leave."""
+    """The flying vehicles in key order (also as ``keys``, the read-only int32
+    array a link shard's state batches carry), their telemetry rows and each
+    one's index in that order: a step reads them every time (six times a
+    period with a step per network), and they change only on a join or a
+    leave."""
 
-    __slots__ = ("_of", "ids", "index", "ks")
+    __slots__ = ("_of", "ids", "index", "keys", "ks")
 
     def __init__(self) -> None:
         self._of: frozenset[int] = frozenset()
         self.ids: tuple[int, ...] = ()
+        self.keys: npt.NDArray[np.int32] = np.zeros(0, dtype=np.int32)
         self.ks: npt.NDArray[np.intp] = np.zeros(0, dtype=np.intp)
         self.index: dict[int, int] = {}
 
@@ -95,6 +98,8 @@ class FlyingOrder:
         if flying != self._of:
             self._of = frozenset(flying)
             self.ids = tuple(sorted(flying))
+            self.keys = np.array(self.ids, dtype=np.int32)
+            self.keys.flags.writeable = False  # shared by every batch of these vehicles
             self.ks = table.slots(self.ids)
             self.index = {s: i for i, s in enumerate(self.ids)}
 
