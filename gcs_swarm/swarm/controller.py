@@ -69,6 +69,21 @@ __all__ = ["ControllerCore", "ShardView"]
 _log = logging.getLogger("gcs_swarm.controller")
 
 
+def _rows_of(
+    ids: npt.NDArray[np.int64], keys: Mapping[int, int]
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.intp]]:
+    """Those of ``keys`` that are in ``ids`` (sorted, unique), in key order,
+    and their rows in ``ids``: one ``searchsorted`` for a network's 250
+    fresh vehicles instead of a dict lookup each."""
+    want = np.fromiter(keys, dtype=np.int64, count=len(keys))
+    want.sort()
+    at = np.searchsorted(ids, want)
+    inside = at < len(ids)
+    found = inside.copy()
+    found[inside] = ids[at[inside]] == want[inside]
+    return want[found], at[found]
+
+
 @dataclass
 class ShardView:
     """What the controller knows of one shard."""
@@ -142,7 +157,8 @@ class ControllerCore:
         """The last step's batches' keys, as they came (``_order``)."""
         self._ids: tuple[int, ...] = ()
         self._sort = np.zeros(0, dtype=np.intp)
-        self._row: dict[int, int] = {}
+        self._sorted = np.zeros(0, dtype=np.int64)
+        """``_ids`` as an array (each key's row: ``_rows_of``)."""
         self._flown: tuple[int, ...] = ()
         """The vehicles the law flew at the last step (``flying``)."""
         self.fallbacks = 0
@@ -335,21 +351,20 @@ class ControllerCore:
             fresh.update(v.fresh)
         batches = [v.batch for v in live if v.batch is not None and len(v.batch.keys)]
         if batches:
-            ids, order, row = self._order(np.concatenate([b.keys for b in batches]))
+            ids, order, keys = self._order(np.concatenate([b.keys for b in batches]))
             pos = np.concatenate([b.pos_m for b in batches])[order]
             vel = np.concatenate([b.vel_mps for b in batches])[order]
         else:
-            ids, row, pos, vel = (), {}, np.zeros((0, 3)), np.zeros((0, 3))
+            ids, keys, pos, vel = (), self._sorted, np.zeros((0, 3)), np.zeros((0, 3))
         self._membership(ids)
         t = self.control.advance_clock(fresh)
         replies: list[SetpointReply] = []
         if ids:
             rows = None  # every vehicle commanded
             if self.step_per_network:  # the fresh ones only, when not every one
-                some = np.array(sorted(row[s] for s in fresh if s in row), dtype=np.int64)
+                some = np.sort(_rows_of(keys, fresh)[1])
                 if len(some) < len(ids):
                     rows = some
-                    row = {ids[i]: j for j, i in enumerate(some.tolist())}  # key -> accel row
             commanded = command(self, ids, pos, vel, t, fresh.keys(), rows)
             if commanded is None:
                 return []
@@ -361,12 +376,10 @@ class ControllerCore:
             for v in live:
                 if not v.delivered:
                     continue
-                mine = [s for s in v.fresh if s in row]
-                mine.sort()
-                idx = [row[s] for s in mine]
+                mine, at = _rows_of(keys, v.fresh)  # its fresh vehicles the law flew, key order
+                idx = at if rows is None else np.searchsorted(rows, at)  # their accel rows
                 replies.append(SetpointReply(v.index, v.batch.seq if v.batch else 0, t,
-                                             np.array(mine, dtype=np.int32),
-                                             accel[idx]))  # fmt: skip
+                                             mine.astype(np.int32), accel[idx]))  # fmt: skip
         for v in live:
             v.fresh, v.delivered = {}, False
         if t >= self.duration_s:
@@ -376,18 +389,18 @@ class ControllerCore:
 
     def _order(
         self, keys: npt.NDArray[np.int32]
-    ) -> tuple[tuple[int, ...], npt.NDArray[np.intp], dict[int, int]]:
+    ) -> tuple[tuple[int, ...], npt.NDArray[np.intp], npt.NDArray[np.int64]]:
         """The law's vehicles in key order from the batches' ``keys`` as they
-        came: (keys sorted, the order that sorts them, key -> row). The same
-        keys as the last step's give the same objects back: a step per
-        network reads all N several times a period, and the law knows its
-        ids tuple at once (``supervisor.ids_key``)."""
+        came: (keys sorted, the order that sorts them, the sorted keys as an
+        array). The same keys as the last step's give the same objects back:
+        a step per network reads all N several times a period, and the law
+        knows its ids tuple at once (``supervisor.ids_key``)."""
         if not np.array_equal(keys, self._keys):
             self._keys = keys.astype(np.int64)
             self._sort = np.argsort(self._keys, kind="stable")
-            self._ids = tuple(self._keys[self._sort].tolist())
-            self._row = {s: i for i, s in enumerate(self._ids)}
-        return self._ids, self._sort, self._row
+            self._sorted = self._keys[self._sort]
+            self._ids = tuple(self._sorted.tolist())
+        return self._ids, self._sort, self._sorted
 
     def _membership(self, ids: tuple[int, ...]) -> None:
         """The law's vehicles this step: those no shard reports any more
