@@ -20,7 +20,14 @@ from gcs_swarm.control.envelope import ARDUCOPTER
 from gcs_swarm.control.formation import repulsion_force, repulsion_rows
 from gcs_swarm.control.law import law_accelerations
 from gcs_swarm.control.loop import ControlLoop
-from gcs_swarm.control.neighbours import AHEAD_SHARE, SLICES, NeighbourList
+from gcs_swarm.control.neighbours import (
+    AHEAD_SHARE,
+    LONG_LIST,
+    MAX_SKIN_SHARE,
+    SKIN_SHARE,
+    SLICES,
+    NeighbourList,
+)
 from gcs_swarm.control.obstacles import Ellipsoids
 from gcs_swarm.control.params import Gains, LawConfig, Limits, Safety
 from gcs_swarm.control.supervisor import Mode
@@ -180,6 +187,42 @@ def test_the_neighbour_list_built_ahead_in_slices_keeps_every_step_s_pairs() -> 
     for step in range(SLICES + 1):
         same(sets[step % 4])
     assert nl.ahead == ahead + 1 and nl.builds == builds + 1
+
+
+def test_the_margin_widens_while_the_swarm_churns_and_narrows_once_it_is_calm() -> None:
+    """Every vehicle swinging about its own point (0.5 m, faster than a list
+    of the least margin lasts two steps): the lists' margin grows to
+    ``MAX_SKIN_SHARE`` of the cut-off; held still, it comes back to
+    ``SKIN_SHARE``'s in lists built ahead (none at once). Every step's
+    pairs are ``row_pairs``' on that step's positions throughout."""
+    n, rc = 400, 1.5
+    home, _ = _swarm(n, 31)
+    rng = np.random.default_rng(8)
+    way = rng.normal(size=(n, 3))
+    way /= np.linalg.norm(way, axis=1, keepdims=True)
+    phase = rng.uniform(0, 2 * np.pi, n)
+    nl = NeighbourList(rc)
+    sets = [np.arange(k, n, 4) for k in range(4)]
+
+    def same(pos: np.ndarray, rows: np.ndarray) -> None:
+        want = row_pairs(pos, rows, rc)
+        got = nl.row_pairs(pos, rows, key="ids")
+        assert sorted(zip(got[0].tolist(), got[1].tolist(), strict=True)) == sorted(
+            zip(want[0].tolist(), want[1].tolist(), strict=True)
+        )
+
+    assert nl.skin_m == pytest.approx(SKIN_SHARE * rc)
+    for step in range(120):
+        pos = home + 0.5 * np.sin(0.6 * step + phase)[:, None] * way
+        same(pos, sets[step % 4])
+    assert nl.skin_m == pytest.approx(MAX_SKIN_SHARE * rc)
+    churned = nl.builds + nl.ahead
+    builds = nl.builds
+    for step in range(6 * (LONG_LIST + SLICES + 2)):  # calm: every list outlives LONG_LIST
+        same(pos, sets[step % 4])
+    assert nl.skin_m == pytest.approx(SKIN_SHARE * rc)
+    assert nl.builds == builds  # the tighter lists came ahead, in slices
+    assert nl.builds + nl.ahead - churned <= 6  # 1.0 -> 0.3 r_c by 1.3 each: five lists
 
 
 @pytest.mark.parametrize("n", [6, 40])
