@@ -25,6 +25,7 @@ from gcs_swarm.control.cutoff import (
 
 __all__ = [
     "AHEAD_SHARE",
+    "KEPT_LIST",
     "LONG_LIST",
     "MAX_SKIN_SHARE",
     "SHORT_LIST",
@@ -50,6 +51,11 @@ shrinks after a long-lived one."""
 SHORT_LIST = 12
 """A list that vehicles' motion makes stale within this many steps (two
 periods of six networks' steps) has the next one's margin grown."""
+
+KEPT_LIST = 3 * SHORT_LIST
+"""A list that motion makes stale only after more than this many steps has
+the next one's margin narrowed (three times ``SHORT_LIST``, a band wider
+than ``SKIN_GROWTH``: a steady motion settles on one margin)."""
 
 LONG_LIST = 120
 """A list kept this many steps with a margin wider than the least starts a
@@ -125,9 +131,10 @@ class NeighbourList:
 
     The margin follows the swarm's motion: a list made stale by motion
     within ``SHORT_LIST`` steps has the next one's margin ``SKIN_GROWTH``
-    times wider (up to ``MAX_SKIN_SHARE`` of the cut-off), and a list kept
-    ``LONG_LIST`` steps with a margin wider than ``skin_share``'s starts a
-    next one ``SKIN_GROWTH`` times tighter. A wider margin lists more
+    times wider (up to ``MAX_SKIN_SHARE`` of the cut-off), one made stale
+    after more than ``KEPT_LIST`` steps ``SKIN_GROWTH`` times tighter (down
+    to ``skin_share``), and a list kept ``LONG_LIST`` steps with a wider
+    margin than that starts a tighter next one. A wider margin lists more
     candidates (the volume grows as ``(r_c + skin)^3``) but lasts longer.
     Replayed over 1,654 network steps of the 1,500-vehicle benchmark
     formation, which churns (vehicles at about 2 m/s relative to its
@@ -197,9 +204,12 @@ class NeighbourList:
 
     def _moving(self) -> None:
         """The list in use is being replaced because vehicles moved: a short
-        life widens the next list's margin (class docstring)."""
+        life widens the next list's margin, a long one narrows it (class
+        docstring)."""
         if self._age < SHORT_LIST:
             self._share = min(MAX_SKIN_SHARE, self._share * SKIN_GROWTH)
+        elif self._age > KEPT_LIST:
+            self._share = max(self.least_share, self._share / SKIN_GROWTH)
 
     def _slice(self, nxt: _Ahead, all_of_it: bool = False) -> bool:
         """Search the next slice of ``nxt`` (or all that is left); True when

@@ -22,8 +22,10 @@ from gcs_swarm.control.law import law_accelerations
 from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.neighbours import (
     AHEAD_SHARE,
+    KEPT_LIST,
     LONG_LIST,
     MAX_SKIN_SHARE,
+    SKIN_GROWTH,
     SKIN_SHARE,
     SLICES,
     NeighbourList,
@@ -193,8 +195,11 @@ def test_the_margin_widens_while_the_swarm_churns_and_narrows_once_it_is_calm() 
     """Every vehicle swinging about its own point (0.5 m, faster than a list
     of the least margin lasts two steps): the lists' margin grows to
     ``MAX_SKIN_SHARE`` of the cut-off; held still, it comes back to
-    ``SKIN_SHARE``'s in lists built ahead (none at once). Every step's
-    pairs are ``row_pairs``' on that step's positions throughout."""
+    ``SKIN_SHARE``'s in lists built ahead (none at once). Churning again,
+    then swinging slowly (lists outliving ``KEPT_LIST`` steps, though never
+    ``LONG_LIST``), it narrows until their life is within the band, and
+    stays there. Every step's pairs are
+    ``row_pairs``' on that step's positions throughout."""
     n, rc = 400, 1.5
     home, _ = _swarm(n, 31)
     rng = np.random.default_rng(8)
@@ -223,6 +228,24 @@ def test_the_margin_widens_while_the_swarm_churns_and_narrows_once_it_is_calm() 
     assert nl.skin_m == pytest.approx(SKIN_SHARE * rc)
     assert nl.builds == builds  # the tighter lists came ahead, in slices
     assert nl.builds + nl.ahead - churned <= 6  # 1.0 -> 0.3 r_c by 1.3 each: five lists
+    for step in range(120):
+        pos = home + 0.5 * np.sin(0.6 * step + phase)[:, None] * way
+        same(pos, sets[step % 4])
+    assert nl.skin_m == pytest.approx(MAX_SKIN_SHARE * rc)
+    installed, skins = [], []
+    for step in range(600):  # slowly: 0.015 rad a step
+        pos = home + 0.5 * np.sin(0.015 * step + 0.6 * 119 + phase)[:, None] * way
+        before = nl.builds + nl.ahead
+        same(pos, sets[step % 4])
+        if nl.builds + nl.ahead > before:
+            installed.append(step)
+            skins.append(nl.skin_m)
+    # Narrowed twice by lists that motion made stale after KEPT_LIST steps
+    # (none kept LONG_LIST), then steady: 1.0 -> 0.59 r_c here.
+    lives = np.diff(installed)
+    assert (lives[:2] > KEPT_LIST).all() and (lives < LONG_LIST).all()
+    assert skins[-1] == pytest.approx(MAX_SKIN_SHARE * rc / SKIN_GROWTH**2)
+    assert len(set(skins[-5:])) == 1
 
 
 @pytest.mark.parametrize("n", [6, 40])
