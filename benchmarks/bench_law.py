@@ -13,6 +13,9 @@ repulsion's cut-off (Eq. 9c, docs/formation-law.md section 3a);
 whole controller step against N as well (``ControlLoop.command`` and
 ``account``: the leader, the supervisor, the law, the shaper, the step's
 figures with the minimum separation), exact and with the cut-off.
+``--margin`` prints only the cut-off law's step of one network's rows at
+1,500 vehicles with the Verlet list's margin fixed or adapting, the
+swarm at rest, swinging slowly and churning (``bench_verlet_margin``).
 """
 
 from __future__ import annotations
@@ -191,6 +194,69 @@ def bench_controller_step(counts: list[int]) -> list[str]:
     return rows
 
 
+def _swinging(
+    home: np.ndarray, amp_m: float, rad_per_period: float, seed: int
+) -> Callable[[float], np.ndarray]:
+    """Positions at period ``k``: each vehicle swinging about its ``home``
+    along its own direction, ``amp_m`` at ``rad_per_period``, own phase."""
+    rng = np.random.default_rng(seed)
+    way = rng.normal(size=home.shape)
+    way /= np.linalg.norm(way, axis=1, keepdims=True)
+    phase = rng.uniform(0.0, 2.0 * np.pi, home.shape[0])
+    return lambda k: home + amp_m * np.sin(rad_per_period * k + phase)[:, None] * way
+
+
+def bench_verlet_margin(n: int = 1500, networks: int = 6, periods: int = 100) -> list[str]:
+    """The cut-off law's step of one network's rows (``ControlLoop.command``
+    with rows, as a station or controller with ``step: network`` steps)
+    with the Verlet list's margin fixed at 0.3 or 1.0 r_c, or adapting
+    (``neighbours.NeighbourList``), on N vehicles on their sphere: at rest,
+    swinging slowly, and churning as the 1,500-vehicle benchmark ball did
+    in the seventh session's overloaded runs (relative to its centre up to
+    0.145 m a period: amplitude 0.3 m at 0.5 rad a period). Each network's
+    vehicles move when it is stepped (its reports), the others keep their
+    last positions."""
+    from gcs_swarm.control.loop import ControlLoop
+    from gcs_swarm.control.neighbours import MAX_SKIN_SHARE, SKIN_SHARE, NeighbourList
+
+    base = LawConfig()
+    home, d_nn = sphere_swarm(n, base.gains)
+    cut = 2.0 * d_nn
+    ids = tuple(range(1, n + 1))
+    nets = np.arange(n) % networks
+    sets = [np.flatnonzero(nets == j) for j in range(networks)]
+    motions = (("at rest", 0.0, 0.0), ("swinging slowly (0.3 m, 0.05 rad a period)", 0.3, 0.05),
+               ("churning (0.3 m, 0.5 rad a period)", 0.3, 0.5))  # fmt: skip
+    margins = (("0.3 r_c", SKIN_SHARE, SKIN_SHARE), ("1.0 r_c", 1.0, 1.0),
+               ("adapting", SKIN_SHARE, MAX_SKIN_SHARE))  # fmt: skip
+    rows = [f"N = {n} on {networks} networks, r_c = 2 d_nn = {cut:.3f} m, {periods} periods; "
+            "ms a network step (lists built at once / ahead)", "",
+            "| motion | " + " | ".join(m[0] for m in margins) + " |",
+            "|---|" + "---|" * len(margins)]  # fmt: skip
+    for name, amp, rad in motions:
+        at = _swinging(home, amp, rad, seed=4)
+        cells = [f"| {name}"]
+        for _, least, most in margins:
+            loop = ControlLoop(LawConfig(gains=Gains(repulsion_cutoff=cut)),
+                               dict.fromkeys(ids, base.gains.q_default), 50.0)  # fmt: skip
+            nl = NeighbourList(cut, least, most)
+            loop.controller._neighbours = nl  # the law's list, with these margins
+            pos, vel = home.copy(), np.zeros((n, 3))
+            took = 0.0
+            for k in range(2 * periods):  # the first half warms up (the margin settles)
+                now = at(k)
+                for rows_j in sets:
+                    pos[rows_j] = now[rows_j]
+                    t0 = time.process_time()
+                    loop.command(ids, pos, vel, rows_j)
+                    if k >= periods:
+                        took += time.process_time() - t0
+            steps = periods * networks
+            cells.append(f"{1e3 * took / steps:.3f} ({nl.builds} / {nl.ahead})")
+        rows.append(" | ".join(cells) + " |")
+    return rows
+
+
 def _episode_config() -> LawConfig:
     return LawConfig(
         leader=Leader(force=ConstantForce((10.0, 0.0, 0.0))),
@@ -248,12 +314,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description="Cost of the formation law, one core.")
     ap.add_argument("--cutoff", action="store_true", help="only the cut-off table")
     ap.add_argument("--counts", default="100,500,1000,2000", help="N of the cut-off table")
+    ap.add_argument("--margin", action="store_true", help="only the Verlet margin's table")
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cpus, "
           f"Python {platform.python_version()}, numpy {np.__version__}, "
           f"OMP/OPENBLAS/MKL threads = {os.environ['OPENBLAS_NUM_THREADS']}")  # fmt: skip
     print(f"load average (1, 5, 15 min): {os.getloadavg()}")
     print()
+    if args.margin:
+        print("\n".join(bench_verlet_margin()))
+        return
     counts = [int(x) for x in args.counts.split(",")]
     print("\n".join(bench_cutoff(counts)))
     print()

@@ -144,9 +144,15 @@ class NeighbourList:
     1.0 r_c 1.17 ms. Any margin gives the same pairs.
     """
 
-    def __init__(self, cutoff_m: float, skin_share: float = SKIN_SHARE) -> None:
+    def __init__(
+        self, cutoff_m: float, skin_share: float = SKIN_SHARE, max_share: float = MAX_SKIN_SHARE
+    ) -> None:
+        """Margins from ``skin_share`` to ``max_share`` of ``cutoff_m``
+        (equal: a fixed margin, as ``benchmarks/bench_law.py --margin``
+        compares)."""
         self.cutoff_m = float(cutoff_m)
         self.least_share = float(skin_share)
+        self.max_share = max(float(max_share), self.least_share)
         self.skin_m = skin_share * self.cutoff_m
         """The margin [m] of the list in use (of the first, before any)."""
         self._share = self.least_share
@@ -207,7 +213,7 @@ class NeighbourList:
         life widens the next list's margin, a long one narrows it (class
         docstring)."""
         if self._age < SHORT_LIST:
-            self._share = min(MAX_SKIN_SHARE, self._share * SKIN_GROWTH)
+            self._share = min(self.max_share, self._share * SKIN_GROWTH)
         elif self._age > KEPT_LIST:
             self._share = max(self.least_share, self._share / SKIN_GROWTH)
 

@@ -217,10 +217,13 @@ def test_the_margin_widens_while_the_swarm_churns_and_narrows_once_it_is_calm() 
         )
 
     assert nl.skin_m == pytest.approx(SKIN_SHARE * rc)
+    fixed = NeighbourList(rc, SKIN_SHARE, max_share=SKIN_SHARE)
     for step in range(120):
         pos = home + 0.5 * np.sin(0.6 * step + phase)[:, None] * way
         same(pos, sets[step % 4])
+        fixed.row_pairs(pos, sets[step % 4], key="ids")
     assert nl.skin_m == pytest.approx(MAX_SKIN_SHARE * rc)
+    assert fixed.skin_m == pytest.approx(SKIN_SHARE * rc)  # max_share: the margin held
     churned = nl.builds + nl.ahead
     builds = nl.builds
     for step in range(6 * (LONG_LIST + SLICES + 2)):  # calm: every list outlives LONG_LIST
