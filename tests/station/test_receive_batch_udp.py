@@ -75,5 +75,14 @@ def test_batches_of_a_shared_endpoint_fly_the_flight_of_one_datagram_at_a_time(
     assert [v.position_m for v in batched.vehicles] == [v.position_m for v in single.vehicles]
     assert batched.min_separation_m == single.min_separation_m
     assert batched.mission_time_s == single.mission_time_s
-    for name in ("received", "sent", "bad_packets", "setpoints_dropped", "spoofed"):
+    for name in ("sent", "bad_packets", "setpoints_dropped", "spoofed"):
         assert getattr(stats, name) == getattr(single_stats, name), name
+    # ``received`` also counts what comes while the run ends: the lockstep
+    # emulator may send one more round of reports (one per vehicle) after
+    # the mission's last step, and whether the station reads it before its
+    # link closes is a race with the ending, in either mode (measured: 4 of
+    # 30 flights batched and 2 of 30 one datagram at a time got it; their
+    # tlogs differ from the others' by those 40 LOCAL_POSITION_NED alone, at
+    # time_boot_ms 5,040 after the last step's 5,020; CI failed once on it).
+    # The flights' own reports are the same.
+    assert stats.received - single_stats.received in (-N, 0, N), "received"
