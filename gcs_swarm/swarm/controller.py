@@ -360,9 +360,12 @@ class ControllerCore:
         t = self.control.advance_clock(fresh)
         replies: list[SetpointReply] = []
         if ids:
+            # Each delivering shard's fresh vehicles the law flies (key order)
+            # and their rows; together they are ``fresh``'s (the others' are empty).
+            theirs = {v.index: _rows_of(keys, v.fresh) for v in live if v.delivered}
             rows = None  # every vehicle commanded
-            if self.step_per_network:  # the fresh ones only, when not every one
-                some = np.sort(_rows_of(keys, fresh)[1])
+            if self.step_per_network and theirs:  # the fresh ones only, when not every one
+                some = np.sort(np.concatenate([at for _, at in theirs.values()]))
                 if len(some) < len(ids):
                     rows = some
             commanded = command(self, ids, pos, vel, t, fresh.keys(), rows)
@@ -374,9 +377,9 @@ class ControllerCore:
             if job is not None:
                 self.lookahead.append(job)
             for v in live:
-                if not v.delivered:
+                if v.index not in theirs:
                     continue
-                mine, at = _rows_of(keys, v.fresh)  # its fresh vehicles the law flew, key order
+                mine, at = theirs[v.index]
                 idx = at if rows is None else np.searchsorted(rows, at)  # their accel rows
                 replies.append(SetpointReply(v.index, v.batch.seq if v.batch else 0, t,
                                              mine.astype(np.int32), accel[idx]))  # fmt: skip
