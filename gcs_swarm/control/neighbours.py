@@ -215,7 +215,11 @@ class NeighbourList:
         if self._age < SHORT_LIST:
             self._share = min(self.max_share, self._share * SKIN_GROWTH)
         elif self._age > KEPT_LIST:
-            self._share = max(self.least_share, self._share / SKIN_GROWTH)
+            self._narrow()
+
+    def _narrow(self) -> None:
+        """The next list's margin ``SKIN_GROWTH`` times tighter, down to the least."""
+        self._share = max(self.least_share, self._share / SKIN_GROWTH)
 
     def _slice(self, nxt: _Ahead, all_of_it: bool = False) -> bool:
         """Search the next slice of ``nxt`` (or all that is left); True when
@@ -262,7 +266,7 @@ class NeighbourList:
             self._ahead(pos_m, key)
         elif n >= ALL_PAIRS_BELOW and self._age > LONG_LIST and self._share > self.least_share:
             # A wide margin kept long: the swarm has calmed down, a tighter list ahead.
-            self._share = max(self.least_share, self._share / SKIN_GROWTH)
+            self._narrow()
             self._ahead(pos_m, key)
 
     def _ahead(self, pos_m: F64, key: object) -> None:
