@@ -332,6 +332,26 @@ class Autopilot:
         self.target = self._targets.accel(a)
         self.version += 1
 
+    def stream_deferrable(self) -> bool:
+        """True when a streamed acceleration setpoint (``stream_accel``) would
+        change nothing of this autopilot but ``sp``, ``_last_sp``, ``_t_phase``,
+        the target's a_ff and ``version``: GUIDED, armed, flying "accel" from a
+        stream, and a deadline no later setpoint can lower (``now`` only grows,
+        so ``min(deadline, now + GUID_TIMEOUT)`` keeps it). The emulator's core
+        may then hold such setpoints and make only the last one's call when
+        anything else is asked of the autopilot (``EmulatorCore``, the deferred
+        lane): each call overwrites what the one before set, so the state is
+        the same bit for bit (``version`` counts fewer bumps; only its change
+        is read)."""
+        return (
+            self.mode == GUIDED
+            and self.armed
+            and self._ctl == "accel"
+            and self.streaming
+            and self.echo_mask == _ACCEL_ONLY
+            and self.deadline <= self._last_sp + self._timeout_s()
+        )
+
     def _timeout_s(self) -> float:
         """GUID_TIMEOUT [s], at least 0.1 (read again only after a parameter
         changed: every streamed setpoint asks for it)."""

@@ -256,17 +256,31 @@ def stream_accel_fields(
 ) -> bool:
     """``stream_accel`` of a setpoint given by the fields it reads (a
     ``codec.RawSetpoint``'s, without a pymavlink message)."""
-    if type_mask != _ACCEL_ONLY or frame != mav.MAV_FRAME_LOCAL_NED or ap.mode != 4:
+    if ap.mode != 4 or not ap.armed or landed or ts not in (0, ap.sysid):
         return False
-    if not ap.armed or landed or not (ts in (0, ap.sysid) and tc in (0, ap.compid)):
+    a = streamed_accel(type_mask, frame, tc, ap.compid, ax, ay, az)
+    if a is None:
         return False
+    ap.stream_accel(a, now)  # heard, then applied
+    return True
+
+
+def streamed_accel(
+    type_mask: int, frame: int, tc: int, compid: int, ax: float, ay: float, az: float
+) -> Vec3 | None:
+    """The acceleration (local NED) a streamed setpoint's fields ask of a vehicle
+    of component ``compid`` in GUIDED, armed and airborne, or None when they are
+    not the station's stream (type_mask 3135, MAV_FRAME_LOCAL_NED, this
+    component or 0, every value within ``SETPOINT_LIMIT``): then ``dispatch``
+    takes it. What ``_setpoint`` would make of them, bit for bit."""
+    if type_mask != _ACCEL_ONLY or frame != mav.MAV_FRAME_LOCAL_NED or tc not in (0, compid):
+        return None
     lim = SETPOINT_LIMIT
     if not (abs(ax) <= lim and abs(ay) <= lim and abs(az) <= lim):
-        return False  # dispatch counts the rejection
+        return None  # dispatch counts the rejection
     # _rot(0.0, a) written out: cos 0 = 1 and sin 0 = 0 exactly, so the same
     # floats (signed zeros included) without two calls, 50 times a second.
-    ap.stream_accel((ax - 0.0 * ay, 0.0 * ax + ay, az), now)  # heard, then applied
-    return True
+    return (ax - 0.0 * ay, 0.0 * ax + ay, az)
 
 
 def _setpoint(ap: Autopilot, msg: MAVLinkMessage, now: float, kin: Kin) -> None:

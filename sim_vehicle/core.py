@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from sim_vehicle import lockstep, schedule
 from sim_vehicle.codec import RawSetpoint, pack_frame
-from sim_vehicle.commands import stream_accel, stream_accel_fields
+from sim_vehicle.commands import stream_accel, stream_accel_fields, streamed_accel
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import DelayLine, impair
@@ -79,6 +79,9 @@ class EmulatorCore:
         self._delayed_out: DelayLine[tuple[Port, Addr, bytes, list[int]]] = DelayLine()
         self._out_heard: set[int] = set()
         self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
+        self.defer_stream = True
+        """The deferred lane (``_deliver``); False: every setpoint calls its
+        autopilot at once (what the lane is tested against)."""
 
     # ------------------------------------------------------------ vehicles
     def add(self, spec: VehicleSpec, ep: Port, initial: bool, enc: Any) -> HostedVehicle:
@@ -103,6 +106,7 @@ class EmulatorCore:
     def remove(self, key: int) -> HostedVehicle:
         """Stop hosting vehicle ``key``; returns it (its port is the caller's to close)."""
         v = self.vehicle(key)
+        self._fold(v)
         del self.vehicles[key]
         self.fleet.remove(v.row)
         self._kins = None
@@ -127,6 +131,7 @@ class EmulatorCore:
 
     def set_param(self, v: HostedVehicle, name: str, value: float) -> None:
         """Set a parameter directly (as PARAM_SET would, without a reply)."""
+        self._fold(v)
         if not v.ap.params.set(name, value):
             raise KeyError(f"unknown parameter {name!r}")
         v.ap.refresh(self.sim_time_s, self.kin(v))
@@ -144,6 +149,7 @@ class EmulatorCore:
 
     def snapshot(self, v: HostedVehicle, endpoint: Addr, tcp: Addr | None) -> VehicleState:
         """``v`` now, served on ``endpoint`` (and TCP ``tcp``)."""
+        self._fold(v)
         k, ap = self.kin(v), v.ap
         return VehicleState(
             sysid=v.spec.key,
@@ -169,6 +175,7 @@ class EmulatorCore:
     def contact(self, v: HostedVehicle) -> None:
         """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""
         v.contacted = True
+        self._fold(v)
         v.ap.contact(self.sim_time_s)
         self.sync(v, self.sim_time_s)
 
@@ -232,10 +239,20 @@ class EmulatorCore:
     def _deliver(self, ep: Port, msgs: list[Any], wall_s: float | None) -> None:
         """Each message to the autopilots it is for, in order; a setpoint
         may come as a ``codec.RawSetpoint`` (``Endpoint.parse(raw=True)``),
-        read by the 50 Hz lane and made a message only if the lane declines."""
+        read by the 50 Hz lane and made a message only if the lane declines.
+
+        The deferred lane: a streamed acceleration setpoint for a vehicle
+        whose autopilot is ``stream_deferrable`` (already flying the stream)
+        and is not landed writes its a_ff into the fleet row and is held;
+        the autopilot's own ``stream_accel`` runs once, for the last one
+        held, when anything else is asked of it (``_fold``). Its ``wall_s``
+        is not set: only the GCS failsafe reads it, at a poll or a HEARTBEAT,
+        each of which sets it first."""
         now = self.sim_time_s
-        landed = self.fleet.landed
+        fleet = self.fleet
+        landed, set_a_ff = fleet.landed, fleet.set_a_ff
         vehicles, sysids = self.vehicles, ep.sysids
+        defer = self.defer_stream
         for m in msgs:
             cls = m.__class__
             f = m.f if cls is RawSetpoint else None
@@ -243,11 +260,26 @@ class EmulatorCore:
             if ts == 0:
                 targets = [vehicles[sysids[s]] for s in sorted(sysids)]
             elif ts in sysids:
-                targets = [vehicles[sysids[ts]]]
+                v = vehicles[sysids[ts]]
+                if v.lane and defer and not landed[v.row]:
+                    if f is not None:
+                        a = streamed_accel(f[12], f[15], f[14], v.spec.compid, f[7], f[8], f[9])
+                    elif cls is _SETPOINT_CLASS:
+                        a = streamed_accel(m.type_mask, m.coordinate_frame, m.target_component,
+                                           v.spec.compid, m.afx, m.afy, m.afz)  # fmt: skip
+                    else:
+                        a = None
+                    if a is not None:
+                        v.lane_a, v.lane_t = a, now
+                        set_a_ff(v.row, a)
+                        continue
+                targets = [v]
             else:
                 continue
             msg = m
             for v in targets:
+                if v.lane_a is not None:
+                    self._fold(v)
                 ap = v.ap
                 if wall_s is not None:
                     ap.wall_s = wall_s  # lockstep: the GCS failsafe's clock
@@ -274,6 +306,23 @@ class EmulatorCore:
                 if replies:
                     self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
                 self.sync(v, now)
+
+    def _fold(self, v: HostedVehicle) -> None:
+        """The deferred lane's last setpoint for ``v`` into its autopilot
+        (``Autopilot.stream_accel``) and row: before anything else reads or
+        changes the autopilot."""
+        a = v.lane_a
+        if a is not None:
+            v.lane_a = None
+            v.ap.stream_accel(a, v.lane_t)
+            self._sync_target(v, holding_may_change=False)
+
+    def fold(self) -> None:
+        """Every held setpoint into its autopilot (``_deliver``): each autopilot's state
+        as if it had taken every setpoint at once (for a reader of ``vehicles``)."""
+        for v in self.rows:
+            if v.lane_a is not None:
+                self._fold(v)
 
     # ------------------------------------------------------------ outbound
     def pack(self, v: HostedVehicle, msg: Any) -> bytes:
@@ -344,6 +393,7 @@ class EmulatorCore:
             holding = ap.holding
             if holding != v.row_holding:
                 f.holding[row] = v.row_holding = holding
+        v.lane = ap.stream_deferrable()
         if ap.version == v.seen_version:
             return False
         v.seen_version = ap.version
@@ -422,6 +472,8 @@ class EmulatorCore:
         wall_s = wall() if wall is not None and polled else None
         for row in polled:
             v = self.rows[row]
+            if v.lane_a is not None:
+                self._fold(v)
             if wall_s is not None:
                 v.ap.wall_s = wall_s  # Autopilot.wall_s: lockstep's GCS failsafe clock
             out_msgs = v.ap.poll(now, self.kin(v))

@@ -163,6 +163,11 @@ class Fleet:
         self.lean[row] = tg.lean_acc
         self.drag[row] = tg.drag
 
+    def set_a_ff(self, row: int, a_ff: tuple[float, float, float]) -> None:
+        """The row's feed-forward acceleration alone (the deferred lane's setpoint:
+        the rest of its target stays), written at the next ``step``."""
+        self._a_ff_due[row] = a_ff
+
     def _write_a_ff(self) -> None:
         """The ``a_ff`` set since the last step into its rows (the last of each row's)."""
         due = self._a_ff_due

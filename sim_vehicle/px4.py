@@ -336,6 +336,9 @@ class Px4Autopilot(Autopilot):
     def setpoint_heard(self, now: float) -> None:
         self._sp_times = (self._sp_times[1], now)
 
+    def stream_deferrable(self) -> bool:
+        return False  # each setpoint is heard (the stream-loss clock) and queued (Eq. D8)
+
     def stream_accel(self, a: Vec3, now: float) -> None:
         # Heard (the stream-loss clock), then queued by Eq. D8: the queue reads no Kin
         # (the due setpoint is applied with the kinematics of its due time).

@@ -82,6 +82,12 @@ class HostedVehicle:
     initial: bool
     contacted: bool = False
     seen_version: int = -1
+    # The deferred lane (EmulatorCore._deliver): open while the autopilot's
+    # ``stream_deferrable``; the last setpoint it held (local NED m/s^2, None: none)
+    # and the sim time it was heard, for the autopilot's ``stream_accel`` at ``_fold``.
+    lane: bool = False
+    lane_a: Vec3 | None = None
+    lane_t: float = 0.0
     # what sync wrote into the fleet row last (rows move with their data on removal)
     row_deadline: float | None = None
     row_holding: bool | None = None
