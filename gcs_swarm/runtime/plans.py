@@ -36,6 +36,7 @@ __all__ = [
     "EXIT_CODES",
     "LOCKSTEP_GROUND_SPEEDUP",
     "check_shard_events",
+    "check_shards",
     "emulator_config",
     "param_settings",
     "shard_config",
@@ -208,6 +209,20 @@ def shard_of_network(mission: Mission, shards: int) -> dict[int, int]:
     ``nets[i::shards]``)."""
     nets = sorted({v.net_index for v in mission.vehicles})
     return {n: i % shards for i, n in enumerate(nets)}
+
+
+def check_shards(mission: Mission, shards: int) -> None:
+    """``UsageError`` unless ``mission`` can be flown by ``shards`` shards,
+    each owning whole networks (module docstring: what is not sharded yet)."""
+    nets = len({v.net_index for v in mission.vehicles})
+    if shards < 1:
+        raise UsageError(f"--shards: expected a whole number >= 1, got {shards}")
+    if shards > nets:
+        raise UsageError(
+            f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
+            " (name more networks: docs/mission-format.md, networks)"
+        )
+    check_shard_events(mission, shards)
 
 
 def check_shard_events(mission: Mission, shards: int) -> None:

@@ -44,13 +44,14 @@ from pathlib import Path
 from typing import Any
 
 from gcs_swarm.control.params import Envelope
-from gcs_swarm.errors import LinkError, StartupError, UsageError
+from gcs_swarm.errors import LinkError, StartupError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mission import Mission
 from gcs_swarm.report.artefacts import RunFolder, create_run_folder
 from gcs_swarm.runtime import plans
 from gcs_swarm.runtime.ending import EndRequest, unless_ended
 from gcs_swarm.runtime.lifetime import reap
+from gcs_swarm.runtime.plans import check_shards
 from gcs_swarm.runtime.run_report import ControllerLog
 from gcs_swarm.runtime.shard import BEAT_S
 from gcs_swarm.runtime.summary import RunSummary
@@ -94,20 +95,6 @@ _HANDSHAKE_S = 30.0
 session: about a second each on a loaded 2-core machine)."""
 
 
-def check_shards(mission: Mission, shards: int) -> None:
-    """``UsageError`` unless ``mission`` can be flown by ``shards`` shards,
-    each owning whole networks (module docstring: what is not sharded yet)."""
-    nets = len({v.net_index for v in mission.vehicles})
-    if shards < 1:
-        raise UsageError(f"--shards: expected a whole number >= 1, got {shards}")
-    if shards > nets:
-        raise UsageError(
-            f"--shards {shards}: a shard owns whole networks and the mission has {nets}"
-            " (name more networks: docs/mission-format.md, networks)"
-        )
-    plans.check_shard_events(mission, shards)
-
-
 class ShardedRun:
     """The controller's shell: Zenoh in and out, one timer, the shards'
     handshake and reports (``run_sharded`` drives it)."""
@@ -132,6 +119,7 @@ class ShardedRun:
         self.droppable = True
         """Replies may be dropped on a congested link (real time: the next step
         brings one); never in lockstep, where nothing follows a lost one."""
+        self._step_soon = False  # a real-time step waits for the loop's next turn
         self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
         """Bytes of state batches in, replies out, and the steps they made."""
         self.flight_s: tuple[float, float] | None = None
@@ -186,6 +174,14 @@ class ShardedRun:
         if self._declared_dead(batch.shard):
             return
         self.core.receive_state(batch, self.now())
+        if not self.droppable:  # lockstep: each batch is stepped as it comes
+            self._after()
+        elif not self._step_soon:  # real time: batches queued behind it join its step
+            self._step_soon = True  # (docs/architecture.md, "Scaled out: shards")
+            asyncio.get_running_loop().call_soon(self._step_queued)
+
+    def _step_queued(self) -> None:
+        self._step_soon = False
         self._after()
 
     def _declared_dead(self, index: int) -> bool:

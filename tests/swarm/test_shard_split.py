@@ -521,3 +521,27 @@ def test_a_vehicle_heard_again_on_its_shard_rejoins_at_its_slot_beside_the_leade
     c = ctl2.control.last
     assert c is not None and c.ids == (1, 2, 3, 4)
     assert float(np.linalg.norm(c.pos_m[2] - (3.0, 4.0, 2.0))) < 0.35
+
+
+def test_batches_queued_before_a_step_are_answered_by_one_step() -> None:
+    """Real time, a step per network: a controller that fell behind takes the
+    batches queued behind each other before it steps (``runtime.sharded``: the
+    step waits for the loop's next turn). Their fresh vehicles add up, and one
+    step answers each of them with the newest states; none is left out."""
+    core = _controller(lockstep=False, step_per_network=True)
+    core.receive_state(_state(1, 1, [257, 258], 5000), 0.0)
+    core.receive_state(_state(0, 1, [1, 2], 1000), 0.0)
+    core.control_step(0.0)
+    # Shard 0's two networks report 10 ms apart (vehicle 1, then vehicle 2),
+    # and both batches are in before the step: one step, both answered.
+    first = _state(0, 2, [1, 2], 1020)._replace(boot_ms=np.array([1020, -1], dtype=np.int64))
+    second = _state(0, 3, [1, 2], 1030, shift=0.5)._replace(
+        boot_ms=np.array([-1, 1030], dtype=np.int64)
+    )
+    core.receive_state(first, 0.02)
+    core.receive_state(second, 0.03)
+    assert core.step_wanted
+    (reply,) = core.control_step(0.03)
+    assert (reply.shard, reply.seq, reply.keys.tolist()) == (0, 3, [1, 2])
+    assert core.flying == [1, 2, 257, 258]
+    assert not core.step_wanted and core.control_step(0.03) == []  # nothing fresh is left
