@@ -18,12 +18,18 @@ are pinned to different cores when the machine has two.
    CPU per step. Each vehicle has its own endpoint; with ``--shared`` all six
    share one (``shared_port``, as ``bench_lockstep.py`` runs the real station)
    and the sink answers a datagram of reports with one datagram of setpoints.
+3. ``--networks N`` (alone): the emulator's CPU per vehicle-cycle at scale,
+   in process and without sockets read: N vehicles as networks of 250 on
+   shared endpoints, each network's step and its 250 setpoints in datagrams
+   of at most 1,200 bytes (``in_process``), with the deferred lane
+   (docs/emulator.md) on and off, alternated twice.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import socket
 import subprocess
 import sys
@@ -152,6 +158,93 @@ async def lockstep(n: int, seconds: float, shared: bool) -> dict[str, float]:
     return {"steps_per_s": rate, "speedup": rate / RATE_HZ, "timeouts": timeouts, "cpu": cpu}
 
 
+def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
+    """``--networks N``: emulator CPU [us] per vehicle-cycle, (setpoints, step).
+
+    N airborne vehicles as bench_station's networks of 250, each network's
+    ``EmulatorCore`` on a shared UDP endpoint (as ``bench_shards --realtime``
+    flies them), driven here as its asyncio shell drives it, without the
+    clock: a physics step of each network in turn (``core.step``: its
+    LOCAL_POSITION_NED sent to a socket drained between steps, not timed),
+    then that network's 250 acceleration setpoints in datagrams of at most
+    ``MAX_DATAGRAM_BYTES`` (as a station joins them), each parsed by the
+    endpoint and received by the core (``server.Emulator._receive``).
+    ``defer``: the deferred lane on or off (``EmulatorCore.defer_stream``)."""
+    import random
+    from dataclasses import replace
+
+    import bench_station
+    import numpy as np
+
+    from gcs_swarm.runtime.run import emulator_config
+    from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
+    from sim_vehicle import signing
+    from sim_vehicle.core import EmulatorCore
+    from sim_vehicle.impairments import Impairer
+    from sim_vehicle.link import Endpoint, bind_udp
+
+    whole, sizes = bench_station.load(n, networks=True), bench_station.groups(n)
+    gcs_sock = bind_udp("127.0.0.1", 0)
+    gcs_sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 24)
+    gcs = gcs_sock.getsockname()
+    enc = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    rng = random.Random(1)
+
+    def drain() -> None:
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                gcs_sock.recv(65536)
+
+    nets = []
+    for j, size in enumerate(sizes):
+        cfg = replace(emulator_config(whole, airborne=True, network=j), shared_port=0)
+        core = EmulatorCore(cfg)
+        core.defer_stream = defer
+        clean = [Impairer(cfg.uplink, np.random.default_rng(0)) for _ in range(2)]
+        ep = Endpoint(sock=bind_udp("127.0.0.1", 0), shared=True, uplink=clean[0],
+                      downlink=clean[1], on_datagram=lambda e, d, a: None,
+                      stats=core.stats.link)  # fmt: skip
+        core.ports.append(ep)
+        for spec in cfg.vehicles:
+            core.add(spec, ep, True, signing.mavlink(spec.sysid, spec.compid, None))
+        core.emit(0.0)
+        hello = [enc.heartbeat_encode(6, 8, 0, 0, 4).pack(enc)] + [
+            enc.command_long_encode(s, 1, 511, 0, 32, 20000, 0, 0, 0, 0, 0).pack(enc)
+            for s in range(1, size + 1)
+        ]  # HEARTBEAT, then LOCAL_POSITION_NED at 50 Hz
+        for gram in hello:
+            core.receive(ep, ep.parse(gram, raw=True), gcs, None)
+        nets.append((core, ep, size))
+    t_rx = t_step = 0
+    for k in range(cycles + 10):
+        for core, ep, size in nets:
+            a = time.thread_time_ns()
+            core.step()
+            b = time.thread_time_ns()
+            drain()
+            frames = [
+                enc.set_position_target_local_ned_encode(
+                    0, s, 1, 1, 3135, 0, 0, 0, 0, 0, 0, rng.uniform(-1, 1),
+                    rng.uniform(-1, 1), rng.uniform(-0.5, 0.5), 0, 0,
+                ).pack(enc)
+                for s in range(1, size + 1)
+            ]  # fmt: skip
+            data, start, grams = b"".join(frames), 0, []
+            for _, end in datagram_bounds([len(f) for f in frames], MAX_DATAGRAM_BYTES):
+                grams.append(data[start:end])
+                start = end
+            c = time.thread_time_ns()
+            for gram in grams:
+                core.receive(ep, ep.parse(gram, raw=True), gcs, None)
+            d = time.thread_time_ns()
+            if k >= 10:  # the first cycles warm up
+                t_step, t_rx = t_step + b - a, t_rx + d - c
+    for _, ep, _ in nets:
+        ep.sock.close()
+    gcs_sock.close()
+    return t_rx / 1e3 / (n * cycles), t_step / 1e3 / (n * cycles)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sink", nargs=2, metavar=("SECONDS", "ANSWER"))
@@ -164,7 +257,20 @@ def main() -> None:
     ap.add_argument(
         "--profile", metavar="FILE", help="cProfile the lockstep part (emulator side) into FILE"
     )
+    ap.add_argument(
+        "--networks", type=int, metavar="N", help="in process: CPU per vehicle-cycle at N"
+    )
+    ap.add_argument("--cycles", type=int, default=200)
     args = ap.parse_args()
+    if args.networks:
+        pin(0)
+        print(f"emulator in process, N = {args.networks} in networks of 250 on shared ports, "
+              f"{args.cycles} cycles; CPU us per vehicle-cycle")  # fmt: skip
+        for defer in (True, False, True, False):
+            rx, st = in_process(args.networks, args.cycles, defer)
+            print(f"deferred lane {'on ' if defer else 'off'}: setpoints {rx:.2f}, "
+                  f"step and telemetry {st:.2f}, together {rx + st:.2f}", flush=True)  # fmt: skip
+        return
     if args.sink:
         ports = [int(p) for p in sys.stdin.readline().split()]
         sink(ports, float(args.sink[0]), args.sink[1] == "1")
