@@ -171,11 +171,18 @@ class Autopilot:
             self.lpn_kick = interval_s > 0
             self.version += 1
         elif interval_s > 0:
-            self._streams[msgid] = [interval_s, now]  # first one at once (lockstep rule 1)
-            self.deadline = now
+            self._streams.pop(msgid, None)
+            due = reports.bucket_due(self._streams.values(), interval_s, now)
+            due = due if self.stream_buckets else now
+            self._streams[msgid] = [interval_s, due]
+            self.deadline = min(self.deadline, due)
         else:
             self._streams.pop(msgid, None)
         return True
+
+    stream_buckets = True
+    """ArduPilot's deferred-message buckets (``reports.bucket_due``); False: a
+    stream's first message goes at once, then one each interval (PX4's)."""
 
     def interval_of(self, msgid: int) -> float:
         """Current interval in s of ``msgid`` (-1 when not streamed)."""
@@ -339,18 +346,11 @@ class Autopilot:
         stream, and a deadline no later setpoint can lower (``now`` only grows,
         so ``min(deadline, now + GUID_TIMEOUT)`` keeps it). The emulator's core
         may then hold such setpoints and make only the last one's call when
-        anything else is asked of the autopilot (``EmulatorCore``, the deferred
-        lane): each call overwrites what the one before set, so the state is
-        the same bit for bit (``version`` counts fewer bumps; only its change
-        is read)."""
-        return (
-            self.mode == GUIDED
-            and self.armed
-            and self._ctl == "accel"
-            and self.streaming
-            and self.echo_mask == _ACCEL_ONLY
-            and self.deadline <= self._last_sp + self._timeout_s()
-        )
+        anything else is asked of the autopilot (docs/emulator.md, the
+        deferred lane): each call overwrites what the one before set."""
+        flying = self.mode == GUIDED and self.armed and self.streaming
+        stream = self._ctl == "accel" and self.echo_mask == _ACCEL_ONLY
+        return flying and stream and self.deadline <= self._last_sp + self._timeout_s()
 
     def _timeout_s(self) -> float:
         """GUID_TIMEOUT [s], at least 0.1 (read again only after a parameter

@@ -336,6 +336,8 @@ class Px4Autopilot(Autopilot):
     def setpoint_heard(self, now: float) -> None:
         self._sp_times = (self._sp_times[1], now)
 
+    stream_buckets = False  # each stream on its own, the first message at once
+
     def stream_deferrable(self) -> bool:
         return False  # each setpoint is heard (the stream-loss clock) and queued (Eq. D8)
 

@@ -116,3 +116,40 @@ def test_unknown_command_is_unsupported() -> None:
     ap = _airborne()
     (ack,) = ap.handle(_cmd(mav.MAV_CMD_DO_SET_SERVO, 1, 1500), 0.0, HOVER)
     assert ack.result == mav.MAV_RESULT_UNSUPPORTED and ack.command == mav.MAV_CMD_DO_SET_SERVO
+
+
+def _sent_times(
+    ap: Autopilot, asks: list[tuple[float, int, float]], until: float
+) -> dict[int, list[float]]:
+    """Poll ``ap`` at its deadlines on a 50 Hz clock, handing it the
+    SET_MESSAGE_INTERVAL ``asks`` (time, message id, interval s) on the way:
+    when each asked message went out."""
+    sent: dict[int, list[float]] = {mid: [] for _, mid, _ in asks}
+    pending = sorted(asks)
+    for k in range(round(until / 0.02) + 1):
+        now = round(k * 0.02, 6)
+        while pending and pending[0][0] <= now + 1e-9:
+            _, mid, interval = pending.pop(0)
+            ap.handle(_cmd(511, mid, interval * 1e6), now, HOVER)
+        if ap.deadline <= now + 1e-9:
+            for msg in ap.poll(now, HOVER):
+                if msg.get_msgId() in sent:
+                    sent[msg.get_msgId()].append(now)
+    return sent
+
+
+def test_streams_of_one_interval_share_arducopter_s_bucket() -> None:
+    """ArduCopter 4.5.6 SITL, measured (docs/emulator.md): EKF_STATUS_REPORT,
+    GPS_RAW_INT and EXTENDED_SYS_STATE asked at 2 Hz at 0, 62 and 141 ms
+    came first at 0.502, 1.004 and 1.004 s, then together every 0.5 s. On the
+    emulator's 50 Hz clock, asked at 0, 60 and 140 ms: the first one interval
+    after it was asked for, the two that joined its bucket at the bucket's
+    send after its next, then all three at once."""
+    ekf, gps, ess = 193, 24, 245
+    asks = [(0.0, ekf, 0.5), (0.06, gps, 0.5), (0.14, ess, 0.5)]
+    sent = _sent_times(_airborne(), asks, 2.6)
+    assert sent[ekf] == [0.5, 1.0, 1.5, 2.0, 2.5]
+    assert sent[gps] == sent[ess] == [1.0, 1.5, 2.0, 2.5]
+    # Another interval is a bucket of its own: first one interval after the ask.
+    sent = _sent_times(_airborne(), [(0.0, ekf, 0.5), (0.1, gps, 0.25)], 1.2)
+    assert sent[ekf] == [0.5, 1.0] and sent[gps] == [0.36, 0.6, 0.86, 1.1]
