@@ -29,25 +29,7 @@ from swarm_harness import Radio, Sky, mission_from
 
 from gcs_swarm.mission import Event, Mission
 from sim_vehicle import Impairment
-
-
-def _canon(x: Any, depth: int = 0) -> Any:
-    """A value comparable bit for bit (floats by their hex), an autopilot's
-    state but ``version``, which counts bumps (the lane makes fewer; only its
-    change is read)."""
-    if depth > 6:
-        return repr(type(x))
-    if isinstance(x, float):
-        return x.hex() if math.isfinite(x) else repr(x)
-    if isinstance(x, (str, int, bool, type(None))):
-        return x
-    if isinstance(x, dict):
-        return {k: _canon(v, depth + 1) for k, v in x.items() if k != "version"}
-    if isinstance(x, (list, tuple)):
-        return (type(x).__name__, [_canon(v, depth + 1) for v in x])
-    if hasattr(x, "__dict__"):
-        return (type(x).__name__, _canon(vars(x), depth + 1))
-    return repr(x)
+from tests.sim_vehicle.state_bits import canon
 
 
 class _RecordingSky(Sky):
@@ -136,7 +118,7 @@ def _fly(defer: bool, raw: bool) -> tuple[_RecordingSky, list[Any]]:
     sky.end()
     for emu in sky.emus:
         emu.fold()
-    states = [_canon(vars(v.ap)) for emu in sky.emus for v in emu.rows]
+    states = [canon(vars(v.ap), skip={"version"}) for emu in sky.emus for v in emu.rows]
     return sky, states
 
 
