@@ -171,18 +171,19 @@ class Autopilot:
             self.lpn_kick = interval_s > 0
             self.version += 1
         elif interval_s > 0:
-            self._streams.pop(msgid, None)
+            kept = self._streams.pop(msgid, None)
             due = reports.bucket_due(self._streams.values(), interval_s, now)
-            due = due if self.stream_buckets else now
+            if not self.stream_buckets:
+                due = now
+            elif kept is not None and kept[0] == interval_s:
+                due = kept[1]  # asked again at its interval: its bucket stays (ArduPilot)
             self._streams[msgid] = [interval_s, due]
             self.deadline = min(self.deadline, due)
         else:
             self._streams.pop(msgid, None)
         return True
 
-    stream_buckets = True
-    """ArduPilot's deferred-message buckets (``reports.bucket_due``); False: a
-    stream's first message goes at once, then one each interval (PX4's)."""
+    stream_buckets = True  # ArduPilot's buckets (reports.bucket_due); False: first at once
 
     def interval_of(self, msgid: int) -> float:
         """Current interval in s of ``msgid`` (-1 when not streamed)."""
@@ -344,10 +345,9 @@ class Autopilot:
         change nothing of this autopilot but ``sp``, ``_last_sp``, ``_t_phase``,
         the target's a_ff and ``version``: GUIDED, armed, flying "accel" from a
         stream, and a deadline no later setpoint can lower (``now`` only grows,
-        so ``min(deadline, now + GUID_TIMEOUT)`` keeps it). The emulator's core
-        may then hold such setpoints and make only the last one's call when
-        anything else is asked of the autopilot (docs/emulator.md, the
-        deferred lane): each call overwrites what the one before set."""
+        so ``min(deadline, now + GUID_TIMEOUT)`` keeps it). The emulator may then
+        hold such setpoints and call only for the last one (docs/emulator.md,
+        the deferred lane): each call overwrites what the one before set."""
         flying = self.mode == GUIDED and self.armed and self.streaming
         stream = self._ctl == "accel" and self.echo_mask == _ACCEL_ONLY
         return flying and stream and self.deadline <= self._last_sp + self._timeout_s()

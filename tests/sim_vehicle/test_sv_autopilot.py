@@ -150,6 +150,10 @@ def test_streams_of_one_interval_share_arducopter_s_bucket() -> None:
     sent = _sent_times(_airborne(), asks, 2.6)
     assert sent[ekf] == [0.5, 1.0, 1.5, 2.0, 2.5]
     assert sent[gps] == sent[ess] == [1.0, 1.5, 2.0, 2.5]
+    # Asked again at its interval, a stream keeps its bucket's times.
+    sent = _sent_times(_airborne(), [*asks, (0.7, ekf, 0.5), (1.2, gps, 0.5)], 2.6)
+    assert sent[ekf] == [0.5, 1.0, 1.5, 2.0, 2.5]
+    assert sent[gps] == sent[ess] == [1.0, 1.5, 2.0, 2.5]
     # Another interval is a bucket of its own: first one interval after the ask.
     sent = _sent_times(_airborne(), [(0.0, ekf, 0.5), (0.1, gps, 0.25)], 1.2)
     assert sent[ekf] == [0.5, 1.0] and sent[gps] == [0.36, 0.6, 0.86, 1.1]
