@@ -167,7 +167,7 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
     clock: a physics step of each network in turn (``core.step``: its
     LOCAL_POSITION_NED sent to a socket drained between steps, not timed),
     then that network's 250 acceleration setpoints in datagrams of at most
-    ``MAX_DATAGRAM_BYTES`` (as a station joins them), each parsed by the
+    ``MAX_DATAGRAM_BYTES`` (``core.join_frames``), each parsed by the
     endpoint and received by the core (``server.Emulator._receive``).
     ``defer``: the deferred lane on or off (``EmulatorCore.defer_stream``)."""
     import random
@@ -177,9 +177,8 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
     import numpy as np
 
     from gcs_swarm.runtime.run import emulator_config
-    from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
     from sim_vehicle import signing
-    from sim_vehicle.core import EmulatorCore
+    from sim_vehicle.core import EmulatorCore, join_frames
     from sim_vehicle.impairments import Impairer
     from sim_vehicle.link import Endpoint, bind_udp
 
@@ -200,9 +199,9 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
         cfg = replace(emulator_config(whole, airborne=True, network=j), shared_port=0)
         core = EmulatorCore(cfg)
         core.defer_stream = defer
-        clean = [Impairer(cfg.uplink, np.random.default_rng(0)) for _ in range(2)]
-        ep = Endpoint(sock=bind_udp("127.0.0.1", 0), shared=True, uplink=clean[0],
-                      downlink=clean[1], on_datagram=lambda e, d, a: None,
+        up, down = (Impairer(imp, np.random.default_rng(0)) for imp in (cfg.uplink, cfg.downlink))
+        ep = Endpoint(sock=bind_udp("127.0.0.1", 0), shared=True, uplink=up,
+                      downlink=down, on_datagram=lambda e, d, a: None,
                       stats=core.stats.link)  # fmt: skip
         core.ports.append(ep)
         for spec in cfg.vehicles:
@@ -229,10 +228,7 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
                 ).pack(enc)
                 for s in range(1, size + 1)
             ]  # fmt: skip
-            data, start, grams = b"".join(frames), 0, []
-            for _, end in datagram_bounds([len(f) for f in frames], MAX_DATAGRAM_BYTES):
-                grams.append(data[start:end])
-                start = end
+            grams = [data for data, _ in join_frames([(f, 0) for f in frames])]
             c = time.thread_time_ns()
             for gram in grams:
                 core.receive(ep, ep.parse(gram, raw=True), gcs, None)
