@@ -141,6 +141,7 @@ async def _realtime(
         "setpoints": sum(e["setpoints"] or nan for e in ends),
         "missed": sum(e["missed"] if e["missed"] is not None else nan for e in ends),
         "shm_share": run.bus.shm_in / max(run.bus.samples_in, 1),
+        "state_kb": run.bytes_per_step["state"] / max(run.bytes_per_step["batches"], 1) / 1e3,
     }
 
 
@@ -152,7 +153,7 @@ def realtime_main(args: argparse.Namespace) -> None:
           f"Zenoh shared memory {shm}; {options}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
           f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'missed':>6} "
-          f"{'in shm':>6}")  # fmt: skip
+          f"{'in shm':>6} {'kB/batch':>8}")  # fmt: skip
     for k in (int(x) for x in args.shards.split(",")):
         try:
             r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds,
@@ -163,7 +164,8 @@ def realtime_main(args: argparse.Namespace) -> None:
         ok = "ok" if r["outcome_ok"] else "degraded"
         print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
               f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "
-              f"{r['setpoints']:8.0f} {r['missed']:6.0f} {100 * r['shm_share']:5.0f}%",
+              f"{r['setpoints']:8.0f} {r['missed']:6.0f} {100 * r['shm_share']:5.0f}% "
+              f"{r['state_kb']:8.1f}",
               flush=True)  # fmt: skip
 
 

@@ -120,8 +120,8 @@ class ShardedRun:
         """Replies may be dropped on a congested link (real time: the next step
         brings one); never in lockstep, where nothing follows a lost one."""
         self._step_soon = False  # a real-time step waits for the loop's next turn
-        self.bytes_per_step: dict[str, int] = {"state": 0, "reply": 0, "steps": 0}
-        """Bytes of state batches in, replies out, and the steps they made."""
+        self.bytes_per_step: dict[str, int] = {"state": 0, "batches": 0, "reply": 0, "steps": 0}
+        """Bytes of state batches in (and the batches), replies out, and the steps they made."""
         self.flight_s: tuple[float, float] | None = None
         """Loop times [s] of the formation's start and of the mission's end."""
         self.origin: list[float] | None = None
@@ -171,6 +171,7 @@ class ShardedRun:
     def _on_state(self, key: str, data: bytes) -> None:
         batch = decode_state(data)
         self.bytes_per_step["state"] += len(data)
+        self.bytes_per_step["batches"] += 1
         if self._declared_dead(batch.shard):
             return
         self.core.receive_state(batch, self.now())

@@ -58,7 +58,7 @@ from gcs_swarm.control.loop import ControlLoop
 from gcs_swarm.control.params import Box, Envelope, LawConfig
 from gcs_swarm.mavlink.states import ProtocolConfig
 from gcs_swarm.swarm.departures import column, describe
-from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
+from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch, expand
 from gcs_swarm.swarm.step import command, resolve_lookahead
 
 if TYPE_CHECKING:
@@ -163,6 +163,8 @@ class ControllerCore:
         """The vehicles the law flew at the last step (``flying``)."""
         self.fallbacks = 0
         """Steps taken on the fallback delay, without every shard's states."""
+        self.unplaced = 0
+        """State batches of changes dropped for want of their base (``receive_state``)."""
         self._fallback_at: float | None = None
 
     @property
@@ -199,11 +201,23 @@ class ControllerCore:
         """A shard's state batch (a dead shard's is ignored: it stays out).
         One without a fresh report (``ShardSide.opening``) only gives its
         vehicles' states: nothing of it to answer (with a step per network,
-        the last states a delivered batch waited for)."""
+        the last states a delivered batch waited for). A batch of changes
+        is laid over the shard's last one (``shard_wire.expand``); one that
+        cannot be (its base not held: out of order, or another run's) is
+        counted in ``unplaced`` and dropped."""
         view = self.shards.get(batch.shard)
         if view is None or not view.alive:
             return
         view.heard_at = now
+        whole = expand(batch, view.batch)
+        if whole is None:
+            self.unplaced += 1
+            if self.unplaced == 1:
+                self.note(f"shard {batch.shard}: state batch {batch.seq} updates batch "
+                          f"{batch.base}, which is not the one held; dropped (counted in "
+                          "unplaced)", level=logging.WARNING)  # fmt: skip
+            return
+        batch = whole
         view.batch = batch
         view.flying = len(batch.keys)
         fresh = batch.fresh()

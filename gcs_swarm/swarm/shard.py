@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch
+from gcs_swarm.swarm.shard_wire import SetpointReply, StateBatch, changes
 from gcs_swarm.swarm.step import Write, answer, flying_states, send_rejoiners
 
 if TYPE_CHECKING:
@@ -73,13 +73,23 @@ class ShardSide:
         self.replies = 0
         self.states = 0
         self._unanswered: deque[StateBatch] = deque()
-        """The state batches sent after the last one answered: a reply answers
-        its batch's vehicles from the velocities that batch carried (Eq. V1
-        starts there)."""
+        """The state batches sent after the last one answered, whole: a reply
+        answers its batch's vehicles from the velocities that batch carried
+        (Eq. V1 starts there)."""
+        self._answered: StateBatch | None = None
+        """The last batch the controller answered, whole: it holds it (or a
+        later one), so the next batch need carry only what changed since
+        (``shard_wire.changes``)."""
+        self.rows_sent = 0
+        self.rows_flying = 0
+        """Rows the state batches carried, and the flying vehicles they stood for."""
 
     def take_state(self, now: float) -> StateBatch | None:
         """The step the core wants, as the controller's input: None while
-        ending."""
+        ending. Once the controller has answered a batch of the same
+        vehicles as every batch sent since, only the rows that changed since
+        that batch (``shard_wire.changes``; the controller lays them over it,
+        ``shard_wire.expand``); the whole batch otherwise."""
         core = self.core
         fresh = core.take_step()
         if fresh is None:
@@ -90,7 +100,16 @@ class ShardSide:
         batch = self._batch(now, fresh)
         self.states += 1
         self._unanswered.append(batch)
-        return batch
+        base = self._answered
+        if base is not None and all(
+            b.keys is base.keys or np.array_equal(b.keys, base.keys) for b in self._unanswered
+        ):
+            sent = changes(batch, base)
+        else:  # nothing answered yet, or a vehicle joined or left since: every row
+            sent = batch
+        self.rows_sent += len(sent.keys)
+        self.rows_flying += len(batch.keys)
+        return sent
 
     def opening(self, now: float) -> StateBatch:
         """The flying vehicles' states as the formation starts, none of them a
@@ -130,7 +149,7 @@ class ShardSide:
         while waiting and waiting[0].seq <= reply.seq:  # answered, or its reply lost
             older = waiting.popleft()
             if older.seq == reply.seq:
-                batch = older
+                batch = self._answered = older
         core = self.core
         if core.ending or not len(reply.keys) or batch is None or not len(batch.keys):
             return

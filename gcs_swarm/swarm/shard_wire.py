@@ -7,7 +7,14 @@ per-vehicle objects, no pickling), so a step of K vehicles costs:
 - ``StateBatch`` (shard -> controller): the shard's flying vehicles in key
   order: key ``int32``, ``time_boot_ms`` of a fresh report ``int64`` (-1:
   not fresh since the last step), position [m] and velocity [m/s] in the
-  mission frame ``float64 (K, 3)`` each: ``STATE_BYTES_PER_VEHICLE`` = 60;
+  mission frame ``float64 (K, 3)`` each: ``STATE_BYTES_PER_VEHICLE`` = 60.
+  Once the controller has answered one of its batches, a shard sends only
+  the rows that differ from that batch (``changes``: the fresh ones, and
+  any other whose position or velocity bits moved), naming it as ``base``;
+  the controller fills in the rest from the batch it holds (``expand``),
+  so it steps on exactly the whole batch. With a step per network a
+  shard's batch then carries about one network's rows, not all of its
+  networks' (at 1,500 vehicles in six networks, 15 kB instead of 90 kB);
 - ``SetpointReply`` (controller -> shard): the mission time [s] of the step
   and, for the vehicles it answers, key ``int32`` and acceleration
   [m/s^2, mission frame] ``float64 (K, 3)``: ``REPLY_BYTES_PER_VEHICLE`` = 28.
@@ -40,10 +47,12 @@ __all__ = [
     "STATE_BYTES_PER_VEHICLE",
     "SetpointReply",
     "StateBatch",
+    "changes",
     "decode_reply",
     "decode_state",
     "encode_reply",
     "encode_state",
+    "expand",
     "keep_out_from_json",
     "keep_out_json",
 ]
@@ -52,8 +61,9 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 _HEADER = struct.Struct("<4sHHIIQ")
-"""magic, kind, shard index, sequence number, vehicle count, float64 field
-(a state: unused, 0; a reply: the mission time's bits)."""
+"""magic, kind, shard index, sequence number, vehicle count, 64-bit field
+(a state: its ``base`` + 1, 0 for a whole batch; a reply: the mission
+time's float64 bits)."""
 HEADER_BYTES = _HEADER.size
 _MAGIC = b"GSSH"
 _STATE, _REPLY = 1, 2
@@ -64,7 +74,9 @@ REPLY_BYTES_PER_VEHICLE = 4 + 24
 class StateBatch(NamedTuple):
     """One shard's flying vehicles at one step (module docstring): row k is
     vehicle ``keys[k]``; ``boot_ms[k]`` its fresh report's ``time_boot_ms``
-    or -1; ``pos_m``/``vel_mps`` ``(K, 3)`` mission frame."""
+    or -1; ``pos_m``/``vel_mps`` ``(K, 3)`` mission frame. ``base``: -1 for
+    every flying vehicle; otherwise the ``seq`` of the batch whose other
+    rows these update (``changes``, ``expand``)."""
 
     shard: int
     seq: int
@@ -72,6 +84,7 @@ class StateBatch(NamedTuple):
     boot_ms: IntArray
     pos_m: FloatArray
     vel_mps: FloatArray
+    base: int = -1
 
     def fresh(self) -> dict[int, int]:
         """The fresh reports as ``SwarmCore.take_step`` gives them (key -> ms),
@@ -95,7 +108,7 @@ class SetpointReply(NamedTuple):
 
 def encode_state(batch: StateBatch) -> bytes:
     n = len(batch.keys)
-    head = _HEADER.pack(_MAGIC, _STATE, batch.shard, batch.seq, n, 0)
+    head = _HEADER.pack(_MAGIC, _STATE, batch.shard, batch.seq, n, batch.base + 1)
     return b"".join(
         (
             head,
@@ -136,7 +149,7 @@ def _header(data: bytes, kind: int, per_vehicle: int) -> tuple[int, int, int, in
 
 def decode_state(data: bytes) -> StateBatch:
     """``encode_state``'s bytes back; ``LinkError`` when they are not one."""
-    shard, seq, n, _ = _header(data, _STATE, STATE_BYTES_PER_VEHICLE)
+    shard, seq, n, base = _header(data, _STATE, STATE_BYTES_PER_VEHICLE)
     o = HEADER_BYTES
     keys = np.frombuffer(data, dtype="<i4", count=n, offset=o).astype(np.int32)
     o += 4 * n
@@ -145,7 +158,56 @@ def decode_state(data: bytes) -> StateBatch:
     pos = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
     o += 24 * n
     vel = np.frombuffer(data, dtype="<f8", count=3 * n, offset=o).reshape(n, 3).copy()
-    return StateBatch(shard, seq, keys, ms, pos, vel)
+    return StateBatch(shard, seq, keys, ms, pos, vel, base - 1)
+
+
+def _moved(a: FloatArray, b: FloatArray) -> npt.NDArray[np.bool_]:
+    """Where the float64 bits differ (a NaN kept is unchanged, 0.0 to -0.0 a change)."""
+    bits_a, bits_b = np.ascontiguousarray(a).view(np.int64), np.ascontiguousarray(b).view(np.int64)
+    moved: npt.NDArray[np.bool_] = bits_a != bits_b
+    return moved
+
+
+def changes(batch: StateBatch, since: StateBatch) -> StateBatch:
+    """The rows of ``batch`` a controller holding ``since`` (a whole batch of
+    the same vehicles, ``keys`` equal) needs: the fresh ones and those whose
+    position or velocity bits differ from ``since``'s, with ``base``
+    ``since.seq`` (module docstring)."""
+    rows = np.flatnonzero(
+        (batch.boot_ms >= 0)
+        | _moved(batch.pos_m, since.pos_m).any(axis=1)
+        | _moved(batch.vel_mps, since.vel_mps).any(axis=1)
+    )
+    return StateBatch(batch.shard, batch.seq, batch.keys[rows], batch.boot_ms[rows],
+                      batch.pos_m[rows], batch.vel_mps[rows], since.seq)  # fmt: skip
+
+
+def expand(batch: StateBatch, held: StateBatch | None) -> StateBatch | None:
+    """``batch`` as the whole batch it stands for: itself when whole; a
+    ``changes`` batch laid over ``held`` (the whole batch the controller
+    last took from that shard), every other row as ``held`` has it and not
+    fresh. None when ``held`` cannot be its base (none, older than its
+    ``base``, not older than ``batch``, or without one of its vehicles):
+    a batch out of order or of another run, dropped by the caller."""
+    if batch.base < 0:
+        return batch
+    if held is None or not batch.base <= held.seq < batch.seq:
+        return None
+    keys = held.keys
+    if len(batch.keys):
+        if not len(keys):
+            return None
+        at = np.minimum(np.searchsorted(keys, batch.keys), len(keys) - 1)
+        if not np.array_equal(keys[at], batch.keys):
+            return None
+    else:
+        at = np.zeros(0, dtype=np.intp)
+    boot_ms = np.full(len(keys), -1, dtype=np.int64)
+    boot_ms[at] = batch.boot_ms
+    pos, vel = held.pos_m.copy(), held.vel_mps.copy()
+    pos[at] = batch.pos_m
+    vel[at] = batch.vel_mps
+    return StateBatch(batch.shard, batch.seq, keys, boot_ms, pos, vel)
 
 
 def decode_reply(data: bytes) -> SetpointReply:

@@ -78,5 +78,14 @@ def test_the_split_steps_per_network_with_the_station_s_numbers(
     assert answered == one.answered
     a, b = one.core.control.last, split.ctl.control.last
     assert a is not None and b is not None and a.t_s == b.t_s == 4.0
+    # Those floats crossed as changes (shard_wire.changes): once the
+    # controller has answered a shard's batch, the next carries only the rows
+    # it does not hold as they are, here (each reply in before the next
+    # network reports) the reporting network's 4. Only the first step, the
+    # three networks at once, carries all of a shard's rows. None was dropped.
+    for side in split.sides:
+        per_batch = side.rows_flying / side.states  # every row: all its networks'
+        assert side.rows_sent == side.rows_flying - (side.states - 1) * (per_batch - 4)
+    assert split.ctl.unplaced == 0
     assert a.pos_m.tobytes() == b.pos_m.tobytes()
     assert a.radii_m.tobytes() == b.radii_m.tobytes()
