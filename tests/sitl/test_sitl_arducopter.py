@@ -382,18 +382,20 @@ def test_two_networks_with_the_same_ids_fly_one_tetrahedron_on_two_shards(tmp_pa
             v["final_radius_m"], abs=1e-3), label  # fmt: skip
 
 
-@pytest.mark.parametrize("shards", [None, 2], ids=["one process", "two shards"])
+@pytest.mark.parametrize("shards", [None, 2, 1], ids=["one process", "two shards", "one shard"])
 def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(
     tmp_path: Path, shards: int | None
 ) -> None:
     """The same four instances and mission with ``mission.step: network``, one
     station process, or ``--shards 2`` (the controller steps each shard's
-    batch as it comes): each network is stepped when its two instances'
-    reports are in (their phases are their own), the other network's at
-    their latest. It completes, every radius's mean over the last 20 s is
-    within 1 % of the law's equilibrium, the separation never falls below
-    the configured 6 m, and there were more control steps than periods
-    (steps of one network)."""
+    batch as it comes), or ``--shards 1`` (one shard of both networks,
+    whose batches carry the rows that changed since the controller's last
+    answer: ``shard_wire.changes``): each network is stepped when its two
+    instances' reports are in (their phases are their own), the other
+    network's at their latest. It completes, every radius's mean over the
+    last 20 s is within 1 % of the law's equilibrium, the separation never
+    falls below the configured 6 m, and there were more control steps than
+    periods (steps of one network)."""
     from tests.sitl.sitl_flights import held_radii
     from tests.sitl.test_sitl_px4 import _equilibrium_radius
 
@@ -423,7 +425,9 @@ def test_two_networks_stepped_each_on_its_own_reports_fly_one_tetrahedron(
         "setpoint_rate_hz_min": o["setpoints"]["rate_hz_min"],
         "largest_gap_s": o["setpoints"]["largest_gap_s"], "folder": str(folder),
     }  # fmt: skip
-    name = "sitl_two_networks_step_per_network" + ("" if shards is None else "_two_shards")
+    name = (
+        "sitl_two_networks_step_per_network" + {None: "", 2: "_two_shards", 1: "_one_shard"}[shards]
+    )
     write_figures(tmp_path, name, figures)
     assert s["outcome"] == "completed"
     np.testing.assert_allclose(window["radii_last_20s_mean_m"], r_eq, rtol=0.01)
