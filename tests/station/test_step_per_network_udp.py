@@ -53,6 +53,21 @@ def _formed(summary: RunSummary) -> None:
     assert summary.min_separation_m > 1.0
 
 
+def _fly_sharded(tmp_path: Path, shards: int) -> tuple[RunSummary, ShardedRun]:
+    """The mission on ``shards`` shard processes (the controller here, Zenoh
+    on 127.0.0.1), checked to have formed; its summary and its run."""
+    runs: list[ShardedRun] = []
+
+    async def fly() -> RunSummary:
+        async with asyncio.timeout(120):
+            return await run_sharded(_mission(), shards, log_dir=tmp_path, picture=False,
+                                     end_timeout_s=5.0, on_run=runs.append)  # fmt: skip
+
+    summary = asyncio.run(fly())
+    _formed(summary)
+    return summary, runs[0]
+
+
 def test_two_networks_stepped_each_on_its_own_reports_form_the_sphere(tmp_path: Path) -> None:
     async def fly() -> RunSummary:
         async with asyncio.timeout(90):
@@ -71,15 +86,7 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     the controller here, Zenoh on 127.0.0.1): the controller steps each
     shard's batch as it comes (tests/swarm/test_shard_step_per_network.py,
     the rule on the hand clock), never waiting for the other network."""
-    runs: list[ShardedRun] = []
-
-    async def fly() -> RunSummary:
-        async with asyncio.timeout(120):
-            return await run_sharded(_mission(), 2, log_dir=tmp_path, picture=False,
-                                     end_timeout_s=5.0, on_run=runs.append)  # fmt: skip
-
-    summary = asyncio.run(fly())
-    _formed(summary)
+    summary, run = _fly_sharded(tmp_path, 2)
     # A step for each shard's batch: two a period, 1,200 over the mission
     # (measured 1,201; a batch a real-time shard drops on a congested link is
     # replaced by its next: 1.6 per period leaves 20 % for that). A step of
@@ -88,13 +95,13 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     # start (measured 0; 5 allows a shard starting 0.1 s late on a loaded
     # machine).
     assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
-    assert runs[0].core.fallbacks <= 5
+    assert run.core.fallbacks <= 5
     # Each shard's report measures the formation's last WINDOW_S (from the
     # first reply at or past 2 s of mission time: a step later, 0.02 s, on an
     # idle machine; 0.5 s leaves room for a loaded one): every report its
     # six vehicles sent in it (50 Hz) is either answered or counted missed
     # (2 %: a period at either edge), and the latencies are that window's.
-    for end in (d["flight_end"] for d in runs[0].done.values()):
+    for end in (d["flight_end"] for d in run.done.values()):
         assert DURATION_S - WINDOW_S <= end["from_t_s"] < DURATION_S - WINDOW_S + 0.5
         assert end["missed"] >= 0
         window_s = DURATION_S - end["from_t_s"]
@@ -110,16 +117,7 @@ def test_one_shard_of_both_networks_sends_the_rows_that_changed(tmp_path: Path) 
     network that reported, and the other network's vehicles only when their
     reports came since the batch answered. The sphere forms as without it,
     and no batch was dropped for want of its base."""
-    runs: list[ShardedRun] = []
-
-    async def fly() -> RunSummary:
-        async with asyncio.timeout(120):
-            return await run_sharded(_mission(), 1, log_dir=tmp_path, picture=False,
-                                     end_timeout_s=5.0, on_run=runs.append)  # fmt: skip
-
-    summary = asyncio.run(fly())
-    _formed(summary)
-    run = runs[0]
+    summary, run = _fly_sharded(tmp_path, 1)
     assert run.core.unplaced == 0
     b = run.bytes_per_step
     assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
