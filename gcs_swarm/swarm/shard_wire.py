@@ -13,8 +13,9 @@ per-vehicle objects, no pickling), so a step of K vehicles costs:
   any other whose position or velocity bits moved), naming it as ``base``;
   the controller fills in the rest from the batch it holds (``expand``),
   so it steps on exactly the whole batch. With a step per network a
-  shard's batch then carries about one network's rows, not all of its
-  networks' (at 1,500 vehicles in six networks, 15 kB instead of 90 kB);
+  shard's batch then carries one or two networks' rows, not all of its
+  networks' (at 1,500 vehicles in six networks on one shard, measured
+  23.6-27.1 kB instead of 90 kB: benchmarks/README.md);
 - ``SetpointReply`` (controller -> shard): the mission time [s] of the step
   and, for the vehicles it answers, key ``int32`` and acceleration
   [m/s^2, mission frame] ``float64 (K, 3)``: ``REPLY_BYTES_PER_VEHICLE`` = 28.
