@@ -158,7 +158,7 @@ async def lockstep(n: int, seconds: float, shared: bool) -> dict[str, float]:
     return {"steps_per_s": rate, "speedup": rate / RATE_HZ, "timeouts": timeouts, "cpu": cpu}
 
 
-def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
+def in_process(n: int, cycles: int, defer: bool, columns: bool = False) -> tuple[float, float]:
     """``--networks N``: emulator CPU [us] per vehicle-cycle, (setpoints, step).
 
     N airborne vehicles as bench_station's networks of 250, each network's
@@ -169,7 +169,10 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
     then that network's 250 acceleration setpoints in datagrams of at most
     ``MAX_DATAGRAM_BYTES`` (``core.join_frames``), each parsed by the
     endpoint and received by the core (``server.Emulator._receive``).
-    ``defer``: the deferred lane on or off (``EmulatorCore.defer_stream``)."""
+    ``defer``: the deferred lane on or off (``EmulatorCore.defer_stream``);
+    ``columns``: a network's datagrams taken together first
+    (``lane.take_stream``, as the shell's ``Emulator._on_datagrams`` does),
+    each received in turn only if it declines."""
     import random
     from dataclasses import replace
 
@@ -180,6 +183,7 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
     from sim_vehicle import signing
     from sim_vehicle.core import EmulatorCore, join_frames
     from sim_vehicle.impairments import Impairer
+    from sim_vehicle.lane import take_stream
     from sim_vehicle.link import Endpoint, bind_udp
 
     whole, sizes = bench_station.load(n, networks=True), bench_station.groups(n)
@@ -230,8 +234,9 @@ def in_process(n: int, cycles: int, defer: bool) -> tuple[float, float]:
             ]  # fmt: skip
             grams = [data for data, _ in join_frames([(f, 0) for f in frames])]
             c = time.thread_time_ns()
-            for gram in grams:
-                core.receive(ep, ep.parse(gram, raw=True), gcs, None)
+            if not (columns and take_stream(core, ep, grams, gcs)):
+                for gram in grams:
+                    core.receive(ep, ep.parse(gram, raw=True), gcs, None)
             d = time.thread_time_ns()
             if k >= 10:  # the first cycles warm up
                 t_step, t_rx = t_step + b - a, t_rx + d - c
@@ -262,10 +267,12 @@ def main() -> None:
         pin(0)
         print(f"emulator in process, N = {args.networks} in networks of 250 on shared ports, "
               f"{args.cycles} cycles; CPU us per vehicle-cycle")  # fmt: skip
-        for defer in (True, False, True, False):
-            rx, st = in_process(args.networks, args.cycles, defer)
-            print(f"deferred lane {'on ' if defer else 'off'}: setpoints {rx:.2f}, "
-                  f"step and telemetry {st:.2f}, together {rx + st:.2f}", flush=True)  # fmt: skip
+        modes = (("lane, column-wise", True, True), ("lane, one by one", True, False),
+                 ("no lane", False, False))  # fmt: skip
+        for name, defer, columns in modes + modes:
+            rx, st = in_process(args.networks, args.cycles, defer, columns)
+            print(f"{name:>17}: setpoints {rx:.2f}, step and telemetry {st:.2f}, "
+                  f"together {rx + st:.2f}", flush=True)  # fmt: skip
         return
     if args.sink:
         ports = [int(p) for p in sys.stdin.readline().split()]

@@ -77,7 +77,8 @@ class EmulatorCore:
         self.ports: list[Port] = []
         self._delayed_in: DelayLine[tuple[Port, list[Any]]] = DelayLine()
         self._delayed_out: DelayLine[tuple[Port, Addr, bytes, list[int]]] = DelayLine()
-        self._out_heard: set[int] = set()
+        self.out_heard: set[int] = set()
+        """The ports (by ``id``) whose fixed ``out`` peer has been heard (rule 1)."""
         self._kins: list[Kin] | None = None  # every row's Kin at this step (few vehicles)
         self.defer_stream = True
         """The deferred lane (``_deliver``); False: every setpoint calls its
@@ -208,10 +209,10 @@ class EmulatorCore:
             self._answered(ep, msgs)
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             self.greet(ep, addr)
-        elif good and ep.out == addr and id(ep) not in self._out_heard:
+        elif good and ep.out == addr and id(ep) not in self.out_heard:
             # The fixed ``out`` peer is known from the start: its first good
             # frame is its contact (rule 1), or a lockstep clock would never start.
-            self._out_heard.add(id(ep))
+            self.out_heard.add(id(ep))
             for key in ep.sysids.values():
                 self.contact(self.vehicles[key])
         fate = impair(ep.uplink, self._delayed_in, self.sim_time_s, (ep, msgs))

@@ -168,6 +168,10 @@ class Fleet:
         the rest of its target stays), written at the next ``step``."""
         self._a_ff_due[row] = a_ff
 
+    def set_a_ff_rows(self, rows: list[int], a_ff: list[tuple[float, float, float]]) -> None:
+        """``set_a_ff`` of each of ``rows`` in turn (the last of a row's wins)."""
+        self._a_ff_due.update(zip(rows, a_ff, strict=True))
+
     def _write_a_ff(self) -> None:
         """The ``a_ff`` set since the last step into its rows (the last of each row's)."""
         due = self._a_ff_due

@@ -27,11 +27,15 @@ from sim_vehicle import signing
 from sim_vehicle.codec import RawSetpoint, decode_setpoint
 from sim_vehicle.core import join_frames
 from sim_vehicle.impairments import Impairer
+from sim_vehicle.lane import may_be_stream
 from sim_vehicle.stats import LinkStats
 
-__all__ = ["TCP_PREFIX", "Endpoint", "TcpPort", "bind_udp"]
+__all__ = ["READ_AHEAD", "TCP_PREFIX", "Endpoint", "TcpPort", "bind_udp"]
 
 TCP_PREFIX = "tcp:"
+READ_AHEAD = 64
+"""Datagrams a shared endpoint takes from its socket at once at most: a
+station's step of 250 vehicles' setpoints is about 13."""
 Addr = tuple[str, int]
 
 
@@ -53,6 +57,11 @@ class Endpoint(asyncio.DatagramProtocol):
     signing_key: bytes | None = field(default=None, repr=False)
     silent: bool = False  # radio off: nothing sent, nothing heard (Emulator.set_silent)
     tcp: TcpPort | None = None  # the same vehicle served over TCP too
+    on_datagrams: Callable[[Endpoint, list[tuple[bytes, Addr]]], None] | None = None
+    """Set on a shared endpoint: a datagram asyncio reads that may be the
+    station's stream (``lane.may_be_stream``) comes with those queued behind
+    it, up to ``READ_AHEAD`` and the first that may not, so that a network's
+    setpoints can be taken at once (``lane.take_stream``)."""
 
     def __post_init__(self) -> None:
         self.parser = signing.mavlink(0, 0, self.signing_key)
@@ -65,7 +74,21 @@ class Endpoint(asyncio.DatagramProtocol):
         self.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: Addr) -> None:
-        self.on_datagram(self, data, addr)
+        many = self.on_datagrams
+        if many is None or not may_be_stream(data):
+            self.on_datagram(self, data, addr)
+            return
+        batch = [(data, addr)]
+        recvfrom = self.sock.recvfrom
+        while len(batch) < READ_AHEAD:
+            try:
+                item = recvfrom(65536)  # (data, addr) as asyncio reads them
+            except OSError:  # nothing queued (or an ICMP error, which asyncio reports)
+                break
+            batch.append(item)
+            if not may_be_stream(item[0]):
+                break  # what follows it waits for the loop's next turn, as before
+        many(self, batch)
 
     def error_received(self, exc: Exception) -> None:
         pass  # ICMP port unreachable from a station that went away: keep serving

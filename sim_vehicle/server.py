@@ -26,6 +26,7 @@ from sim_vehicle.config import EmulatorConfig, Impairment, VehicleSpec
 from sim_vehicle.core import EmulatorCore
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import Impairer
+from sim_vehicle.lane import MIN_BYTES, may_be_stream, take_stream
 from sim_vehicle.link import Addr, Endpoint, TcpPort, bind_udp
 from sim_vehicle.stats import EmulatorStats
 from sim_vehicle.vehicles import HostedVehicle, VehicleState
@@ -139,6 +140,8 @@ class Emulator:
             stats=self.core.stats.link,
             out=cfg.out,
             signing_key=cfg.signing_key,
+            # a network's setpoints together (lane.take_stream); real time only
+            on_datagrams=self._on_datagrams if shared and not self._lockstep else None,
         )
         loop = asyncio.get_running_loop()
         await loop.create_datagram_endpoint(lambda: ep, sock=sock)
@@ -264,6 +267,31 @@ class Emulator:
         self._receive(ep, data, addr)
         if not self._blocked():  # lockstep rule 3: the last answer is in, step now
             self._step_now()
+
+    def _on_datagrams(self, ep: Endpoint, batch: list[tuple[bytes, Addr]]) -> None:
+        """A shared endpoint's datagrams read together (``Endpoint.on_datagrams``;
+        real time: no step comes between them), in order: each peer's run of
+        the stream's datagrams, of at least ``lane.MIN_BYTES``, first offered
+        to ``lane.take_stream``; the rest (or all, if it declines) one by one."""
+        i = 0
+        while i < len(batch):
+            addr = batch[i][1]
+            j = i + 1
+            while j < len(batch) and batch[j][1] == addr:
+                j += 1
+            grams = [data for data, _ in batch[i:j]]
+            k = len(grams)  # the stream's datagrams (the read ends at the first that is not)
+            while k and not may_be_stream(grams[k - 1]):
+                k -= 1
+            if sum(map(len, grams[:k])) >= MIN_BYTES and take_stream(
+                self.core, ep, grams[:k], addr
+            ):
+                if not self._stepping:  # as _receive_msgs
+                    self._wake.set()
+                grams = grams[k:]
+            for data in grams:
+                self._on_datagram(ep, data, addr)
+            i = j
 
     def _step_now(self) -> None:
         """Take the lockstep step the clock task waits for, here (no task switch); hand

@@ -25,6 +25,9 @@ class LinkStats:
     bad_frames: int = 0
     unknown_frames: int = 0
     signature_rejected: int = 0
+    rx_stream_batched: int = 0
+    """Datagrams of the station's acceleration stream taken column-wise
+    (``lane.take_stream``), of ``rx_datagrams``."""
 
 
 @dataclass

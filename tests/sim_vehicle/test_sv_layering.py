@@ -21,7 +21,7 @@ IO = {"asyncio", "socket", "selectors", "threading", "time", "subprocess"}
 SANS_IO = (
     "autopilot", "px4", "targets", "commands", "guards", "safety", "reports", "telemetry",
     "params", "config", "fleet", "dynamics", "dynamics_rows", "codec", "small", "core",
-    "impairments", "lockstep", "schedule", "stats", "vehicles",
+    "impairments", "lane", "lockstep", "schedule", "stats", "vehicles",
 )  # fmt: skip
 SHELL = {"server", "link", "cli", "signing", "__init__"}
 
