@@ -74,6 +74,8 @@ class EmulatorCore:
         self.fleet = Fleet()
         self.vehicles: dict[int, HostedVehicle] = {}
         self.rows: list[HostedVehicle] = []
+        self._row_keys: list[int] = []  # each row's vehicle key and noise generator
+        self._row_rngs: list[np.random.Generator] = []
         self.ports: list[Port] = []
         self._delayed_in: DelayLine[tuple[Port, list[Any]]] = DelayLine()
         self._delayed_out: DelayLine[tuple[Port, Addr, bytes, list[int]]] = DelayLine()
@@ -100,6 +102,8 @@ class EmulatorCore:
         v = HostedVehicle(spec, ap, enc, ep, row, noise_rng, initial)
         self.vehicles[key] = v
         self.rows.append(v)
+        self._row_keys.append(key)
+        self._row_rngs.append(noise_rng)
         ep.sysids[spec.sysid] = key
         self.sync(v, now)
         return v
@@ -111,7 +115,7 @@ class EmulatorCore:
         del self.vehicles[key]
         self.fleet.remove(v.row)
         self._kins = None
-        del self.rows[v.row]
+        del self.rows[v.row], self._row_keys[v.row], self._row_rngs[v.row]
         for i, other in enumerate(self.rows):
             other.row = i
         del v.ep.sysids[v.spec.sysid]
@@ -442,9 +446,8 @@ class EmulatorCore:
             def signed(row: int, msg: Any) -> bytes:
                 return self.pack(by_row[row], msg)
 
-        rngs = [v.noise_rng for v in by_row]
-        frames = schedule.report_frames(self.fleet, rows, now, rngs, signed)
-        return [(fr, by_row[r].spec.key) for fr, r in zip(frames, rows.tolist(), strict=True)]
+        frames = schedule.report_frames(self.fleet, rows, now, self._row_rngs, signed)
+        return list(zip(frames, map(self._row_keys.__getitem__, rows.tolist()), strict=True))
 
     # --------------------------------------------------------------- clock
     def step(self, wall: Callable[[], float] | None = None) -> None:
@@ -483,10 +486,11 @@ class EmulatorCore:
                 v.ep.outbox.extend((self.pack(v, m), 0) for m in out_msgs)
         due = schedule.due_reports(f, now)
         if due.size:
-            for frame, key in self._report_frames(due, now):
-                ep = self.vehicles[key].ep
+            rows = self.rows
+            for pair, r in zip(self._report_frames(due, now), due.tolist(), strict=True):
+                ep = rows[r].ep
                 if ep.peers:
-                    ep.outbox.append((frame, key))
+                    ep.outbox.append(pair)
         for ep in self.ports:
             if ep.outbox:
                 frames, ep.outbox = ep.outbox, []
