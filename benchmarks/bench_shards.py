@@ -29,7 +29,9 @@ mission options ``--cutoff``, ``--settle``, ``--spread``, ``--phases`` are
 bench_station's. "in shm": the share of the samples the controller received
 (state batches, beats, reports) that came in Zenoh's shared memory; a
 shard's batch does from 51 vehicles on (``gcs_swarm.runtime.zbus``).
-``--no-shm`` turns shared memory off for comparison.
+``--no-shm`` turns shared memory off for comparison. "emu cpu", "emu
+late": the emulator child's CPU [cores] and its steps more than a period
+late over the shards' window (bench_station's window protocol).
 
     .venv/bin/python benchmarks/bench_shards.py --realtime 500 --networks 4 --shards 1,2,4 \
         --step network
@@ -121,8 +123,11 @@ async def _realtime(
         ports = [int(p) for p in (await child.stdout.readline()).split()]
         links = {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}" for v in mission.vehicles}
         runs: list[ShardedRun] = []
+        watch = asyncio.create_task(_emulator_window(child, runs, seconds))
         summary = await run_sharded(mission, shards, links=links, lockstep=False, shm=shm,
                                     end_timeout_s=10.0, on_run=runs.append)  # fmt: skip
+        emu = await watch if watch.done() else {}
+        watch.cancel()
     finally:
         child.stdin.close()
         await child.wait()
@@ -142,7 +147,34 @@ async def _realtime(
         "missed": sum(e["missed"] if e["missed"] is not None else nan for e in ends),
         "shm_share": run.bus.shm_in / max(run.bus.samples_in, 1),
         "state_kb": run.bytes_per_step["state"] / max(run.bytes_per_step["batches"], 1) / 1e3,
+        "emu_cpu": emu.get("cpu", nan),
+        "emu_late": emu.get("late_steps", nan),
     }
+
+
+async def _emulator_window(
+    child: asyncio.subprocess.Process, runs: list[ShardedRun], seconds: float
+) -> dict[str, float]:
+    """The emulator child's CPU [cores] and late steps over the shards'
+    window (``FlightEnd``: the formation's last ``WINDOW_S``, or all of it),
+    by bench_station's protocol: a line on its stdin opens the window, the
+    next closes it, and it answers ``late_steps=.. cpu=.. rt=..``."""
+    assert child.stdin is not None and child.stdout is not None
+
+    async def until(t_s: float) -> None:  # the controller's mission time, polled
+        while True:
+            if runs and runs[0].core.control.t_s >= t_s:
+                return
+            await asyncio.sleep(0.05)
+
+    await until(max(0.0, seconds - WINDOW_S))
+    child.stdin.write(b"\n")
+    await child.stdin.drain()
+    await until(seconds - 0.1)
+    child.stdin.write(b"\n")
+    await child.stdin.drain()
+    line = (await child.stdout.readline()).decode()
+    return {k: float(v) for k, v in (kv.split("=") for kv in line.split())}
 
 
 def realtime_main(args: argparse.Namespace) -> None:
@@ -153,7 +185,7 @@ def realtime_main(args: argparse.Namespace) -> None:
           f"Zenoh shared memory {shm}; {options}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
           f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'missed':>6} "
-          f"{'in shm':>6} {'kB/batch':>8}")  # fmt: skip
+          f"{'in shm':>6} {'kB/batch':>8} {'emu cpu':>7} {'emu late':>8}")  # fmt: skip
     for k in (int(x) for x in args.shards.split(",")):
         try:
             r = asyncio.run(_realtime(args.realtime, args.networks, k, args.rate, args.seconds,
@@ -165,7 +197,7 @@ def realtime_main(args: argparse.Namespace) -> None:
         print(f"{k:6d} {ok:>8} {r['steps_per_s']:8.1f} {r['fallbacks']:6.0f} "
               f"{r['answers_hz']:9.1f} {r['p50_ms']:7.2f} {r['p99_ms']:7.2f} {r['max_ms']:7.2f} "
               f"{r['setpoints']:8.0f} {r['missed']:6.0f} {100 * r['shm_share']:5.0f}% "
-              f"{r['state_kb']:8.1f}",
+              f"{r['state_kb']:8.1f} {r['emu_cpu']:7.2f} {r['emu_late']:8.0f}",
               flush=True)  # fmt: skip
 
 
