@@ -4,21 +4,23 @@ A MAVLink 2 frame's CRC covers every byte after the magic byte up to the
 CRC itself, followed by the message's CRC_EXTRA byte. ``frame_crc`` gives
 the value pymavlink's ``x25crc`` computes; it uses pymavlink's C function
 (``MCRF4XX``, from the ``fastcrc`` package, when installed) and falls back
-to ``x25crc`` otherwise. ``crc_step`` advances the CRC of many rows by one
-byte each with numpy (the column-wise frame encoders), from ``CRC_TABLE``.
+to ``x25crc`` otherwise; ``frame_crcs`` gives it for many whole frames of
+one size in one buffer (the decoders' and encoders' batches). ``crc_step``
+advances the CRC of many rows by one byte each with numpy (the column-wise
+frame encoders), from ``CRC_TABLE``.
 No I/O.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as _dialect
 
-__all__ = ["CRC_INIT", "CRC_TABLE", "MCRF4XX", "crc_step", "frame_crc"]
+__all__ = ["CRC_INIT", "CRC_TABLE", "MCRF4XX", "crc_step", "frame_crc", "frame_crcs"]
 
 CRC_INIT = 0xFFFF
 """The CRC's value before the first byte."""
@@ -37,6 +39,19 @@ def frame_crc(body: bytes | memoryview, extra: bytes) -> int:
     crc = _dialect.x25crc(bytes(body))
     crc.accumulate(extra)
     return int(crc.crc)
+
+
+def frame_crcs(
+    data: bytes | memoryview, starts: Iterable[int], size: int, extra: bytes
+) -> list[int]:
+    """``frame_crc`` of each whole frame of ``size`` bytes (magic byte to CRC)
+    that starts at one of ``starts`` in ``data``, in that order: the frames'
+    bodies read through one memoryview, no copies."""
+    view = memoryview(data)
+    crc = MCRF4XX
+    if crc is None:
+        return [frame_crc(view[s + 1 : s + size - 2], extra) for s in starts]
+    return [crc(extra, crc(view[s + 1 : s + size - 2])) for s in starts]
 
 
 def _crc_table() -> npt.NDArray[np.uint32]:

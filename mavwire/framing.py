@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from mavwire.crc import CRC_INIT, MCRF4XX, crc_step, frame_crc
+from mavwire.crc import CRC_INIT, MCRF4XX, crc_step, frame_crc, frame_crcs
 
 __all__ = ["HEADER_BYTES", "FrameBatch", "FrameBuilder", "frame_payload"]
 
@@ -146,9 +146,7 @@ class FrameBuilder:
             crc, extra = MCRF4XX, self._extra
             flat = u8.reshape(-1).data  # a memoryview of the bytes, no copy
             if end is None:
-                return [
-                    crc(extra, crc(flat[j + 1 : j + size - 2])) for j in range(0, len(flat), size)
-                ]
+                return frame_crcs(flat, range(0, len(flat), size), size, extra)
             return [
                 crc(extra, crc(flat[j + 1 : j + e]))
                 for j, e in zip(range(0, len(flat), size), end.tolist(), strict=True)

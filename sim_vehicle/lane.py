@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mavwire.crc import MCRF4XX, frame_crc
+from mavwire.crc import frame_crcs
 from sim_vehicle.commands import ECHO_MASK, SETPOINT_LIMIT
 
 if TYPE_CHECKING:
@@ -115,14 +115,7 @@ def take_stream(core: EmulatorCore, ep: Port, grams: Sequence[bytes], addr: Addr
     if not (u8[:, _HEAD_AT] == _HEAD).all():
         return False
     frames = u8.view(_FRAME)[:, 0]
-    crc, extra = MCRF4XX, _EXTRA
-    view = memoryview(blob)
-    ends = range(_SIZE - 2, len(blob), _SIZE)
-    if crc is None:
-        crcs = [frame_crc(bytes(view[e - _SIZE + 3 : e]), extra) for e in ends]
-    else:
-        crcs = [crc(extra, crc(view[e - _SIZE + 3 : e])) for e in ends]
-    if crcs != frames["crc"].tolist():
+    if frame_crcs(blob, range(0, len(blob), _SIZE), _SIZE, _EXTRA) != frames["crc"].tolist():
         return False
     pay = frames["payload"]
     vehicles, sysids = core.vehicles, ep.sysids

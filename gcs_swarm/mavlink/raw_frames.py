@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as _dialect
 from gcs_swarm.mavlink.inbound import STATUS_FIELDS
 from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
+from mavwire.crc import frame_crcs as _frame_crcs
 
 __all__ = [
     "LPN_PAYLOAD",
@@ -235,11 +236,7 @@ def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
     if whole:
         at_w = at[whole]
         frames = u[at_w[:, None] + _AT].view(_LPN_FRAME)[:, 0]
-        extra, crc = _LPN_LAY.extra, _CRC
-        if crc is None:
-            crcs = [_frame_crc(blob[a + 1 : a + _LPN_SIZE - 2], extra) for a in at_w.tolist()]
-        else:
-            crcs = [crc(extra, crc(blob[a + 1 : a + _LPN_SIZE - 2])) for a in at_w.tolist()]
+        crcs = _frame_crcs(blob, at_w.tolist(), _LPN_SIZE, _LPN_LAY.extra)
         good = frames["crc"].tolist()
         if crcs != good:
             first = next(k for k, (c, w) in enumerate(zip(crcs, good, strict=True)) if c != w)
