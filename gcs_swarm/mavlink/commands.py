@@ -8,7 +8,10 @@ answer to an earlier read of the same name is not its echo).
 MAV_RESULT_IN_PROGRESS restarts the wait. Resends carry an increasing
 ``confirmation`` as COMMAND_LONG asks. A command nobody answers fails the
 queue (``failed``), unless it is ``optional``: then its ``on_done`` gets
-``NO_ANSWER`` and the queue goes on. No I/O: specs go to the ``out`` list
+``NO_ANSWER`` and the queue goes on. A command given ``not_before`` is not
+sent before that time, and the commands behind it wait with it (the
+start-up's status streams, asked at each vehicle's own phase:
+``VehicleProtocol.status_phase``). No I/O: specs go to the ``out`` list
 the owner drains; time is an argument.
 
 The STATUSTEXT lines heard while a command waits for its answer (from its
@@ -71,6 +74,8 @@ class _Command:
     max_attempts: Callable[[], int] | None = None
     echo: float | None = None
     """The last PARAM_VALUE of ``param`` that was not ``expect`` (a mismatch)."""
+    not_before: float = -math.inf
+    """Not sent before this time [s]."""
     sent_at: float = 0.0
     attempts: int = 0
     texts: list[tuple[int, str]] = field(default_factory=list)
@@ -111,14 +116,18 @@ class CommandQueue:
         expect: float | None = None,
         optional: bool = False,
         attempts: Callable[[], int] | None = None,
+        not_before: float = -math.inf,
     ) -> None:
-        """Queue a command (``urgent`` goes first); sends it now if idle.
+        """Queue a command (``urgent`` goes first); sends it now if idle
+        (and ``not_before`` [s] has come: else at the first ``handle_timer``
+        from then on, ``next_deadline`` says when).
 
         ``expect``: the value a PARAM_SET's echo must carry; ``optional``: no
         answer is ``on_done(NO_ANSWER)``, not a failure; ``attempts``: how
         many sends this command gets, asked at each timeout (default the
         queue's ``attempts``)."""
-        cmd = _Command(name, make, command, param, on_done, expect, optional, attempts)
+        cmd = _Command(name, make, command, param, on_done, expect, optional, attempts,
+                       not_before=not_before)  # fmt: skip
         if urgent:
             self._queue.insert(0, cmd)
         else:
@@ -154,12 +163,20 @@ class CommandQueue:
         self._answered(pending, 0, now)
 
     def next_deadline(self) -> float | None:
-        return None if self._pending is None else self._pending.sent_at + self.timeout_s
+        """When ``handle_timer`` has work: the pending command's timeout, or
+        the time the next one may go (``not_before``); None: nothing to do."""
+        if self._pending is not None:
+            return self._pending.sent_at + self.timeout_s
+        return self._queue[0].not_before if self._queue else None
 
     def handle_timer(self, now: float) -> None:
-        """Resend an unanswered command, or give up on it (``failed``)."""
+        """Resend an unanswered command, or give up on it (``failed``); send
+        the next whose ``not_before`` has come."""
         pending = self._pending
-        if pending is None or now < pending.sent_at + self.timeout_s:
+        if pending is None:
+            self._send_next(now)
+            return
+        if now < pending.sent_at + self.timeout_s:
             return
         limit = self.attempts if pending.max_attempts is None else pending.max_attempts()
         if pending.attempts < limit:
@@ -185,7 +202,7 @@ class CommandQueue:
         self._send_next(now)
 
     def _send_next(self, now: float) -> None:
-        if self._pending is None and self._queue:
+        if self._pending is None and self._queue and self._queue[0].not_before <= now:
             self._transmit(self._queue.pop(0), now)
 
     def _transmit(self, cmd: _Command, now: float) -> None:

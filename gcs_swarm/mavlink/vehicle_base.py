@@ -53,6 +53,7 @@ class _VehicleBase:
         params: ParamSettings | None = None,
         personality: Personality | None = None,
         label: str | None = None,
+        status_phase: float = 0.0,
     ) -> None:
         if personality is None:
             from gcs_swarm.mavlink.ardupilot import ARDUPILOT
@@ -66,6 +67,12 @@ class _VehicleBase:
         puts the system id alone on the wire."""
         self.label = str(sysid) if label is None else label
         """How its messages name it (``blue:7`` on a named network)."""
+        if not 0.0 <= status_phase < 1.0:
+            raise ValueError(f"status_phase must be in [0, 1), got {status_phase!r}")
+        self.status_phase = status_phase
+        """The share of the status streams' interval its start-up waits
+        before it asks for them (``swarm.core.status_phases``: the vehicles
+        of one network spread over the interval)."""
         self.enabled = enabled
         self.config = config
         self.phase = Phase.CONNECTING

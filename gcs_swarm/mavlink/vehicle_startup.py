@@ -48,9 +48,12 @@ class _Startup(_VehicleBase):
         self._set_phase(Phase.CONFIGURING, now)
         cfg, s, c = self.config, self.sysid, self.compid
         pers = self.personality
-        for label, msg_id, hz in (
-            ("LOCAL_POSITION_NED", b.MSG_ID_LOCAL_POSITION_NED, cfg.control_rate_hz),
-            *((lb, i, cfg.status_rate_hz) for lb, i in pers.status_streams),
+        # The status streams go at this vehicle's own phase of their interval
+        # (``status_phase``), and what follows them waits with them.
+        status_at = now + self.status_phase / cfg.status_rate_hz
+        for label, msg_id, hz, at in (
+            ("LOCAL_POSITION_NED", b.MSG_ID_LOCAL_POSITION_NED, cfg.control_rate_hz, now),
+            *((lb, i, cfg.status_rate_hz, status_at) for lb, i in pers.status_streams),
         ):
             make = partial(b.set_message_interval, s, c, msg_id, 1.0 / hz)
             done: Callable[[int, float], None] = partial(self._refused_if, f"stream {label}")
@@ -58,7 +61,7 @@ class _Startup(_VehicleBase):
                 done = self._landed_stream_acked
             self._commands.push(
                 now, f"SET_MESSAGE_INTERVAL {label}", make, done,
-                command=b.MAV_CMD_SET_MESSAGE_INTERVAL,
+                command=b.MAV_CMD_SET_MESSAGE_INTERVAL, not_before=at,
             )  # fmt: skip
         self.vehicle_params.start(now, self._commands, c)  # reads first: the old values
         for name, value, why in pers.station_sets(cfg):

@@ -93,6 +93,29 @@ class StationConfig:
         bases = sorted({p.base for p in self.vehicles})
         return [bases.index(p.base) for p in self.vehicles]
 
+    def status_phases(self) -> dict[int, float]:
+        """Each vehicle's ``VehicleProtocol.status_phase``: the k-th of a
+        network's n vehicles (``vehicles`` order) k / n. An autopilot sends
+        its status streams together, on the phase the first ask set, so
+        vehicles readied together would all send theirs in one control
+        period: 875 frames at once from a network of 250, a burst on its
+        radio and for the station, which then missed cycles
+        (benchmarks/README.md, "Scale, 2026-12-06 (eleventh session)").
+        All 0 in ``lockstep``: the emulator's clock waits for the station
+        there, and a wait on the station's clock would make the start-up's
+        steps depend on the wall clock, the run no longer repeatable."""
+        if self.lockstep:
+            return {p.sysid: 0.0 for p in self.vehicles}
+        count: dict[int, int] = {}
+        for p in self.vehicles:
+            count[p.base] = count.get(p.base, 0) + 1
+        seen: dict[int, int] = {}
+        phases = {}
+        for p in self.vehicles:
+            k = seen[p.base] = seen.get(p.base, -1) + 1
+            phases[p.sysid] = k / count[p.base]
+        return phases
+
     def protocol_config(self) -> ProtocolConfig:
         return ProtocolConfig(
             control_rate_hz=self.rate_hz,

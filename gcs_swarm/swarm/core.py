@@ -9,23 +9,21 @@ LOCAL_POSITION_NED is written into ``table`` by the link state, then
 ``outbound`` as ``(link, spec, sysid)``; ``changed`` and ``finished`` tell the shell
 (``runtime.station.Station``) a phase moved or the mission is over (links: connection strings).
 
-- each received message goes to its vehicle's ``VehicleProtocol`` (traffic
-  from system ids the mission does not name on that link is counted and
-  ignored); every protocol's deadline is kept, and the earliest is the
-  core's timer;
-- a step is wanted when every flying vehicle has sent a fresh
-  LOCAL_POSITION_NED (with ``mission.step: network``, also every vehicle of
-  one network: its rows), or a fallback delay after the first one (half a
-  period; 0.2 s in lockstep), and answers each fresh report with exactly one
-  setpoint: the emulator's lockstep rule, and a steady rate on real vehicles;
-- membership: initial vehicles fly from the start; a reserve is readied with
-  them (it takes off and holds at its start, its reserve point) and joins on
-  its event, so that the join happens at the mission's time; a vehicle leaves
-  on its event, or when its protocol reports it LOST or FAILED; the law simply
-  gets the current set (formation-law.md s9). A lost vehicle that comes back
-  is readied again and rejoins at its slot;
-- the mission origin: the mission's, else the first vehicle's EKF origin as
-  soon as it is heard, handed to every vehicle;
+- each received message goes to its vehicle's ``VehicleProtocol`` (traffic from system ids
+  the mission does not name on that link is counted and ignored); every protocol's
+  deadline is kept, and the earliest is the core's timer;
+- a step is wanted when every flying vehicle has sent a fresh LOCAL_POSITION_NED (with
+  ``mission.step: network``, also every vehicle of one network: its rows), or a fallback
+  delay after the first one (half a period; 0.2 s in lockstep), and answers each fresh
+  report with exactly one setpoint: the emulator's lockstep rule, and a steady rate on
+  real vehicles;
+- membership: initial vehicles fly from the start; a reserve is readied with them (it takes
+  off and holds at its start, its reserve point) and joins on its event, so that the join
+  happens at the mission's time; a vehicle leaves on its event, or when its protocol
+  reports it LOST or FAILED; the law simply gets the current set (formation-law.md s9).
+  A lost vehicle that comes back is readied again and rejoins at its slot;
+- the mission origin: the mission's, else the first vehicle's EKF origin as soon as it is
+  heard, handed to every vehicle;
 - ending (issue 15): the mission time reached, or nobody left flying (after
   ``stale_timeout_s``, or ``ready_timeout_s`` while a vehicle is being
   readied to rejoin), or a failure of the law in flight (an expression that
@@ -84,6 +82,7 @@ class SwarmCore:
         self.delay = delay
         pcfg = config.protocol_config()
         self.plans = {p.sysid: p for p in config.vehicles}
+        phases = config.status_phases()
         self.vehicles = {
             p.sysid: VehicleProtocol(
                 p.sysid,
@@ -92,6 +91,7 @@ class SwarmCore:
                 params=p.params,
                 personality=personality_for(p.autopilot),
                 label=p.label or None,
+                status_phase=phases[p.sysid],
             )
             for p in config.vehicles
         }
