@@ -71,8 +71,8 @@ class _VehicleBase:
             raise ValueError(f"status_phase must be in [0, 1), got {status_phase!r}")
         self.status_phase = status_phase
         """The share of the status streams' interval its start-up waits
-        before it asks for them (``swarm.core.status_phases``: the vehicles
-        of one network spread over the interval)."""
+        before it asks for them (``runtime.config.StationConfig.status_phases``:
+        the vehicles of one network spread over the interval)."""
         self.enabled = enabled
         self.config = config
         self.phase = Phase.CONNECTING
