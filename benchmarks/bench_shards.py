@@ -59,6 +59,7 @@ import bench_station
 from gcs_swarm.errors import StartupError
 from gcs_swarm.mission import Mission, parse_mission
 from gcs_swarm.runtime import RunSummary, run_mission
+from gcs_swarm.runtime.sched import short_slice
 from gcs_swarm.runtime.shard import WINDOW_S
 from gcs_swarm.runtime.sharded import ShardedRun, run_sharded
 
@@ -180,9 +181,11 @@ async def _emulator_window(
 def realtime_main(args: argparse.Namespace) -> None:
     options = _station_options(args)
     shm = "off (--no-shm)" if args.no_shm else "on"
+    # As `gcs-swarm run --shards` (runtime.sched); its shards ask for it themselves.
+    sliced = "short slice" if short_slice() else "the kernel's slice"
     print(f"link shards in real time: N = {args.realtime} as {args.networks} networks, "
           f"{args.rate:g} Hz, {args.seconds:g} s of formation; emulators on core 0; "
-          f"Zenoh shared memory {shm}; {options}")  # fmt: skip
+          f"Zenoh shared memory {shm}; {sliced}; {options}")  # fmt: skip
     print(f"{'shards':>6} {'outcome':>8} {'steps/s':>8} {'fallbk':>6} {'ans/veh/s':>9} "
           f"{'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'setpts':>8} {'missed':>6} "
           f"{'in shm':>6} {'kB/batch':>8} {'emu cpu':>7} {'emu late':>8}")  # fmt: skip

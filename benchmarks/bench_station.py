@@ -59,6 +59,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import pin
 
+from gcs_swarm.runtime.sched import default_slice, short_slice
+
 GROUP = 250
 """Vehicles per network or station group (``--group``; the emulator child is told it too)."""
 RATE_HZ = 50.0
@@ -204,6 +206,7 @@ async def emulator_main(n: int, networks: bool) -> None:
     from sim_vehicle import Emulator
 
     pin(0)
+    default_slice()  # the vehicles' own: not the station's slice it inherits
     async with contextlib_stack() as stack:
         emus = []
         whole = load(n, networks=True) if networks else None
@@ -444,6 +447,7 @@ def main() -> None:
 
     floor_us = bench_codec.main()
     where = pin(1)
+    where += ", short slice" if short_slice() else ""  # as `gcs-swarm run` (runtime.sched)
     how = "one station, one mission of networks" if args.networks else "one station per group"
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
     if PHASES is not None:
