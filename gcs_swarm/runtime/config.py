@@ -98,9 +98,10 @@ class StationConfig:
         network's n vehicles (``vehicles`` order) k / n. An autopilot sends
         its status streams together, on the phase the first ask set, so
         vehicles readied together would all send theirs in one control
-        period: 875 frames at once from a network of 250, a burst on its
-        radio and for the station, which then missed cycles
-        (benchmarks/README.md, "Scale, 2026-12-06 (eleventh session)").
+        period: 875 frames at once from a network of 250, a burst of three
+        times a period's traffic on its radio, and a 6-7 ms step of the
+        emulator's loop (benchmarks/README.md, "Scale, 2026-12-06 (eleventh
+        session)": no clear change of the station's own latency).
         All 0 in ``lockstep``: the emulator's clock waits for the station
         there, and a wait on the station's clock would make the start-up's
         steps depend on the wall clock, the run no longer repeatable."""

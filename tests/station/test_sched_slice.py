@@ -22,6 +22,9 @@ ROOT = Path(__file__).resolve().parents[2]
 _CHILD = """
 import json, sys, threading
 from gcs_swarm.runtime import sched
+inherited = sched.thread_slices_ns()
+if "--from-default" in sys.argv:  # a parent's short slice is inherited: start from the kernel's
+    sched.default_slice()
 before = sched.thread_slices_ns()
 stop = threading.Event()
 early = threading.Thread(target=stop.wait); early.start()
@@ -41,9 +44,9 @@ def _kernel_has_slices() -> None:
         pytest.skip("no se.slice in /proc/self/task/*/sched: no custom scheduler slices here")
 
 
-def _child(env: dict[str, str]) -> dict[str, object]:
-    run = subprocess.run([sys.executable, "-c", _CHILD], cwd=ROOT, env=env, capture_output=True,
-                         text=True, timeout=60, check=True)  # fmt: skip
+def _child(env: dict[str, str], *args: str) -> dict[str, object]:
+    run = subprocess.run([sys.executable, "-c", _CHILD, *args], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=60, check=True)  # fmt: skip
     out: dict[str, object] = json.loads(run.stdout)
     return out
 
@@ -51,7 +54,7 @@ def _child(env: dict[str, str]) -> dict[str, object]:
 def test_every_thread_gets_the_short_slice_and_the_kernels_back() -> None:
     _kernel_has_slices()
     env = {k: v for k, v in os.environ.items() if k != ENV_SLICE_US}
-    r = _child(env)
+    r = _child(env, "--from-default")
     default = r["before"]
     assert isinstance(default, list) and len(set(default)) == 1
     assert r["took"] is True
