@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 
 from gcs_swarm.control.params import LawConfig, Vec3
@@ -107,9 +108,7 @@ class StationConfig:
         steps depend on the wall clock, the run no longer repeatable."""
         if self.lockstep:
             return {p.sysid: 0.0 for p in self.vehicles}
-        count: dict[int, int] = {}
-        for p in self.vehicles:
-            count[p.base] = count.get(p.base, 0) + 1
+        count = Counter(p.base for p in self.vehicles)
         seen: dict[int, int] = {}
         phases = {}
         for p in self.vehicles:

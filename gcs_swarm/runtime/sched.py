@@ -93,7 +93,8 @@ def default_slice() -> bool:
 
 def _set_slice(ns: int) -> bool:
     number = _SYS_SCHED_SETATTR.get(platform.machine())
-    if not sys.platform.startswith("linux") or number is None or not thread_slices_ns():
+    threads = thread_slices_ns() if sys.platform.startswith("linux") else {}
+    if number is None or not threads:
         _log.debug("no custom scheduler slice here (%s %s)", sys.platform, platform.machine())
         return False
     libc = ctypes.CDLL(None, use_errno=True)
@@ -102,7 +103,7 @@ def _set_slice(ns: int) -> bool:
     nice = os.getpriority(os.PRIO_PROCESS, 0)
     attr = ctypes.create_string_buffer(_ATTR.pack(_ATTR.size, _SCHED_OTHER, 0, nice, 0, ns, 0, 0))
     ok = True
-    for tid in thread_slices_ns():
+    for tid in threads:
         if libc.syscall(number, tid, attr, 0) != 0:
             ok = False
             _log.debug("sched_setattr(%d): %s", tid, os.strerror(ctypes.get_errno()))
