@@ -103,9 +103,10 @@ def _station_options(args: argparse.Namespace) -> str:
     emulator child's: ``bench_station.emulator_child``); what they are."""
     st = bench_station
     st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
-    st.SPREAD, st.PHASES = args.spread, args.phases
+    st.SPREAD, st.PHASES, st.HEARTBEATS = args.spread, args.phases, args.heartbeats
     return (f"step {args.step}, cut-off {args.cutoff}, settle {args.settle:g} s, "
-            f"spread {args.spread}, phases {args.phases}")  # fmt: skip
+            f"spread {args.spread}, phases {args.phases}, "
+            f"heartbeats {args.heartbeats}")  # fmt: skip
 
 
 async def _realtime(

@@ -79,6 +79,11 @@ SPREAD = False
 after network 0's (``EmulatorConfig.start_at_s``, G networks), so their
 reports fall evenly over the period; by default each starts its clock as
 it is set up, one after the other, a few ms apart (their phases bunched)."""
+HEARTBEATS = "together"
+"""``--heartbeats spread``: each emulated vehicle sends its HEARTBEAT at its
+own phase of the second (``EmulatorConfig.heartbeats``), as a fleet booted
+one by one does; by default all of an emulator's in one step, as a SITL
+swarm started by one script does."""
 PHASES: int | None = None
 """``--phases SEED``: network j's emulator takes its first step at a share
 of a period drawn uniformly (``random.Random(SEED)``), as networks that
@@ -108,16 +113,21 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
                     help="the networks' emulators a share of a period apart")  # fmt: skip
     ap.add_argument("--phases", type=int, default=None, metavar="SEED",
                     help="the networks' emulators at random shares of a period")  # fmt: skip
+    ap.add_argument("--heartbeats", choices=("together", "spread"), default="together",
+                    help="the vehicles' HEARTBEATs in one step (a SITL swarm, default) "
+                         "or each at its own phase (a fleet booted one by one)")  # fmt: skip
 
 
 def emulator_child(n: int, networks: bool) -> list[str]:
     """The emulator child's arguments for N vehicles (this file with
     ``--emulator``) from this module's settings (``RATE_HZ``, ``GROUP``,
-    ``SPREAD``, ``PHASES``, ``CUTOFF``, ``SETTLE_S``), also bench_shards.py's;
+    ``SPREAD``, ``PHASES``, ``HEARTBEATS``, ``CUTOFF``, ``SETTLE_S``), also
+    bench_shards.py's;
     with a cut-off the settled start is cached first (the child reads it)."""
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
     child += ["--spread"] if SPREAD else []
     child += ["--phases", str(PHASES)] if PHASES is not None else []
+    child += ["--heartbeats", HEARTBEATS]
     if CUTOFF is not None:
         mission_yaml(n, networks)
         child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
@@ -220,7 +230,7 @@ async def emulator_main(n: int, networks: bool) -> None:
                 cfg = emulator_config(whole, airborne=True, network=j)
             else:
                 cfg = emulator_config(load(size), airborne=True)
-            cfg = replace(cfg, shared_port=0)
+            cfg = replace(cfg, shared_port=0, heartbeats=HEARTBEATS)
             if PHASES is not None:  # network j's first step at a random share of a period
                 cfg = replace(cfg, start_at_s=first + phases[j] / RATE_HZ)
             elif SPREAD:  # network j's first step j/G of a period after network 0's
@@ -435,9 +445,10 @@ def main() -> None:
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
     mission_options(ap)
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
+    HEARTBEATS = args.heartbeats
     if args.emulator:
         asyncio.run(emulator_main(args.emulator, args.networks))
         return
@@ -450,6 +461,7 @@ def main() -> None:
     where += ", short slice" if short_slice() else ""  # as `gcs-swarm run` (runtime.sched)
     how = "one station, one mission of networks" if args.networks else "one station per group"
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
+    how += f", heartbeats {HEARTBEATS}"
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))
         how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))

@@ -72,6 +72,7 @@ class Autopilot:
         compid: int = 1,
         airborne_at: Vec3 | None = None,
         streams: dict[int, float] | None = None,
+        heartbeat_phase_s: float = 0.0,
     ) -> None:
         self.sysid, self.compid, self.origin, self.params = sysid, compid, origin, params
         self._guid_timeout: tuple[int, float] | None = None  # (params generation, s): _timeout_s
@@ -104,13 +105,12 @@ class Autopilot:
         self.last_gcs_hb: float | None = None
         self.wall_s: float | None = None
         """Wall-clock time [s] of this call, set by the emulator in lockstep (None in
-        real time). The ground station is not sped up with the emulator, so in
-        lockstep the GCS failsafe counts FS_GCS_TIMEOUT in wall-clock seconds of
-        silence; in real time sim time is the wall clock (times the speed-up, as
-        a sped-up SITL counts it)."""
+        real time). The ground station is not sped up with the emulator, so in lockstep
+        the GCS failsafe counts FS_GCS_TIMEOUT in wall-clock seconds of silence; in real
+        time sim time is the wall clock (times the speed-up, as a sped-up SITL counts it)."""
         self.last_gcs_hb_wall: float | None = None
         self.fs_active = False
-        self._next_hb = now
+        self._next_hb = now + heartbeat_phase_s  # its boot's instant in the second
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)

@@ -116,6 +116,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="m/s added to every reported velocity (default: the preset's, "
                         "-0.015,0.013,0 for ardupilot as SITL's EKF; 0,0,0 ideal)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--heartbeats", choices=("together", "spread"), default="together",
+                   help="HEARTBEATs in one step, as a SITL swarm (default), or each at its "
+                        "own phase, as a fleet booted one by one")  # fmt: skip
     p.add_argument("--loss", type=float, default=0.0, help="datagram loss, both directions")
     p.add_argument("--delay", type=float, default=0.0, help="one-way delay, s")
     p.add_argument("--jitter", type=float, default=0.0, help="uniform extra delay, s")
@@ -193,6 +196,7 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         noise_vel_m_s=args.noise_vel,
         vel_bias_ned_m_s=args.velocity_bias,
         seed=args.seed,
+        heartbeats=args.heartbeats,
         uplink=imp,
         downlink=imp,
         streams=dict((int(k), v) for k, v in args.stream),

@@ -3,8 +3,9 @@
 Owns ``HostedVehicle`` (spec, autopilot, fleet row, encoder, port, noise
 stream, and what was last copied into its row), ``Port`` (what the core uses
 of the endpoint it is served on: ``link.Endpoint``, or a test's radio),
-``VehicleState`` (a snapshot) and ``autopilot_for`` (the ArduCopter or PX4
-autopilot of a spec with the emulator's parameter overrides).
+``VehicleState`` (a snapshot), ``autopilot_for`` (the ArduCopter or PX4
+autopilot of a spec with the emulator's parameter overrides) and
+``heartbeat_phase_s`` (when in its second a vehicle's HEARTBEAT goes).
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ from sim_vehicle.params import PARAM_TABLE, ParamStore
 from sim_vehicle.px4 import PX4_OVERRIDES, Px4Autopilot, Px4ParamStore
 from sim_vehicle.telemetry import Vec3
 
-__all__ = ["Addr", "HostedVehicle", "Port", "VehicleState", "autopilot_for"]
+__all__ = [
+    "Addr", "HostedVehicle", "Port", "VehicleState", "autopilot_for", "heartbeat_phase_s",
+]  # fmt: skip
 
 Addr = tuple[str, int]
 
@@ -140,4 +143,23 @@ def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopil
         compid=spec.compid,
         airborne_at=start if spec.airborne else None,
         streams=dict(cfg.streams),
+        heartbeat_phase_s=heartbeat_phase_s(cfg, spec),
     )
+
+
+def heartbeat_phase_s(cfg: EmulatorConfig, spec: VehicleSpec) -> float:
+    """When in the second after it is hosted ``spec``'s periodic 1 Hz HEARTBEAT
+    first goes [s], in [0, 1). ``cfg.heartbeats`` ``"together"``: at once, so
+    an emulator's vehicles send theirs in one step, as a SITL swarm started by
+    one script does (measured: docs/mavlink-protocol.md). ``"spread"``: a
+    phase of its own, as a fleet's vehicles booted one by one keep theirs
+    (at 1,500 in networks of 250, "together" makes one step of each network
+    a second 4-6 ms long in the emulator and puts 250 HEARTBEATs in one
+    period at the station: benchmarks/README.md, twelfth session), drawn from
+    the emulator's seed and the vehicle's key: the same in every run,
+    lockstep included. The HEARTBEAT a new peer gets at once (docs/emulator.md,
+    rule 1) goes as before."""
+    if cfg.heartbeats == "together":
+        return 0.0
+    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, spec.key, 4]))
+    return float(rng.random())

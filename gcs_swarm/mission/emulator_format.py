@@ -106,6 +106,13 @@ EMULATOR = Obj(
             "absent: ArduCopter SITL's 304 s for ardupilot-like, never for ideal",
         ),
         Key(
+            "heartbeats",
+            Enum(choices=("together", "spread")),
+            _EMU.heartbeats,
+            "together: every vehicle's HEARTBEAT in one step (a SITL swarm); "
+            "spread: each at its own phase (a fleet booted one by one)",
+        ),
+        Key(
             "ground",
             Num(lo=-POSITION_LIMIT_M, hi=POSITION_LIMIT_M),
             _EMU.ground,

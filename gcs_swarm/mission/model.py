@@ -32,6 +32,7 @@ __all__ = [
     "EventAction",
     "Failsafe",
     "GeoPoint",
+    "Heartbeats",
     "Impairments",
     "LogSettings",
     "Mission",
@@ -53,6 +54,7 @@ EndAction = Literal["hold", "land", "rtl"]
 EmulatorMode = Literal["lockstep", "realtime"]
 Dynamics = Literal["ideal", "ardupilot-like"]
 Spawn = Literal["ground", "air"]
+Heartbeats = Literal["together", "spread"]
 EventAction = Literal["join", "leave"]
 
 #: Name of the one network of a mission without ``networks:`` (docs/mission-format.md).
@@ -312,7 +314,9 @@ class Emulator:
     none for ideal; docs/velocity-bias.md); velocity_bias_flip [s] the
     vehicles' boot time at which that bias starts to reverse (0: never;
     ``None``: the preset's, 304 s as on ArduCopter SITL for ardupilot-like);
-    spawn:
+    heartbeats: ``together`` (each vehicle's 1 Hz HEARTBEAT in the same step,
+    as a SITL swarm started by one script) or ``spread`` (each at its own
+    phase, as a fleet booted one by one); spawn:
     ``ground`` (landed at home, full start-up) or ``air`` (armed, GUIDED,
     hovering at the start position); host and base_port: where the
     endpoints bind (port ``base_port + 10 k`` for the k-th sim vehicle, like
@@ -330,6 +334,7 @@ class Emulator:
     noise_vel: float = 0.0
     velocity_bias_ned: tuple[float, float, float] | None = None
     velocity_bias_flip: float | None = None
+    heartbeats: Heartbeats = "together"
     ground: float = -20.0
     origin_spread: float = 5.0
     spawn: Spawn = "ground"

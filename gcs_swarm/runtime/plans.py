@@ -324,6 +324,7 @@ def emulator_config(
         noise_vel_m_s=em.noise_vel,
         vel_bias_ned_m_s=em.velocity_bias_ned,
         vel_bias_flip_s=em.velocity_bias_flip,
+        heartbeats=em.heartbeats,
         base_port=0 if em.shared else base_port,
         shared_port=shared_port if em.shared else None,
         params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},

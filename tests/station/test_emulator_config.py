@@ -18,6 +18,7 @@ emulator:
   noise_pos: 0.01
   noise_vel: 0.02
   spawn: air
+  heartbeats: spread
   base_port: 0
   shared: %s
 vehicles:
@@ -37,9 +38,14 @@ def test_emulator_keys_reach_the_emulator_config(tmp_path: Path) -> None:
     assert cfg.params == {"SIM_ACC_MAX": 7.5}
     assert (cfg.noise_pos_m, cfg.noise_vel_m_s) == (0.01, 0.02)
     assert all(v.airborne for v in cfg.vehicles)  # spawn: air
+    assert cfg.heartbeats == "spread"
     assert cfg.shared_port is None and cfg.base_port == 0
     shared = emulator_config(_mission(tmp_path, shared=True))
     assert shared.shared_port == 0
+    # left out: together, as the emulator's own default (a SITL swarm's)
+    path = tmp_path / "plain.yaml"
+    path.write_text(MISSION.replace("  heartbeats: spread\n", "") % "false")
+    assert emulator_config(load_mission(path)).heartbeats == "together"
 
 
 def test_shared_endpoint_flies_both_vehicles(tmp_path: Path) -> None:
