@@ -154,7 +154,7 @@ def heartbeat_phase_s(cfg: EmulatorConfig, spec: VehicleSpec) -> float:
     one script does (measured: docs/mavlink-protocol.md). ``"spread"``: a
     phase of its own, as a fleet's vehicles booted one by one keep theirs
     (at 1,500 in networks of 250, "together" makes one step of each network
-    a second 4-6 ms long in the emulator and puts 250 HEARTBEATs in one
+    a second 7-8 ms long in the emulator and puts 250 HEARTBEATs in one
     period at the station: benchmarks/README.md, twelfth session), drawn from
     the emulator's seed and the vehicle's key: the same in every run,
     lockstep included. The HEARTBEAT a new peer gets at once (docs/emulator.md,

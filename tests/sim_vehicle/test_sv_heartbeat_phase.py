@@ -7,7 +7,7 @@ emulator's vehicles by default (``"together"``). A fleet's vehicles booted
 one by one keep their own phases: ``"spread"`` gives each vehicle its own,
 drawn from the emulator's seed and the vehicle's key
 (``vehicles.heartbeat_phase_s``). At 1,500 vehicles in networks of 250,
-"together" makes one step a second of each network 4-6 ms long in the
+"together" makes one step a second of each network 7-8 ms long in the
 emulator and puts 250 HEARTBEATs in one period at the station
 (benchmarks/README.md, twelfth session).
 
