@@ -108,12 +108,11 @@ class StationConfig:
         steps depend on the wall clock, the run no longer repeatable."""
         if self.lockstep:
             return {p.sysid: 0.0 for p in self.vehicles}
-        count = Counter(p.base for p in self.vehicles)
-        seen: dict[int, int] = {}
+        count, before = Counter(p.base for p in self.vehicles), Counter[int]()
         phases = {}
         for p in self.vehicles:
-            k = seen[p.base] = seen.get(p.base, -1) + 1
-            phases[p.sysid] = k / count[p.base]
+            phases[p.sysid] = before[p.base] / count[p.base]
+            before[p.base] += 1
         return phases
 
     def protocol_config(self) -> ProtocolConfig:
