@@ -45,7 +45,6 @@ import argparse
 import asyncio
 import math
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -104,9 +103,10 @@ def _station_options(args: argparse.Namespace) -> str:
     st = bench_station
     st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
     st.SPREAD, st.PHASES, st.HEARTBEATS = args.spread, args.phases, args.heartbeats
+    st.EMULATORS = args.emulators
     return (f"step {args.step}, cut-off {args.cutoff}, settle {args.settle:g} s, "
             f"spread {args.spread}, phases {args.phases}, "
-            f"heartbeats {args.heartbeats}")  # fmt: skip
+            f"heartbeats {args.heartbeats}, emulator processes {args.emulators}")  # fmt: skip
 
 
 async def _realtime(
@@ -116,23 +116,17 @@ async def _realtime(
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
     mission = _rt_mission(n, nets, rate, seconds)  # sets bench_station's rate and group
-    child = await asyncio.create_subprocess_exec(
-        sys.executable, bench_station.__file__, *bench_station.emulator_child(n, networks=True),
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-    )  # fmt: skip
-    assert child.stdout is not None and child.stdin is not None
+    emulators, ports = await bench_station.EmulatorChildren.start(n, networks=True)
     try:
-        ports = [int(p) for p in (await child.stdout.readline()).split()]
         links = {v.key: f"udpout:127.0.0.1:{ports[v.net_index]}" for v in mission.vehicles}
         runs: list[ShardedRun] = []
-        watch = asyncio.create_task(_emulator_window(child, runs, seconds))
+        watch = asyncio.create_task(_emulator_window(emulators, runs, seconds))
         summary = await run_sharded(mission, shards, links=links, lockstep=False, shm=shm,
                                     end_timeout_s=10.0, on_run=runs.append)  # fmt: skip
         emu = await watch if watch.done() else {}
         watch.cancel()
     finally:
-        child.stdin.close()
-        await child.wait()
+        await emulators.close()
     run = runs[0]
     flight = (run.flight_s[1] - run.flight_s[0]) if run.flight_s is not None else math.nan
     ends = [d["flight_end"] for d in run.done.values()]
@@ -155,13 +149,12 @@ async def _realtime(
 
 
 async def _emulator_window(
-    child: asyncio.subprocess.Process, runs: list[ShardedRun], seconds: float
+    emulators: bench_station.EmulatorChildren, runs: list[ShardedRun], seconds: float
 ) -> dict[str, float]:
-    """The emulator child's CPU [cores] and late steps over the shards'
+    """The emulator children's CPU [cores] and late steps over the shards'
     window (``FlightEnd``: the formation's last ``WINDOW_S``, or all of it),
-    by bench_station's protocol: a line on its stdin opens the window, the
-    next closes it, and it answers ``late_steps=.. cpu=.. rt=..``."""
-    assert child.stdin is not None and child.stdout is not None
+    by bench_station's protocol: a line on their stdin opens the window, the
+    next closes it, and each answers ``late_steps=.. cpu=.. rt=..``."""
 
     async def until(t_s: float) -> None:  # the controller's mission time, polled
         while True:
@@ -170,13 +163,12 @@ async def _emulator_window(
             await asyncio.sleep(0.05)
 
     await until(max(0.0, seconds - WINDOW_S))
-    child.stdin.write(b"\n")
-    await child.stdin.drain()
+    emulators.write(b"\n")
+    await emulators.drain()
     await until(seconds - 0.1)
-    child.stdin.write(b"\n")
-    await child.stdin.drain()
-    line = (await child.stdout.readline()).decode()
-    return {k: float(v) for k, v in (kv.split("=") for kv in line.split())}
+    emulators.write(b"\n")
+    await emulators.drain()
+    return await emulators.figures()
 
 
 def realtime_main(args: argparse.Namespace) -> None:

@@ -84,6 +84,12 @@ HEARTBEATS = "together"
 own phase of the second (``EmulatorConfig.heartbeats``), as a fleet booted
 one by one does; by default all of an emulator's in one step, as a SITL
 swarm started by one script does."""
+EMULATORS = 1
+"""``--emulators K``: the networks hosted by K emulator processes (network j
+by process j * K // G of G networks), all on core 0; by default one. A
+network's long step (the HEARTBEAT step, 7-8 ms for 250 together) then
+holds up only the networks of its own process: the others' steps are taken
+by the kernel's scheduler in between, as separate vehicles would send."""
 PHASES: int | None = None
 """``--phases SEED``: network j's emulator takes its first step at a share
 of a period drawn uniformly (``random.Random(SEED)``), as networks that
@@ -116,9 +122,13 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--heartbeats", choices=("together", "spread"), default="together",
                     help="the vehicles' HEARTBEATs in one step (a SITL swarm, default) "
                          "or each at its own phase (a fleet booted one by one)")  # fmt: skip
+    ap.add_argument("--emulators", type=int, default=1, metavar="K",
+                    help="host the networks in K emulator processes, all on core 0")  # fmt: skip
 
 
-def emulator_child(n: int, networks: bool) -> list[str]:
+def emulator_child(
+    n: int, networks: bool, host: tuple[int, int] | None = None, epoch: float | None = None
+) -> list[str]:
     """The emulator child's arguments for N vehicles (this file with
     ``--emulator``) from this module's settings (``RATE_HZ``, ``GROUP``,
     ``SPREAD``, ``PHASES``, ``HEARTBEATS``, ``CUTOFF``, ``SETTLE_S``), also
@@ -132,7 +142,88 @@ def emulator_child(n: int, networks: bool) -> list[str]:
         mission_yaml(n, networks)
         child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
     child += ["--networks"] if networks else []
+    child += ["--host", f"{host[0]}:{host[1]}"] if host is not None else []
+    child += ["--epoch", repr(epoch)] if epoch is not None else []
     return child
+
+
+def host_ranges(n: int) -> list[tuple[int, int]]:
+    """The networks (first, stop) each of the ``EMULATORS`` processes hosts."""
+    count = len(groups(n))
+    k = max(1, min(EMULATORS, count))
+    return [(j * count // k, (j + 1) * count // k) for j in range(k)]
+
+
+class EmulatorChildren:
+    """The emulator processes of one run (``--emulators``): each hosts a
+    range of the networks; their ports in network order; the window's start
+    and stop written to all; their figures summed (CPU: of core 0, where all
+    run)."""
+
+    def __init__(self, procs: list[asyncio.subprocess.Process]) -> None:
+        self.procs = procs
+
+    @classmethod
+    async def start(cls, n: int, networks: bool) -> tuple[EmulatorChildren, list[int]]:
+        epoch = time.monotonic()  # every child's network 0 steps on one grid
+        procs, ports = [], []
+        try:
+            for host in host_ranges(n):
+                proc = await asyncio.create_subprocess_exec(
+                    sys.executable, __file__, *emulator_child(n, networks, host, epoch),
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                )  # fmt: skip
+                procs.append(proc)
+            for proc in procs:
+                assert proc.stdout is not None
+                ports += [int(p) for p in (await proc.stdout.readline()).split()]
+        except BaseException:
+            await cls(procs).close()
+            raise
+        return cls(procs), ports
+
+    def write(self, line: bytes) -> None:
+        """``line`` to every child (``b"start\\n"``, ``b"stop\\n"``: the window)."""
+        for proc in self.procs:
+            assert proc.stdin is not None
+            proc.stdin.write(line)
+
+    async def drain(self) -> None:
+        for proc in self.procs:
+            assert proc.stdin is not None
+            await proc.stdin.drain()
+
+    async def figures(self) -> dict[str, float]:
+        """After the window's stop: each child's line of figures, summed
+        (``late_steps``, ``cpu`` of core 0) or the least (``rt``)."""
+        lines = []
+        for proc in self.procs:
+            assert proc.stdout is not None
+            lines.append((await proc.stdout.readline()).decode())
+        return _summed(lines)
+
+    async def close(self) -> dict[str, float]:
+        """Close stdin, wait; the window's figures if still unread (else empty)."""
+        tails = []
+        for proc in self.procs:
+            assert proc.stdin is not None and proc.stdout is not None
+            proc.stdin.close()
+            tails.append((await proc.stdout.read()).decode())
+            await proc.wait()
+        return _summed(tails)
+
+
+def _summed(lines: list[str]) -> dict[str, float]:
+    """Emulator children's ``late_steps=.. cpu=.. rt=..`` lines as one; empty
+    unless every child gave one."""
+    figures = [dict(kv.split("=") for kv in t.split()) for t in lines if "late_steps=" in t]
+    if not figures or len(figures) < len(lines):
+        return {}
+    return {
+        "late_steps": sum(float(f["late_steps"]) for f in figures),
+        "cpu": sum(float(f["cpu"]) for f in figures),
+        "rt": min(float(f["rt"]) for f in figures),
+    }
 
 
 def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> str:
@@ -207,9 +298,14 @@ def groups(n: int) -> list[int]:
     return [min(GROUP, n - k) for k in range(0, n, GROUP)]
 
 
-async def emulator_main(n: int, networks: bool) -> None:
+async def emulator_main(
+    n: int, networks: bool, host: tuple[int, int] | None = None, epoch: float | None = None
+) -> None:
     """Child: one realtime emulator per group (with ``networks``: per network of
-    the one mission), shared endpoint each; ports on stdout."""
+    the one mission), shared endpoint each; ports on stdout. ``host``: only the
+    groups [first, stop) (``--emulators``); ``epoch``: an instant of network 0's
+    grid of steps (monotonic clock, one for every child: each starts on the
+    grid's next instant), else 50 ms from now."""
     from dataclasses import replace
 
     from gcs_swarm.runtime.run import emulator_config
@@ -225,7 +321,12 @@ async def emulator_main(n: int, networks: bool) -> None:
         # A network set up after its first step's time catches up at once, then
         # keeps its place on the grid (the realtime clock's pacing).
         first = time.monotonic() + 0.05
+        if epoch is not None:  # the next instant of the common grid: the same phases
+            first = epoch + math.ceil(max(0.0, first - epoch) * RATE_HZ) / RATE_HZ
+        lo, hi = host if host is not None else (0, len(sizes))
         for j, size in enumerate(sizes):
+            if not lo <= j < hi:
+                continue
             if whole is not None:
                 cfg = emulator_config(whole, airborne=True, network=j)
             else:
@@ -319,12 +420,7 @@ async def station_run(
     from gcs_swarm.runtime.station import Station
 
     logging.getLogger("gcs_swarm").setLevel(logging.ERROR)
-    child = emulator_child(n, networks)
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, __file__, *child, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-    )  # fmt: skip
-    assert proc.stdout is not None and proc.stdin is not None
-    ports = [int(p) for p in (await proc.stdout.readline()).split()]
+    emulators, ports = await EmulatorChildren.start(n, networks)
     try:
         stations = []
         async with contextlib_stack() as stack:
@@ -361,11 +457,11 @@ async def station_run(
             reports0 = sum(s.reports_in - s.reports_waiting for s in stations)
             steps0 = sum(s.control.steps for s in stations)
             drop0 = sum(lk.stats.setpoints_dropped for lk in links)
-            proc.stdin.write(b"start\n")
+            emulators.write(b"start\n")
             c0, w0 = time.process_time(), time.monotonic()
             await asyncio.sleep(seconds)
             c1, w1 = time.process_time(), time.monotonic()
-            proc.stdin.write(b"stop\n")
+            emulators.write(b"stop\n")
             builds = sorted(x for sv in servers for x in sv.build_s)
             frames_read = 0
             for page in pages:
@@ -387,13 +483,9 @@ async def station_run(
                 task.cancel()
             await asyncio.gather(*(s.end() for s in stations))
     except BaseException:
-        proc.stdin.close()
-        await proc.wait()
+        await emulators.close()
         raise
-    proc.stdin.close()
-    tail = (await proc.stdout.read()).decode()
-    await proc.wait()
-    emu = dict(kv.split("=") for kv in tail.split()) if "late_steps=" in tail else {}
+    emu = await emulators.close()
     wall = w1 - w0
 
     def pct(q: float) -> float:
@@ -430,6 +522,8 @@ async def station_run(
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--emulator", type=int)
+    ap.add_argument("--host", default=None, help=argparse.SUPPRESS)  # the child's networks
+    ap.add_argument("--epoch", type=float, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--counts", default="50,100,250,500")
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--repeat", type=int, default=1)
@@ -445,12 +539,13 @@ def main() -> None:
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
     mission_options(ap)
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS, EMULATORS
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
-    HEARTBEATS = args.heartbeats
+    HEARTBEATS, EMULATORS = args.heartbeats, args.emulators
     if args.emulator:
-        asyncio.run(emulator_main(args.emulator, args.networks))
+        host = tuple(int(j) for j in args.host.split(":")) if args.host else None
+        asyncio.run(emulator_main(args.emulator, args.networks, host, args.epoch))  # type: ignore[arg-type]
         return
     import bench_codec
 
@@ -462,6 +557,7 @@ def main() -> None:
     how = "one station, one mission of networks" if args.networks else "one station per group"
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
     how += f", heartbeats {HEARTBEATS}"
+    how += f", {EMULATORS} emulator processes" if EMULATORS > 1 else ""
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))
         how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))
