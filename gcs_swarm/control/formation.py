@@ -30,7 +30,6 @@ from numpy.typing import NDArray
 from gcs_swarm.control.cutoff import (
     ALL_PAIRS_BELOW,
     DENSE_SHARE,
-    Pairs,
     neighbour_pairs,
     pair_repulsion,
     row_pairs,
@@ -48,8 +47,10 @@ __all__ = [
 ]
 
 F64 = NDArray[np.float64]
-RowPairs = Callable[[F64, NDArray[np.int64]], Pairs]
-"""``(pos_m, rows) -> cutoff.row_pairs(pos_m, rows, r_c)``'s pairs."""
+RowForces = Callable[[F64, NDArray[np.int64], F64, float, bool, float], F64]
+"""``(pos_m, rows, charges, k_r, q_n_twice, r_min_m) -> (R, 3)``: Eq. 9c for
+``rows``, as ``row_repulsion(row_pairs(pos_m, rows, r_c), ...)`` gives it
+(``neighbours.NeighbourList.row_repulsion``: the same floats)."""
 
 #: Lower clamp of the inter-vehicle distance in Eq. 9 [m]. Below it the pair
 #: force grows linearly with the distance (like the field inside a uniformly
@@ -188,7 +189,7 @@ def repulsion_rows(
     q_n_twice: bool = False,
     r_min_m: float = R_MIN_M,
     cutoff_m: float | None = None,
-    pairs_of: RowPairs | None = None,
+    forces_of: RowForces | None = None,
 ) -> F64:
     """Eqs. 8-9 (or Eq. 9c with ``cutoff_m``) for the vehicles ``rows`` only,
     against all N: ``(R, 3)`` [N], row k the force on vehicle ``rows[k]``
@@ -200,13 +201,15 @@ def repulsion_rows(
     (about 1e-15 relative), not bit for bit. Exact law: one ``(R, N)``
     block of the augmented Gram product (in blocks of columns),
     O(R N). Cut-off: ``cutoff.row_pairs``
-    on the cells of all N, O(N log N + R k), or ``pairs_of(pos_m, rows)``
-    when given (the same pairs: ``neighbours.NeighbourList.row_pairs``).
+    on the cells of all N, O(N log N + R k), or ``forces_of`` when given
+    (the same floats from a Verlet list: ``neighbours.NeighbourList.row_repulsion``).
     """
     rows = np.asarray(rows, dtype=np.int64)
     q = np.asarray(charges, dtype=np.float64)
     if cutoff_m is not None:
-        pairs = row_pairs(pos_m, rows, cutoff_m) if pairs_of is None else pairs_of(pos_m, rows)
+        if forces_of is not None:
+            return forces_of(pos_m, rows, q, k_r, q_n_twice, r_min_m)
+        pairs = row_pairs(pos_m, rows, cutoff_m)
         return row_repulsion(pairs, rows, q, k_r, q_n_twice=q_n_twice, r_min_m=r_min_m)
     n, m = pos_m.shape[0], rows.shape[0]
     out = np.zeros((m, 3))

@@ -27,10 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gcs_swarm.control.cutoff import Pairs
 from gcs_swarm.control.fields import avoidance_force, desired_force
 from gcs_swarm.control.formation import (
-    RowPairs,
+    RowForces,
     eq1_acceleration,
     formation_force,
     repulsion_force,
@@ -59,7 +58,7 @@ def law_accelerations(
     leader_pos_m: F64,
     obstacles: Ellipsoids,
     rows: NDArray[np.int64] | None = None,
-    pairs_of: RowPairs | None = None,
+    forces_of: RowForces | None = None,
 ) -> F64:
     """Eq. 1 accelerations [m/s^2] ``(N, 3)`` of the law for the held ``mode``.
 
@@ -71,7 +70,7 @@ def law_accelerations(
     formation from ``SMALL_N`` vehicles on, Eqs. 7, 9 (9c) and 1 are taken
     for the rows alone (``formation.repulsion_rows``: equal to the whole
     step's rows to rounding); otherwise the whole step, then its rows.
-    ``pairs_of``: the rows' pairs within the cut-off (``repulsion_rows``).
+    ``forces_of``: the rows' Eq. 9c from a neighbour list (``repulsion_rows``).
     """
     g, rd = config.gains, config.readings
     if rows is not None:
@@ -83,7 +82,7 @@ def law_accelerations(
         if rd.eq11_printed:
             fs = -fs
         f = fs + repulsion_rows(pos_m, rows, charges, g.k_r, q_n_twice=rd.eq10_printed,
-                                cutoff_m=g.repulsion_cutoff, pairs_of=pairs_of)  # fmt: skip
+                                cutoff_m=g.repulsion_cutoff, forces_of=forces_of)  # fmt: skip
         return eq1_acceleration(f, vel_mps[rows], g)
     if mode.behaviour == "formation":
         if pos_m.shape[0] < SMALL_N:  # the same equations in floats (formation_rows.py)
@@ -265,14 +264,16 @@ class SwarmController:
             # Eq. 30: the leader is the centroid; Eq. 13 restarts from it afterwards.
             self._leader = self._law.restart(self._leader, p.mean(axis=0), v.mean(axis=0))
         lead = self.leader_pos_m
-        pairs_of = None
+        forces_of = None
         if rows is not None and self._neighbours is not None:
             nl = self._neighbours
 
-            def pairs_of(pos: F64, at: NDArray[np.int64]) -> Pairs:
-                return nl.row_pairs(pos, at, key)
+            def forces_of(
+                pos: F64, at: NDArray[np.int64], q: F64, k_r: float, twice: bool, r_min: float
+            ) -> F64:
+                return nl.row_repulsion(pos, at, key, q, k_r, q_n_twice=twice, r_min_m=r_min)
 
-        accel = law_accelerations(self._cfg, mode, p, v, q, lead, self.obstacles, rows, pairs_of)
+        accel = law_accelerations(self._cfg, mode, p, v, q, lead, self.obstacles, rows, forces_of)
         return ControlOutput(
             t=t,
             ids=key,

@@ -150,6 +150,12 @@ class NeighbourList:
         """Margins from ``skin_share`` to ``max_share`` of ``cutoff_m``
         (equal: a fixed margin, as ``benchmarks/bench_law.py --margin``
         compares)."""
+        # The compiled loops (numba: about 0.4 s to load in a process) come
+        # with the first list, made with its controller before any step, so
+        # a mission without the cut-off never loads them.
+        from gcs_swarm.control import kernels
+
+        self._kernels = kernels
         self.cutoff_m = float(cutoff_m)
         self.least_share = float(skin_share)
         self.max_share = max(float(max_share), self.least_share)
@@ -283,13 +289,10 @@ class NeighbourList:
         if self._stale(pos_m, key) or self._half[0].size == 0:
             return None
         i, j = self._half
-        # Every listed pair's square on contiguous axes (a third of the time of
-        # the (P, 3) rows), then the einsum's float of the few within rounding
-        # of the smallest: the same bits as every pair through einsum.
-        x, y, z = np.ascontiguousarray(pos_m.T)
-        dx, dy, dz = x[i] - x[j], y[i] - y[j], z[i] - z[j]
-        r2 = dx * dx + dy * dy + dz * dz
-        near = np.flatnonzero(r2 <= r2.min() * (1.0 + 1e-9))
+        # Every listed pair's square in one compiled pass, then the einsum's
+        # float of the few within rounding of the smallest: the same bits as
+        # every pair through einsum.
+        near = self._kernels.listed_near_min(pos_m, i, j, 1e-9)
         if near.size == 0:  # a NaN position: no figure from the list
             return None
         diff = pos_m[i[near]] - pos_m[j[near]]
@@ -308,3 +311,29 @@ class NeighbourList:
         r_s, at = _expand(owner, first, count, int(count.sum()))
         rc = self.cutoff_m
         return _near_rows(pos_m, rows, r_s, self._other[at], rc * rc)
+
+    def row_repulsion(
+        self,
+        pos_m: F64,
+        rows: I64,
+        key: object,
+        charges: F64,
+        k_r: float,
+        *,
+        q_n_twice: bool,
+        r_min_m: float,
+    ) -> F64:
+        """``cutoff.row_repulsion(self.row_pairs(pos_m, rows, key), rows,
+        charges, k_r, ...)``, the same floats, without the pairs: Eq. 9c
+        for ``rows`` over their listed candidates in one compiled pass
+        (``kernels.listed_repulsion_sums``)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        self._prepare(pos_m, key)
+        q = np.asarray(charges, dtype=np.float64)
+        out = self._kernels.listed_repulsion_sums(
+            pos_m, rows, self._start, self._other, q, self.cutoff_m,
+            q_n_twice=q_n_twice, r_min_m=r_min_m,
+        )  # fmt: skip
+        qn = q[rows] * q[rows] if q_n_twice else q[rows]
+        out *= (k_r * qn)[:, None]
+        return out

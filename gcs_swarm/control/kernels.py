@@ -1,0 +1,155 @@
+"""The cut-off law's pair loops compiled (numba): Eq. 9c for the rows of a
+step from the Verlet list's candidates, in one pass and the same floats as
+numpy's ``cutoff.row_repulsion(cutoff._near_rows(...))``; and the listed
+pairs nearest to each other (the swarm's separation, once a period).
+
+A network's step at 1,500 vehicles tests about 40 candidates for each of
+its 250 rows. In numpy that is some twenty passes over arrays of 10,000
+(gathers, the distance, the filter, the weights, three ``bincount``s):
+0.38 ms a step, the largest single cost of the station's step
+(benchmarks/README.md, "Scale, 2026-12-06 (thirteenth session)"). Compiled,
+one loop over the candidates, 0.04 ms. numba is used because it compiles
+this loop where it is written, for every platform with a wheel, with no
+compiler on the machine (a C extension would need one at install), and
+the loop stays readable beside the numpy reference it must equal.
+
+The same floats: each term is the numpy path's expression in its order
+(``d = p_i - p_j``, ``r2 = dx*dx + dy*dy + dz*dz``, the clamp, ``w = 1 /
+(r2 sqrt(r2))``, times ``q_j``), summed per row in the candidates' order,
+which is the order ``np.bincount`` adds them in; no fast-math (no fused or
+reordered operations). ``tests/control/test_kernels.py`` holds the two to
+bit equality. Compiled when this module is imported (an explicit
+signature), cached beside it after the first time (``cache=True``), so no
+step pays for it. No I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+__all__ = ["listed_near_min", "listed_repulsion_sums"]
+
+
+@njit(
+    "void(float64[:, :], int64[:], int64[:], int64[:], float64[:], float64, float64,"
+    " boolean, float64[:, :])",
+    cache=True,
+    nogil=True,
+)
+def _sums(
+    pos: NDArray[np.float64],
+    rows: NDArray[np.int64],
+    start: NDArray[np.int64],
+    other: NDArray[np.int64],
+    charges: NDArray[np.float64],
+    rc2: float,
+    r2_min: float,
+    q_n_twice: bool,
+    out: NDArray[np.float64],
+) -> None:  # pragma: no cover - compiled; tested through listed_repulsion_sums
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        xi, yi, zi = pos[i, 0], pos[i, 1], pos[i, 2]
+        sx = sy = sz = 0.0
+        for c in range(start[i], start[i + 1]):
+            j = other[c]
+            dx = xi - pos[j, 0]
+            dy = yi - pos[j, 1]
+            dz = zi - pos[j, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 < rc2:
+                rr = r2 if r2 > r2_min else r2_min  # np.maximum(r2, r2_min)
+                w = 1.0 / (rr * np.sqrt(rr))
+                if not q_n_twice:
+                    w = w * charges[j]
+                sx += w * dx
+                sy += w * dy
+                sz += w * dz
+        out[k, 0] = sx
+        out[k, 1] = sy
+        out[k, 2] = sz
+
+
+def listed_repulsion_sums(
+    pos_m: NDArray[np.float64],
+    rows: NDArray[np.int64],
+    start: NDArray[np.int64],
+    other: NDArray[np.int64],
+    charges: NDArray[np.float64],
+    cutoff_m: float,
+    *,
+    q_n_twice: bool,
+    r_min_m: float,
+) -> NDArray[np.float64]:
+    """Eq. 9c's sum for each of ``rows`` before its ``k_r q_n`` factor:
+    ``(R, 3)``, row k = sum over the candidates ``j`` of vehicle
+    ``rows[k]`` (``other[start[i]:start[i + 1]]``, a Verlet list) closer
+    than ``cutoff_m`` of ``w d`` with ``d = p_i - p_j``, ``w = q_j /
+    max(r, r_min)^3`` (``q_j`` left out with ``q_n_twice``: Eq. 10 as
+    printed). ``cutoff.row_repulsion`` of ``cutoff._near_rows``' pairs
+    divided by ``k_r q_n``, bit for bit."""
+    out = np.empty((rows.shape[0], 3))
+    _sums(
+        np.asarray(pos_m, dtype=np.float64),
+        np.asarray(rows, dtype=np.int64),
+        start,
+        other,
+        np.asarray(charges, dtype=np.float64),
+        float(cutoff_m) * float(cutoff_m),
+        float(r_min_m) * float(r_min_m),
+        bool(q_n_twice),
+        out,
+    )
+    return out
+
+
+@njit(
+    "int64[:](float64[:, :], int64[:], int64[:], float64)",
+    cache=True,
+    nogil=True,
+)
+def _near_min(
+    pos: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64], rel: float
+) -> NDArray[np.int64]:  # pragma: no cover - compiled; tested through listed_near_min
+    n = i.shape[0]
+    r2 = np.empty(n)
+    least = np.inf
+    for c in range(n):
+        a, b = i[c], j[c]
+        dx = pos[a, 0] - pos[b, 0]
+        dy = pos[a, 1] - pos[b, 1]
+        dz = pos[a, 2] - pos[b, 2]
+        v = dx * dx + dy * dy + dz * dz
+        if v != v:  # a NaN position: numpy's min is NaN, and nothing is near it
+            return np.empty(0, dtype=np.int64)
+        r2[c] = v
+        if v < least:
+            least = v
+    bound = least * (1.0 + rel)
+    count = 0
+    for c in range(n):
+        if r2[c] <= bound:
+            count += 1
+    near = np.empty(count, dtype=np.int64)
+    k = 0
+    for c in range(n):
+        if r2[c] <= bound:
+            near[k] = c
+            k += 1
+    return near
+
+
+def listed_near_min(
+    pos_m: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64], rel: float
+) -> NDArray[np.int64]:
+    """The pairs ``(i[c], j[c])`` whose squared distance (``dx*dx + dy*dy +
+    dz*dz`` of ``p_i - p_j``) is within ``1 + rel`` times the smallest, in
+    order: ``np.flatnonzero(r2 <= r2.min() * (1 + rel))`` of the same floats
+    in one pass, without the arrays of every pair (none when a position is
+    NaN, as numpy's NaN minimum gives none)."""
+    pos = np.asarray(pos_m, dtype=np.float64)
+    near: NDArray[np.int64] = _near_min(pos, np.asarray(i, dtype=np.int64),
+                                        np.asarray(j, dtype=np.int64), float(rel))  # fmt: skip
+    return near
