@@ -170,9 +170,9 @@ class VelocityBiasObserver:
 
 _JUMP_BAND = 1.0 - 1e-9
 """``BiasBank`` takes a report's unexplained step as surely within ``jump_m``
-when its squared norm, summed by numpy, is below ``jump_m^2`` times this;
-one nearer the threshold goes to the observer's ``math.hypot`` (the sum's
-rounding is a few units in 1e-16)."""
+when its squared norm (x, y, z summed in order: ``kernels.bias_common_reports``)
+is below ``jump_m^2`` times this; one nearer the threshold goes to the
+observer's ``math.hypot`` (the sum's rounding is a few units in 1e-16)."""
 
 
 class BiasBank:
@@ -191,6 +191,11 @@ class BiasBank:
     """
 
     def __init__(self, n: int) -> None:
+        # The compiled common report (numba, about 0.4 s to load in a process)
+        # comes with the bank, made with the station's table before any report.
+        from gcs_swarm.control import kernels
+
+        self._kernels = kernels
         self.observers: list[VelocityBiasObserver | None] = [None] * n
         self._banked = np.zeros(n, dtype=bool)
         self._last = np.zeros((n, 7))
@@ -249,31 +254,22 @@ class BiasBank:
         ``reports (K, 7)``, t [s] on the vehicle's clock, x, y, z [m], vx, vy,
         vz [m/s]. Returns the rows whose estimate may have changed."""
         kk = np.asarray(ks, dtype=np.intp)
-        last, lim = self._last[kk], self._lim[kk]
-        t = reports[:, 0]
-        dt = t - last[:, 0]
-        # The trapezoid and the unexplained step, as VelocityBiasObserver.update.
-        inc = 0.5 * (reports[:, 4:] + last[:, 4:]) * dt[:, None]
-        step = reports[:, 1:4] - last[:, 1:4] - inc
-        sq = np.einsum("ij,ij->i", step, step)
-        common = self._banked[kk] & (dt > 0.0) & (dt <= lim[:, 1]) & (sq < lim[:, 2])
+        reports = np.asarray(reports, dtype=np.float64)
+        # The common report, element by element in the arrays (compiled:
+        # kernels.bias_common_reports); the others go to their observers.
+        odd, due = self._kernels.bias_common_reports(
+            kk, reports, self._last, self._sum, self._count, self._cp_t, self._lim, self._banked
+        )
         changed: list[int] = []
-        if not common.all():
-            for j in np.flatnonzero(~common).tolist():
-                k = int(kk[j])
-                obs = self.observers[k]
-                assert obs is not None
-                self._unbank(k)
-                obs.update(*reports[j].tolist())
-                self._bank(k)
-                changed.append(k)
-            kk, t, inc = kk[common], t[common], inc[common]
-            reports, lim = reports[common], lim[common]
-        self._sum[kk] += inc
-        self._last[kk] = reports
-        self._count[kk] += 1
-        due = np.flatnonzero(t - self._cp_t[kk] >= lim[:, 0])
-        for j in due.tolist():
+        for j in odd:
+            k = int(kk[j])
+            obs = self.observers[k]
+            assert obs is not None
+            self._unbank(k)
+            obs.update(*reports[j].tolist())
+            self._bank(k)
+            changed.append(k)
+        for j in due:
             k = int(kk[j])
             obs = self.observers[k]
             assert obs is not None
