@@ -20,24 +20,41 @@ The same floats: each term is the numpy path's expression in its order
 which is the order ``np.bincount`` adds them in; no fast-math (no fused or
 reordered operations). ``tests/control/test_kernels.py`` holds the two to
 bit equality. Compiled when this module is imported (an explicit
-signature), cached beside it after the first time (``cache=True``), so no
+signature), cached beside it after the first time (``compiled``), so no
 step pays for it. No I/O.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["bias_common_reports", "listed_near_min", "listed_repulsion_sums"]
+__all__ = ["bias_common_reports", "compiled", "listed_near_min", "listed_repulsion_sums"]
 
 
-@njit(
+def compiled(signature: str) -> Callable[[Callable[..., Any]], Any]:
+    """numba's ``njit(signature, nogil=True)``, its machine code cached
+    beside the module (``cache=True``) where a cache can be written: else
+    (an install without a writable ``__pycache__`` nor home, no
+    ``NUMBA_CACHE_DIR``) compiled again in each process rather than refused
+    (numba raises at import then)."""
+
+    def wrap(func: Callable[..., Any]) -> Any:
+        try:
+            return njit(signature, cache=True, nogil=True)(func)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return njit(signature, nogil=True)(func)
+
+    return wrap
+
+
+@compiled(
     "void(float64[:, :], int64[:], int64[:], int64[:], float64[:], float64, float64,"
-    " boolean, float64[:, :])",
-    cache=True,
-    nogil=True,
+    " boolean, float64[:, :])"
 )
 def _sums(
     pos: NDArray[np.float64],
@@ -106,11 +123,7 @@ def listed_repulsion_sums(
     return out
 
 
-@njit(
-    "int64[:](float64[:, :], int64[:], int64[:], float64)",
-    cache=True,
-    nogil=True,
-)
+@compiled("int64[:](float64[:, :], int64[:], int64[:], float64)")
 def _near_min(
     pos: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64], rel: float
 ) -> NDArray[np.int64]:  # pragma: no cover - compiled; tested through listed_near_min
@@ -156,11 +169,9 @@ def listed_near_min(
     return near
 
 
-@njit(
+@compiled(
     "UniTuple(int64, 2)(int64[:], float64[:, :], float64[:, :], float64[:, :], int64[:],"
-    " float64[:], float64[:, :], boolean[:], int64[:], int64[:])",
-    cache=True,
-    nogil=True,
+    " float64[:], float64[:, :], boolean[:], int64[:], int64[:])"
 )
 def _bias_common(
     kk: NDArray[np.int64],

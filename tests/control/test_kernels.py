@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numba import njit
 
 from gcs_swarm.control.cutoff import row_repulsion
 from gcs_swarm.control.formation import R_MIN_M, repulsion_rows
-from gcs_swarm.control.kernels import listed_near_min, listed_repulsion_sums
+from gcs_swarm.control.kernels import compiled, listed_near_min, listed_repulsion_sums
 from gcs_swarm.control.neighbours import NeighbourList
 
 
@@ -114,3 +115,16 @@ def test_the_nearest_listed_pairs_are_numpy_s(seed: int) -> None:
     pos[3] = np.nan
     assert listed_near_min(pos, i, j, 1e-9).size == 0
     assert listed_near_min(pos, i[:0], j[:0], 1e-9).size == 0
+
+
+def test_a_kernel_without_a_place_for_its_cache_is_compiled_all_the_same() -> None:
+    """``compiled`` where numba finds nowhere to cache (here: source with no
+    file, as an unwritable install has no cache place): numba refuses
+    ``cache=True``; the kernel is compiled without its cache and works."""
+    namespace: dict[str, object] = {}
+    code = compile("def twice(x):\n    return 2.0 * x\n", "<no file>", "exec")
+    exec(code, namespace)  # a function whose source file does not exist
+    with pytest.raises(RuntimeError, match="cannot cache"):
+        njit("float64(float64)", cache=True)(namespace["twice"])
+    kernel = compiled("float64(float64)")(namespace["twice"])
+    assert kernel(1.5) == 3.0
