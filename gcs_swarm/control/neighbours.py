@@ -100,7 +100,8 @@ class _Ahead:
 
 
 class NeighbourList:
-    """``row_pairs`` for steps of some rows, from a kept list of candidates.
+    """``row_repulsion`` (Eq. 9c) and ``row_pairs`` for steps of some rows,
+    from a kept list of candidates.
 
     A Verlet list (the molecular-dynamics device): every pair closer than
     ``r_c + skin`` when it was built (``neighbour_pairs``, both ways round,
@@ -108,7 +109,7 @@ class NeighbourList:
     translation leaves the distances unchanged, so while no vehicle has moved
     more than ``skin / 2`` from its built position relative to the swarm's
     mean, a pair closer than ``r_c`` now was closer than ``r_c + skin`` then:
-    it is in the list. ``row_pairs`` then tests only the rows' candidates
+    it is in the list. A step then tests only the rows' candidates
     (about 4.2 (1 + skin/r_c)^3 r_c^3 of volume each, against 27 r_c^3 for the
     cells) and rebuilds first when a vehicle moved farther, or when the
     vehicles are others (a join or a leave: ``key``). The same pairs as
@@ -164,7 +165,8 @@ class NeighbourList:
         self._share = self.least_share
         """The margin of the next list, as a share of the cut-off."""
         self._age = 0
-        """Steps (``row_pairs`` calls) since the list in use was installed."""
+        """Steps (``row_repulsion`` or ``row_pairs`` calls) since the list in
+        use was installed."""
         self.builds = 0
         """Lists built at once (the first, after a join or leave, or when
         the next was not ready in time)."""
@@ -302,7 +304,9 @@ class NeighbourList:
     def row_pairs(self, pos_m: F64, rows: I64, key: object = None) -> Pairs:
         """``cutoff.row_pairs(pos_m, rows, cutoff_m)``'s pairs (same arrays,
         in another order); ``key`` names the vehicles (e.g. their ids): a
-        different key rebuilds the list."""
+        different key rebuilds the list. The steps take ``row_repulsion``;
+        this is its numpy reference (``cutoff.row_repulsion`` of these pairs
+        is its floats bit for bit: tests/control/test_kernels.py)."""
         rows = np.asarray(rows, dtype=np.int64)
         self._prepare(pos_m, key)
         first = self._start[rows]
