@@ -143,17 +143,13 @@ def _near_min(
         if v < least:
             least = v
     bound = least * (1.0 + rel)
-    count = 0
-    for c in range(n):
-        if r2[c] <= bound:
-            count += 1
-    near = np.empty(count, dtype=np.int64)
+    near = np.empty(n, dtype=np.int64)
     k = 0
     for c in range(n):
         if r2[c] <= bound:
             near[k] = c
             k += 1
-    return near
+    return near[:k]
 
 
 def listed_near_min(
