@@ -2,7 +2,8 @@
 docs/formation-law.md, sections 3a-3b): ``NeighbourList`` keeps each row's
 candidates between steps, so a step of one network's rows tests only those,
 and finds the next list ahead of need, in slices, on ``cutoff``'s cells.
-Pure numpy, no I/O.
+numpy, and the compiled loops of ``kernels`` (the same pairs and floats as
+their numpy references); no I/O.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import math
 import numpy as np
 
 from gcs_swarm.control.cutoff import (
+    _HALF_SHELL,
     ALL_PAIRS_BELOW,
     F64,
     I64,
@@ -19,7 +21,6 @@ from gcs_swarm.control.cutoff import (
     _cells,
     _expand,
     _near_rows,
-    _rank_pairs,
     neighbour_pairs,
 )
 
@@ -67,8 +68,10 @@ this share of the margin (the rest covers the slices' steps)."""
 
 SLICES = 6
 """The next list's pair search in this many slices of the vehicles, one per
-step (at 1,500 vehicles about 0.5 ms each against 3.6 ms at once), and one
-more step puts it together."""
+step, and one more step puts it together. At 1,500 vehicles on their
+sphere (r_c = 2 d_nn, margin 0.3-1.0 r_c) a slice's pairs take 0.03-0.05
+ms compiled (``kernels.rank_pair_indices``; numpy's ``cutoff._rank_pairs``
+0.20-0.38 ms), the whole list at once 0.40-0.65 ms with its cell list."""
 
 
 def _centred(pos_m: F64) -> F64:
@@ -92,6 +95,8 @@ class _Ahead:
         """The margin it is found with (``side_m`` is the cut-off plus it)."""
         self.cells = _cells(self.pos, side_m)
         self.xyz = np.ascontiguousarray(self.pos[self.cells.order].T)
+        self.shell = _HALF_SHELL @ self.cells.stride
+        """The half shell's cells as key offsets (``cutoff._rank_pairs``)."""
         self.rc2 = side_m * side_m
         self.done = 0
         """Ranks searched so far."""
@@ -123,12 +128,13 @@ class NeighbourList:
     (``neighbour_pairs`` cut by sorted rank), the call after the last puts
     it together and it replaces the current one. A swarm churning in place
     (every vehicle moving) needs a list every few hundred milliseconds; at
-    1,500 vehicles one build at once is 3.6 ms, added to one network's
-    latency about nine times a second. Built ahead, each step carries at
-    most a slice. If the current list goes stale first (a vehicle faster
-    than the slices), the rest of the next list is found at once; a next
-    list put together that is already stale (a vehicle moved more than
-    ``skin / 2`` from where it started) gives way to a list built at once.
+    1,500 vehicles one build at once was 3.6 ms in numpy (0.4-0.65 ms
+    compiled: ``SLICES``), added to one network's latency about nine times
+    a second. Built ahead, each step carries at most a slice. If the
+    current list goes stale first (a vehicle faster than the slices), the
+    rest of the next list is found at once; a next list put together that
+    is already stale (a vehicle moved more than ``skin / 2`` from where it
+    started) gives way to a list built at once.
 
     The margin follows the swarm's motion: a list made stale by motion
     within ``SHORT_LIST`` steps has the next one's margin ``SKIN_GROWTH``
@@ -210,11 +216,27 @@ class NeighbourList:
 
     def _build(self, pos_m: F64, key: object) -> None:
         skin = self._share * self.cutoff_m
-        pairs = neighbour_pairs(pos_m, self.cutoff_m + skin)
-        assert pairs is not None  # no max_candidates
-        self._install(pos_m.shape[0], pairs[0], pairs[1], _centred(pos_m), key, skin)
+        n = pos_m.shape[0]
+        if n < ALL_PAIRS_BELOW:  # every pair tested (``neighbour_pairs``)
+            pairs = neighbour_pairs(pos_m, self.cutoff_m + skin)
+            assert pairs is not None  # no max_candidates
+            self._install(n, pairs[0], pairs[1], _centred(pos_m), key, skin)
+        else:  # ``neighbour_pairs``' cells and pairs, in one compiled pass
+            whole = _Ahead(pos_m, _centred(pos_m), key, self.cutoff_m + skin, skin)
+            i, j = self._rank_pairs(whole, 0, n)
+            self._install(n, i, j, whole.ref, key, skin)
         self._next = None
         self.builds += 1
+
+    def _rank_pairs(self, nxt: _Ahead, lo: int, hi: int) -> tuple[I64, I64]:
+        """``cutoff._rank_pairs``' vehicle indices of ``nxt``'s pairs whose first
+        vehicle has sorted rank ``lo`` to ``hi - 1``: the same pairs, in its
+        order, from ``kernels.rank_pair_indices``."""
+        c = nxt.cells
+        pairs: tuple[I64, I64] = self._kernels.rank_pair_indices(
+            c.skey, c.start, nxt.shell, c.order, nxt.xyz, lo, hi, nxt.rc2
+        )
+        return pairs
 
     def _moving(self) -> None:
         """The list in use is being replaced because vehicles moved: a short
@@ -235,10 +257,9 @@ class NeighbourList:
         n = nxt.pos.shape[0]
         if nxt.done < n:
             hi = n if all_of_it else min(n, nxt.done + -(-n // SLICES))
-            found = _rank_pairs(nxt.cells, nxt.xyz, nxt.done, hi, nxt.rc2)
-            assert found is not None  # no max_candidates
-            nxt.i.append(found[0])
-            nxt.j.append(found[1])
+            i, j = self._rank_pairs(nxt, nxt.done, hi)
+            nxt.i.append(i)
+            nxt.j.append(j)
             nxt.done = hi
             if not all_of_it:
                 return False

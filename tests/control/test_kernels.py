@@ -7,13 +7,20 @@ same order and sums a row's terms in the order ``np.bincount`` does."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from numba import njit
 
-from gcs_swarm.control.cutoff import row_repulsion
+from gcs_swarm.control.cutoff import _HALF_SHELL, _cells, _rank_pairs, row_repulsion
 from gcs_swarm.control.formation import R_MIN_M, repulsion_rows
-from gcs_swarm.control.kernels import compiled, listed_near_min, listed_repulsion_sums
+from gcs_swarm.control.kernels import (
+    compiled,
+    listed_near_min,
+    listed_repulsion_sums,
+    rank_pair_indices,
+)
 from gcs_swarm.control.neighbours import NeighbourList
 
 
@@ -128,3 +135,54 @@ def test_a_kernel_without_a_place_for_its_cache_is_compiled_all_the_same() -> No
         njit("float64(float64)", cache=True)(namespace["twice"])
     kernel = compiled("float64(float64)")(namespace["twice"])
     assert kernel(1.5) == 3.0
+
+
+def _sorted_cells(pos: np.ndarray, side: float):  # type: ignore[no-untyped-def]
+    c = _cells(pos, side)
+    return c, np.ascontiguousarray(pos[c.order].T), _HALF_SHELL @ c.stride
+
+
+@pytest.mark.parametrize(
+    ("n", "spread", "sparse"),
+    [(64, 2.0, False), (300, 4.0, False), (1500, 7.0, False), (400, 4.0, True)],
+)
+def test_the_compiled_rank_pairs_are_numpy_s_in_its_order(n: int, spread: float,
+                                                          sparse: bool) -> None:  # fmt: skip
+    """``kernels.rank_pair_indices`` against ``cutoff._rank_pairs``: the same
+    index arrays, element for element, over the whole range and over the six
+    slices the Verlet list searches (their concatenation is the whole), on
+    a compact swarm (the cells' table) and a sparse one (binary searches)."""
+    pos = np.random.default_rng(n).uniform(-spread, spread, (n, 3))
+    if sparse:  # a few far away: more than 32 cells a vehicle, no table
+        pos[: n // 10] *= 400.0
+    side = 1.3
+    c, xyz, shell = _sorted_cells(pos, side)
+    assert (c.start is None) == sparse
+    want = _rank_pairs(c, xyz, 0, n, side * side)
+    assert want is not None and want[0].size > n  # pairs to find
+    i, j = rank_pair_indices(c.skey, c.start, shell, c.order, xyz, 0, n, side * side)
+    assert np.array_equal(i, want[0]) and np.array_equal(j, want[1])
+    cuts = list(itertools.pairwise([min(n, k * -(-n // 6)) for k in range(7)]))
+    found = []
+    for lo, hi in cuts:
+        pi, pj = rank_pair_indices(c.skey, c.start, shell, c.order, xyz, lo, hi, side * side)
+        ref = _rank_pairs(c, xyz, lo, hi, side * side)
+        assert ref is not None
+        assert np.array_equal(pi, ref[0]) and np.array_equal(pj, ref[1])
+        found += zip(pi.tolist(), pj.tolist(), strict=True)
+    assert sorted(found) == sorted(zip(i.tolist(), j.tolist(), strict=True))  # the slices: all
+
+
+def test_a_pair_on_the_cut_off_is_left_out_as_numpy_leaves_it() -> None:
+    """Exactly at the radius (``r2 == rc2``) is not closer: both leave it out."""
+    pos = np.zeros((70, 3))
+    pos[:, 0] = np.arange(70) * 10.0  # far apart: no pair but the next
+    pos[1] = [1.0, 0.0, 0.0]  # exactly 1 m from vehicle 0
+    pos[2] = [0.0, 0.5, 0.0]  # within
+    c, xyz, shell = _sorted_cells(pos, 1.0)
+    i, j = rank_pair_indices(c.skey, c.start, shell, c.order, xyz, 0, 70, 1.0)
+    ref = _rank_pairs(c, xyz, 0, 70, 1.0)
+    assert ref is not None
+    assert np.array_equal(i, ref[0]) and np.array_equal(j, ref[1])
+    assert sorted(zip(np.minimum(i, j).tolist(), np.maximum(i, j).tolist(),
+                      strict=True)) == [(0, 2)]  # fmt: skip
