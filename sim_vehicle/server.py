@@ -344,9 +344,10 @@ class Emulator:
         self.core.receive(ep, msgs, addr, time.monotonic() if self._lockstep else None)
 
     # --------------------------------------------------------------- clock
-    def _step(self) -> None:
-        """One physics step of the core, then the waiters whose condition now holds."""
-        self.core.step(time.monotonic if self._lockstep else None)
+    def _step(self, emit: bool = True) -> None:
+        """One physics step of the core, then the waiters whose condition now holds
+        (``emit=False``: the physics alone, ``_run_realtime``'s overrun)."""
+        self.core.step(time.monotonic if self._lockstep else None, emit=emit)
         self._notify()
 
     def _blocked(self) -> bool:
@@ -360,13 +361,27 @@ class Emulator:
             await self._run_realtime()
 
     async def _run_realtime(self) -> None:
+        """Steps at ``speedup`` x the wall clock. Behind it (the loop was
+        held), the steps whose time has passed are taken at once; each of
+        them that the next step is already due behind is the physics alone
+        (an overrun: the world went on, the autopilots' loops did not run),
+        and the last runs the autopilots once, at its time. So a late
+        emulator sends each stream once, as an autopilot whose loop overran
+        does (ArduCopter 4.5.6 ``GCS_MAVLINK::update_send``: a message more
+        than an interval late is sent once and rescheduled from now, "we do
+        not want to try to catch up too much"; ``schedule.due_reports``),
+        not one per step missed, a burst that would reach the station as
+        reports of one vehicle a few microseconds apart. ``late_steps``
+        counts the steps more than a period late, ``overrun_steps`` those
+        taken as physics alone."""
         loop = asyncio.get_running_loop()
         period = self.dt / self.config.speedup
         t0, k0 = loop.time(), self.step_count
         if self.config.start_at_s is not None:  # the first step then (loop.time is monotonic)
             t0 = self.config.start_at_s - period
         while True:
-            delay = t0 + (self.step_count - k0 + 1) * period - loop.time()
+            due = t0 + (self.step_count - k0 + 1) * period
+            delay = due - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
             else:
@@ -374,8 +389,9 @@ class Emulator:
                     self.stats.late_steps += 1
                 if delay < -1.0:  # hopelessly behind: drop the backlog, keep pacing
                     t0, k0 = loop.time(), self.step_count
+                    due = loop.time()
                 await asyncio.sleep(0)
-            self._step()
+            self._step(emit=loop.time() - due <= period)  # the next one due too: physics
 
     async def _run_lockstep(self) -> None:
         loop = asyncio.get_running_loop()

@@ -32,9 +32,12 @@ class LinkStats:
 
 @dataclass
 class EmulatorStats:
-    """Counters: steps taken, lockstep timeouts, late real-time steps, link counters."""
+    """Counters: steps taken, lockstep timeouts, late real-time steps, the
+    steps taken as physics alone in an overrun (``server.Emulator``), link
+    counters."""
 
     steps: int = 0
     lockstep_timeouts: int = 0
     late_steps: int = 0
+    overrun_steps: int = 0
     link: LinkStats = field(default_factory=LinkStats)
