@@ -84,6 +84,13 @@ HEARTBEATS = "together"
 own phase of the second (``EmulatorConfig.heartbeats``), as a fleet booted
 one by one does; by default all of an emulator's in one step, as a SITL
 swarm started by one script does."""
+OVERRUN = "catch_up"
+"""``--overrun skip``: an emulator held behind the wall clock takes the steps
+it missed as physics alone and sends each stream once (``EmulatorConfig.overrun``),
+as real autopilots whose loop overran; by default each missed step sends
+its reports, as SITL's clock catches up, so a late emulator hands the station
+reports of one vehicle microseconds apart, all but the last of them counted
+missed (docs/emulator.md, "A late clock")."""
 EMULATORS = 1
 """``--emulators K``: the networks hosted by K emulator processes (network j
 by process j * K // G of G networks), all on core 0; by default one. A
@@ -122,6 +129,9 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--heartbeats", choices=("together", "spread"), default="together",
                     help="the vehicles' HEARTBEATs in one step (a SITL swarm, default) "
                          "or each at its own phase (a fleet booted one by one)")  # fmt: skip
+    ap.add_argument("--overrun", choices=("catch_up", "skip"), default="catch_up",
+                    help="an emulator behind the wall clock: each missed step's reports "
+                         "(as SITL, default) or physics, then one (as an autopilot)")  # fmt: skip
     ap.add_argument("--emulators", type=int, default=1, metavar="K",
                     help="host the networks in K emulator processes, all on core 0")  # fmt: skip
 
@@ -131,13 +141,14 @@ def emulator_child(
 ) -> list[str]:
     """The emulator child's arguments for N vehicles (this file with
     ``--emulator``) from this module's settings (``RATE_HZ``, ``GROUP``,
-    ``SPREAD``, ``PHASES``, ``HEARTBEATS``, ``CUTOFF``, ``SETTLE_S``), also
+    ``SPREAD``, ``PHASES``, ``HEARTBEATS``, ``OVERRUN``, ``CUTOFF``,
+    ``SETTLE_S``), also
     bench_shards.py's;
     with a cut-off the settled start is cached first (the child reads it)."""
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
     child += ["--spread"] if SPREAD else []
     child += ["--phases", str(PHASES)] if PHASES is not None else []
-    child += ["--heartbeats", HEARTBEATS]
+    child += ["--heartbeats", HEARTBEATS, "--overrun", OVERRUN]
     if CUTOFF is not None:
         mission_yaml(n, networks)
         child += ["--cutoff", repr(CUTOFF), "--settle", repr(SETTLE_S)]
@@ -331,7 +342,7 @@ async def emulator_main(
                 cfg = emulator_config(whole, airborne=True, network=j)
             else:
                 cfg = emulator_config(load(size), airborne=True)
-            cfg = replace(cfg, shared_port=0, heartbeats=HEARTBEATS)
+            cfg = replace(cfg, shared_port=0, heartbeats=HEARTBEATS, overrun=OVERRUN)
             if PHASES is not None:  # network j's first step at a random share of a period
                 cfg = replace(cfg, start_at_s=first + phases[j] / RATE_HZ)
             elif SPREAD:  # network j's first step j/G of a period after network 0's
@@ -539,10 +550,10 @@ def main() -> None:
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
     mission_options(ap)
     args = ap.parse_args()
-    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS, EMULATORS
+    global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS, EMULATORS, OVERRUN
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
-    HEARTBEATS, EMULATORS = args.heartbeats, args.emulators
+    HEARTBEATS, EMULATORS, OVERRUN = args.heartbeats, args.emulators, args.overrun
     if args.emulator:
         host = tuple(int(j) for j in args.host.split(":")) if args.host else None
         asyncio.run(emulator_main(args.emulator, args.networks, host, args.epoch))  # type: ignore[arg-type]
@@ -556,7 +567,7 @@ def main() -> None:
     where += ", short slice" if short_slice() else ""  # as `gcs-swarm run` (runtime.sched)
     how = "one station, one mission of networks" if args.networks else "one station per group"
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
-    how += f", heartbeats {HEARTBEATS}"
+    how += f", heartbeats {HEARTBEATS}, overrun {OVERRUN}"
     how += f", {EMULATORS} emulator processes" if EMULATORS > 1 else ""
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))

@@ -119,6 +119,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--heartbeats", choices=("together", "spread"), default="together",
                    help="HEARTBEATs in one step, as a SITL swarm (default), or each at its "
                         "own phase, as a fleet booted one by one")  # fmt: skip
+    p.add_argument("--overrun", choices=("catch_up", "skip"), default="catch_up",
+                   help="held behind the wall clock: every missed step's messages, as SITL "
+                        "(default), or the physics alone and one send, as an autopilot "
+                        "whose loop overran")  # fmt: skip
     p.add_argument("--loss", type=float, default=0.0, help="datagram loss, both directions")
     p.add_argument("--delay", type=float, default=0.0, help="one-way delay, s")
     p.add_argument("--jitter", type=float, default=0.0, help="uniform extra delay, s")
@@ -197,6 +201,7 @@ def build_config(args: argparse.Namespace) -> EmulatorConfig:
         vel_bias_ned_m_s=args.velocity_bias,
         seed=args.seed,
         heartbeats=args.heartbeats,
+        overrun=args.overrun,
         uplink=imp,
         downlink=imp,
         streams=dict((int(k), v) for k, v in args.stream),

@@ -156,6 +156,14 @@ class EmulatorConfig:
     within 6 ms, docs/mavlink-protocol.md); ``"spread"``: each at its own phase
     of the second, drawn from ``seed`` and its key, as a fleet's vehicles
     booted one by one send theirs (``vehicles.heartbeat_phase_s``).
+    ``overrun``: a real-time clock held behind the wall clock (``clock``
+    ``"realtime"``; lockstep never is): ``"catch_up"`` (the default) takes
+    the steps missed one after the other, each with its messages, as a SITL
+    instance's simulated clock catches up (its streams exact in sim time, a
+    burst in wall time); ``"skip"`` takes them as physics alone and runs the
+    autopilots once, at the last, as an autopilot on the world's clock whose
+    loop overran (each stream sent once, rescheduled from then: ArduCopter's
+    ``GCS_MAVLINK::update_send``, PX4's ``MavlinkStream::update``).
     ``streams``: message id -> Hz streamed from the start (default: none but
     HEARTBEAT, as ArduCopter). ``params``: initial parameter overrides for every
     vehicle (names as ``PARAM_VALUE``). ``out``: also send to this fixed
@@ -188,6 +196,7 @@ class EmulatorConfig:
     vel_bias_flip_s: float | None = None
     seed: int = 0
     heartbeats: Literal["together", "spread"] = "together"
+    overrun: Literal["catch_up", "skip"] = "catch_up"
     uplink: Impairment = field(default_factory=Impairment)
     downlink: Impairment = field(default_factory=Impairment)
     streams: Mapping[int, float] = field(default_factory=dict)
@@ -212,6 +221,7 @@ class EmulatorConfig:
         _check(self.rate_hz > 0.0, f"rate_hz: expected > 0, got {self.rate_hz}")
         _check(self.speedup > 0.0, f"speedup: expected > 0, got {self.speedup}")
         _check(self.clock in ("realtime", "lockstep"), f"clock: unknown {self.clock!r}")
+        _check(self.overrun in ("catch_up", "skip"), f"overrun: unknown {self.overrun!r}")
         _check(self.dynamics in ("ardupilot", "ideal"), f"dynamics: unknown {self.dynamics!r}")
         _check(self.lockstep_timeout_s > 0.0, "lockstep_timeout_s: expected > 0")
         _check(self.ekf_ready_s >= 0.0, "ekf_ready_s: expected >= 0")

@@ -362,20 +362,22 @@ class Emulator:
 
     async def _run_realtime(self) -> None:
         """Steps at ``speedup`` x the wall clock. Behind it (the loop was
-        held), the steps whose time has passed are taken at once; each of
-        them that the next step is already due behind is the physics alone
-        (an overrun: the world went on, the autopilots' loops did not run),
-        and the last runs the autopilots once, at its time. So a late
-        emulator sends each stream once, as an autopilot whose loop overran
-        does (ArduCopter 4.5.6 ``GCS_MAVLINK::update_send``: a message more
-        than an interval late is sent once and rescheduled from now, "we do
-        not want to try to catch up too much"; ``schedule.due_reports``),
-        not one per step missed, a burst that would reach the station as
-        reports of one vehicle a few microseconds apart. ``late_steps``
-        counts the steps more than a period late, ``overrun_steps`` those
-        taken as physics alone."""
+        held), the steps whose time has passed are taken at once, each with
+        its messages (``overrun`` ``"catch_up"``: as SITL's simulated clock
+        catches up, exact in sim time, a burst in wall time). With
+        ``"skip"``, each of them that the next step is already due behind
+        is the physics alone (an overrun: the world went on, the autopilots'
+        loops did not run), and the last runs the autopilots once, at its
+        time: each stream goes once, as an autopilot whose loop overran
+        sends it (ArduCopter 4.5.6 ``GCS_MAVLINK::update_send``: a message
+        more than an interval late is sent once and rescheduled from now,
+        "we do not want to try to catch up too much"; ``schedule.due_reports``),
+        not once per step missed, reports of one vehicle a few microseconds
+        apart. ``late_steps`` counts the steps more than a period late,
+        ``overrun_steps`` those taken as physics alone."""
         loop = asyncio.get_running_loop()
         period = self.dt / self.config.speedup
+        skip = self.config.overrun == "skip"
         t0, k0 = loop.time(), self.step_count
         if self.config.start_at_s is not None:  # the first step then (loop.time is monotonic)
             t0 = self.config.start_at_s - period
@@ -391,7 +393,8 @@ class Emulator:
                     t0, k0 = loop.time(), self.step_count
                     due = loop.time()
                 await asyncio.sleep(0)
-            self._step(emit=loop.time() - due <= period)  # the next one due too: physics
+            # "skip": a step the next is due behind already is the physics alone
+            self._step(emit=not skip or loop.time() - due <= period)
 
     async def _run_lockstep(self) -> None:
         loop = asyncio.get_running_loop()

@@ -113,6 +113,13 @@ EMULATOR = Obj(
             "spread: each at its own phase (a fleet booted one by one)",
         ),
         Key(
+            "overrun",
+            Enum(choices=("catch_up", "skip")),
+            _EMU.overrun,
+            "realtime held behind the wall clock: catch_up: every missed step's messages "
+            "(as SITL); skip: physics alone, then each stream once (as an autopilot)",
+        ),
+        Key(
             "ground",
             Num(lo=-POSITION_LIMIT_M, hi=POSITION_LIMIT_M),
             _EMU.ground,

@@ -36,6 +36,7 @@ __all__ = [
     "Impairments",
     "LogSettings",
     "Mission",
+    "Overrun",
     "Settings",
     "Signing",
     "Spawn",
@@ -55,6 +56,7 @@ EmulatorMode = Literal["lockstep", "realtime"]
 Dynamics = Literal["ideal", "ardupilot-like"]
 Spawn = Literal["ground", "air"]
 Heartbeats = Literal["together", "spread"]
+Overrun = Literal["catch_up", "skip"]
 EventAction = Literal["join", "leave"]
 
 #: Name of the one network of a mission without ``networks:`` (docs/mission-format.md).
@@ -316,7 +318,11 @@ class Emulator:
     ``None``: the preset's, 304 s as on ArduCopter SITL for ardupilot-like);
     heartbeats: ``together`` (each vehicle's 1 Hz HEARTBEAT in the same step,
     as a SITL swarm started by one script) or ``spread`` (each at its own
-    phase, as a fleet booted one by one); spawn:
+    phase, as a fleet booted one by one); overrun: a real-time emulator
+    held behind the wall clock takes the missed steps ``catch_up`` (each
+    with its messages, as SITL's clock catches up) or ``skip`` (physics
+    alone, then each stream once, as an autopilot whose loop overran:
+    docs/emulator.md, "A late clock"); spawn:
     ``ground`` (landed at home, full start-up) or ``air`` (armed, GUIDED,
     hovering at the start position); host and base_port: where the
     endpoints bind (port ``base_port + 10 k`` for the k-th sim vehicle, like
@@ -335,6 +341,7 @@ class Emulator:
     velocity_bias_ned: tuple[float, float, float] | None = None
     velocity_bias_flip: float | None = None
     heartbeats: Heartbeats = "together"
+    overrun: Overrun = "catch_up"
     ground: float = -20.0
     origin_spread: float = 5.0
     spawn: Spawn = "ground"

@@ -325,6 +325,7 @@ def emulator_config(
         vel_bias_ned_m_s=em.velocity_bias_ned,
         vel_bias_flip_s=em.velocity_bias_flip,
         heartbeats=em.heartbeats,
+        overrun=em.overrun,
         base_port=0 if em.shared else base_port,
         shared_port=shared_port if em.shared else None,
         params={} if em.accel_max is None else {"SIM_ACC_MAX": em.accel_max},
