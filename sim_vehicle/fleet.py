@@ -276,17 +276,27 @@ class Fleet:
     def lpn_frames_rows(self, rows: list[int], time_boot_ms: list[int]) -> list[bytes] | None:
         """``lpn_frames`` for a few rows given as a list, the state's own values (no noise):
         the same bytes from plain lists, without numpy's per-call cost. None (and no
-        sequence number used) when a value does not fit a float32."""
-        pos, vel, seq = self.pos.tolist(), self.vel.tolist(), self.seq.tolist()
-        sysid, compid = self.sysid.tolist(), self.compid.tolist()
-        frames = lpn_frames_small(
-            time_boot_ms, [pos[r] for r in rows], [vel[r] for r in rows],
-            [seq[r] for r in rows], [sysid[r] for r in rows], [compid[r] for r in rows],
-        )  # fmt: skip
+        sequence number used) when a value does not fit a float32. ``rows``
+        distinct. A small fleet's whole columns go to lists (no numpy call
+        per row), a large one's rows only (a whole column is O(N) a call: a
+        stream's first report, sent at once, is one row of a fleet that may
+        be 250)."""
+        cols = (self.pos, self.vel, self.seq, self.sysid, self.compid)
+        if few(self.n):
+            pos, vel, seq, sysid, compid = (c.tolist() for c in cols)
+            frames = lpn_frames_small(
+                time_boot_ms, [pos[r] for r in rows], [vel[r] for r in rows],
+                [seq[r] for r in rows], [sysid[r] for r in rows], [compid[r] for r in rows],
+            )  # fmt: skip
+            if frames is not None:
+                for r in rows:
+                    seq[r] = (seq[r] + 1) & 0xFF
+                self.seq[:] = seq
+            return frames
+        pos, vel, seq, sysid, compid = (c[rows].tolist() for c in cols)
+        frames = lpn_frames_small(time_boot_ms, pos, vel, seq, sysid, compid)
         if frames is not None:
-            for r in rows:
-                seq[r] = (seq[r] + 1) & 0xFF
-            self.seq[:] = seq
+            self.seq[rows] = [(q + 1) & 0xFF for q in seq]
         return frames
 
     def lpn_frames(

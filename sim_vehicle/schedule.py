@@ -115,10 +115,16 @@ def report_frames(
     f = fleet
     if few(len(rows)) and pack is None:
         rl: list[int] = rows.tolist()
-        npos, nvel, vb = f.noise_pos.tolist(), f.noise_vel.tolist(), f.vbias.tolist()
-        if not any(npos[r] > 0 or nvel[r] > 0 or any(vb[r]) for r in rl):
-            boot = f.boot.tolist()  # round() is np.rint's half-to-even
-            frames = f.lpn_frames_rows(rl, [round((now - boot[r]) * 1000.0) for r in rl])
+        cols = (f.noise_pos, f.noise_vel, f.vbias, f.boot)
+        if few(f.n):  # a small fleet: whole columns as lists, no numpy call per row
+            npos, nvel, vb, boot = (c.tolist() for c in cols)
+            at: Sequence[int] = rl
+        else:  # a large one: the rows' values only (a whole column is O(N) a call)
+            npos, nvel, vb, boot = (c[rows].tolist() for c in cols)
+            at = range(len(rl))
+        if not any(npos[k] > 0 or nvel[k] > 0 or any(vb[k]) for k in at):
+            # round() is np.rint's half-to-even
+            frames = f.lpn_frames_rows(rl, [round((now - boot[k]) * 1000.0) for k in at])
             if frames is not None:
                 return frames
     t_ms = np.rint((now - f.boot[rows]) * 1000.0).astype(np.int64)

@@ -255,10 +255,13 @@ def test_small_step_falls_back_to_numpy_on_a_domain_error() -> None:
 def test_lpn_frames_from_lists_are_byte_identical() -> None:
     """Fleet.lpn_frames_rows (the schedule's path below small.SMALL_N rows: lists, round()) against
     Fleet.lpn_frames fed as before (numpy arrays, np.rint) on 3000 random cases: the same
-    frames and the same sequence numbers afterwards."""
+    frames and the same sequence numbers afterwards. One case in 20 is a fleet of
+    33-255 (beyond SMALL_N: the rows' values taken alone) with 1-5 rows, as a stream's
+    first report is one row of a network."""
     rng = np.random.default_rng(32)
     for case in range(3000):
-        n = case % 12 + 1
+        large = case % 20 == 0
+        n = int(rng.integers(33, 256)) if large else case % 12 + 1
         fast = _random_fleet(rng, n)
         fast.seq = rng.integers(0, 256, n)
         fast.boot = np.where(rng.integers(0, 2, n) == 0, 0.0, rng.uniform(0, 100, n))
@@ -266,6 +269,8 @@ def test_lpn_frames_from_lists_are_byte_identical() -> None:
         ref.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray) else v)
                              for k, v in fast.__dict__.items()})  # fmt: skip
         rows = np.flatnonzero(rng.integers(0, 3, n) > 0)
+        if large:
+            rows = np.sort(rng.choice(n, int(rng.integers(1, 6)), replace=False))
         now = float(rng.uniform(0, 200)) if case % 3 else round(float(rng.uniform(0, 200)), 3)
         boot = fast.boot.tolist()
         got = fast.lpn_frames_rows(rows.tolist(), [round((now - boot[r]) * 1000.0) for r in rows])
