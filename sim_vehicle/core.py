@@ -452,18 +452,16 @@ class EmulatorCore:
     # --------------------------------------------------------------- clock
     def step(self, wall: Callable[[], float] | None = None, *, emit: bool = True) -> None:
         """One physics step, then what is due at the new sim time (``emit``).
-        ``wall``: reads the wall clock (lockstep), None in real time.
-        ``emit=False``: the physics alone, the autopilots not run (a real-time
-        clock behind by more than a step: ``server.Emulator``'s overrun)."""
+        ``wall``: reads the wall clock (lockstep), None in real time. ``emit=False``:
+        the physics alone (``server.Emulator``'s overrun: ``overrun_steps``)."""
         self.fleet.step(self.dt)
         self._kins = None
         self.step_count += 1
         self.stats.steps = self.step_count
         self.sim_time_s = now = self.step_count * self.dt
         if emit:
-            self.emit(now, wall)
-        else:
-            self.stats.overrun_steps += 1
+            return self.emit(now, wall)
+        self.stats.overrun_steps += 1
 
     def emit(self, now: float, wall: Callable[[], float] | None = None) -> None:
         """The delayed datagrams due by ``now``, the autopilots' polls, the telemetry."""
