@@ -142,9 +142,9 @@ def emulator_child(
     """The emulator child's arguments for N vehicles (this file with
     ``--emulator``) from this module's settings (``RATE_HZ``, ``GROUP``,
     ``SPREAD``, ``PHASES``, ``HEARTBEATS``, ``OVERRUN``, ``CUTOFF``,
-    ``SETTLE_S``), also
-    bench_shards.py's;
-    with a cut-off the settled start is cached first (the child reads it)."""
+    ``SETTLE_S``), also bench_shards.py's; with a cut-off the settled start
+    is cached first (the child reads it). ``host`` and ``epoch``:
+    ``emulator_main``'s."""
     child = ["--emulator", str(n), "--rate", f"{RATE_HZ:g}", "--group", str(GROUP)]
     child += ["--spread"] if SPREAD else []
     child += ["--phases", str(PHASES)] if PHASES is not None else []
