@@ -141,13 +141,12 @@ def take_stream(core: EmulatorCore, ep: Port, grams: Sequence[bytes], addr: Addr
     # (ax - 0.0 * ay, 0.0 * ax + ay, az): the same operations on the same
     # float64s, signed zeros included.
     ax, ay, az = acc[:, 0], acc[:, 1], acc[:, 2]
-    north = (ax - 0.0 * ay).tolist()
-    east = (0.0 * ax + ay).tolist()
-    held = list(zip(north, east, az.tolist(), strict=True))
+    north, east = ax - 0.0 * ay, 0.0 * ax + ay
+    held = list(zip(north.tolist(), east.tolist(), az.tolist(), strict=True))
     now = core.sim_time_s
     for v, a in zip(vs, held, strict=True):
         v.lane_a, v.lane_t = a, now
-    fleet.set_a_ff_rows(rows, held)
+    fleet.set_a_ff_rows(rows, np.column_stack((north, east, az)))
     stats = core.stats.link
     stats.rx_datagrams += len(grams)
     stats.rx_stream_batched += len(grams)

@@ -317,3 +317,36 @@ def test_a_rows_feed_forward_is_its_last_target_at_the_step() -> None:
         for name in ("pos", "vel", "acc", "a_ff"):
             np.testing.assert_array_equal(getattr(many, name), getattr(last, name), err_msg=name)
     assert np.abs(many.a_ff).max() > 1.0
+
+
+def test_a_ff_batches_and_single_rows_keep_the_order_they_were_set_in() -> None:
+    """The deferred lane's batches (``set_a_ff_rows``, an array per network,
+    a row twice in one) and single rows (``set_a_ff``) interleaved between
+    two steps: each row's ``a_ff`` at the step is the last set, as setting
+    them one at a time in the same order gives (the bits, -0.0 included)."""
+    rng = np.random.default_rng(19)
+    batched, one_by_one = Fleet(), Fleet()
+    for f in (batched, one_by_one):
+        for i in range(9):
+            f.add(i + 1, 1, (float(i), 0.0, -10.0), landed=False)
+    duplicated = 0
+    for _ in range(60):
+        for _ in range(int(rng.integers(1, 5))):
+            if rng.random() < 0.5:
+                rows = rng.integers(0, 9, int(rng.integers(1, 12))).tolist()
+                a = rng.normal(0.0, 2.0, (len(rows), 3))
+                a[rng.random(a.shape) < 0.1] = -0.0
+                duplicated += len(set(rows)) < len(rows)
+                batched.set_a_ff_rows(rows, a)
+                for r, v in zip(rows, a.tolist(), strict=True):
+                    one_by_one.set_a_ff(r, (v[0], v[1], v[2]))
+            else:
+                r = int(rng.integers(0, 9))
+                v = tuple(float(x) for x in rng.normal(0.0, 2.0, 3))
+                batched.set_a_ff(r, v)  # type: ignore[arg-type]
+                one_by_one.set_a_ff(r, v)  # type: ignore[arg-type]
+        batched.step(0.02)
+        one_by_one.step(0.02)
+        assert batched.a_ff.tobytes() == one_by_one.a_ff.tobytes()
+        assert batched.pos.tobytes() == one_by_one.pos.tobytes()
+    assert duplicated > 10  # the case of a row twice in one batch was met
