@@ -20,6 +20,8 @@ from sim_vehicle.dynamics import DynParams, KinState, Targets
 from sim_vehicle.small import few
 from sim_vehicle.targets import ControlTarget
 
+_Vec3 = tuple[float, float, float]
+
 __all__ = ["KP_1_S", "KV_1_S", "Fleet"]
 
 #: Gains of Eq. D3 (ArduCopter PSC_POSXY_P = 1, PSC_VELXY_P = 2).
@@ -83,7 +85,7 @@ class Fleet:
         self._a_ff_due: dict[int, tuple[float, float, float]] = {}
         """Rows' ``a_ff`` set one at a time since the last step, written at the
         next (``_write_a_ff``)."""
-        self._a_ff_batches: list[tuple[list[int], NDArray[np.float64]] | dict[int, tuple[float, float, float]]] = []
+        self._a_ff_batches: list[tuple[list[int], NDArray[np.float64]] | dict[int, _Vec3]] = []
         """What was set before: the rows' dicts and whole batches
         (``set_a_ff_rows``), in the order they were set."""
         for name in _V3:
