@@ -82,7 +82,7 @@ class Fleet:
         self.changed: list[int] = []  # rows whose ``landed`` flag the last step changed
         self._views: tuple[Targets, DynParams] | None = None  # step()'s inputs over the arrays
         self._lag: tuple[list[float], float, list[tuple[float, float]]] | None = None
-        self._a_ff_due: dict[int, tuple[float, float, float]] = {}
+        self._a_ff_due: dict[int, _Vec3] = {}
         """Rows' ``a_ff`` set one at a time since the last step, written at the
         next (``_write_a_ff``)."""
         self._a_ff_batches: list[tuple[list[int], NDArray[np.float64]] | dict[int, _Vec3]] = []
@@ -169,7 +169,7 @@ class Fleet:
         self.lean[row] = tg.lean_acc
         self.drag[row] = tg.drag
 
-    def set_a_ff(self, row: int, a_ff: tuple[float, float, float]) -> None:
+    def set_a_ff(self, row: int, a_ff: _Vec3) -> None:
         """The row's feed-forward acceleration alone (the deferred lane's setpoint:
         the rest of its target stays), written at the next ``step``."""
         self._a_ff_due[row] = a_ff
