@@ -86,8 +86,8 @@ class Fleet:
         """Rows' ``a_ff`` set one at a time since the last step, written at the
         next (``_write_a_ff``)."""
         self._a_ff_batches: list[tuple[list[int], NDArray[np.float64]] | dict[int, _Vec3]] = []
-        """What was set before: the rows' dicts and whole batches
-        (``set_a_ff_rows``), in the order they were set."""
+        """What was set before the single rows now due: their dicts and whole
+        batches (``set_a_ff_rows``), in the order they were set."""
         for name in _V3:
             setattr(self, name, np.zeros((0, 3)))
         for name in _V1:
@@ -179,14 +179,19 @@ class Fleet:
         (the last of a row's wins): kept as the array it came in, a network's
         stream written at the next step in one assignment (a dict of tuples
         cost 83 us for 250 rows against 17 here, in process)."""
-        if self._a_ff_due:  # set before this batch: written before it
+        self._seal_a_ff()  # the single rows set before this batch: written before it
+        self._a_ff_batches.append((rows, a_ff))
+
+    def _seal_a_ff(self) -> None:
+        """The single rows set so far go into ``_a_ff_batches``, in their turn."""
+        if self._a_ff_due:
             self._a_ff_batches.append(self._a_ff_due)
             self._a_ff_due = {}
-        self._a_ff_batches.append((rows, a_ff))
 
     def _write_a_ff(self) -> None:
         """The ``a_ff`` set since the last step into its rows, in the order set
         (the last of each row's)."""
+        self._seal_a_ff()
         a_ff = self.a_ff
         for batch in self._a_ff_batches:
             if isinstance(batch, dict):
@@ -199,10 +204,6 @@ class Fleet:
                 rows, values = list(last), values[list(last.values())]
             a_ff[rows] = values
         self._a_ff_batches.clear()
-        due = self._a_ff_due
-        if due:
-            a_ff[list(due)] = list(due.values())
-            due.clear()
 
     def step(self, dt: float) -> None:
         """Advance every vehicle by ``dt`` s: Eq. D3, then ``dynamics.step`` (D1, D5-7, D2, D4)."""
