@@ -6,7 +6,9 @@ and nothing of either end's state machines or message semantics.
   ``setup_signing``, ``signing_timestamp``) and a parser whose failed
   signature checks do not move a stream's timestamp (``SigningMAVLink``);
 - ``mavwire.crc``: the MAVLink checksum, pymavlink's C CRC when installed
-  (``frame_crc``, ``MCRF4XX``), and its column-wise numpy step (``crc_step``);
+  (``frame_crc``, ``MCRF4XX``), many frames' at once by position tables
+  (``row_crcs``: ``table_crcs`` from ``ROWS_MIN`` frames on), and its column-wise numpy
+  step (``crc_step``);
 - ``mavwire.datagrams``: frames joined into UDP datagrams of at most
   ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``);
 - ``mavwire.framing``: unsigned MAVLink 2 frames of one message type built
@@ -22,7 +24,16 @@ Imports only the standard library, numpy and pymavlink's generated dialect
 
 from __future__ import annotations
 
-from mavwire.crc import CRC_INIT, CRC_TABLE, MCRF4XX, crc_step, frame_crc
+from mavwire.crc import (
+    CRC_INIT,
+    CRC_TABLE,
+    MCRF4XX,
+    ROWS_MIN,
+    crc_step,
+    frame_crc,
+    row_crcs,
+    table_crcs,
+)
 from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
 from mavwire.framing import HEADER_BYTES, FrameBatch, FrameBuilder
 from mavwire.protocols import MAVLinkHeader, MAVLinkInterface, MAVLinkMessage, MAVLinkSigning
@@ -40,6 +51,7 @@ __all__ = [
     "HEADER_BYTES",
     "MAX_DATAGRAM_BYTES",
     "MCRF4XX",
+    "ROWS_MIN",
     "SIGNING_KEY_BYTES",
     "FrameBatch",
     "FrameBuilder",
@@ -52,6 +64,8 @@ __all__ = [
     "datagram_bounds",
     "frame_crc",
     "mavlink",
+    "row_crcs",
     "setup_signing",
     "signing_timestamp",
+    "table_crcs",
 ]

@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from mavwire.crc import CRC_INIT, MCRF4XX, crc_step, frame_crc, frame_crcs
+from mavwire.crc import CRC_INIT, MCRF4XX, crc_step, frame_crc, row_crcs
 
 __all__ = ["HEADER_BYTES", "FrameBatch", "FrameBuilder", "frame_payload"]
 
@@ -141,18 +141,16 @@ class FrameBuilder:
     def _crcs(self, u8: npt.NDArray[np.uint8], end: npt.NDArray[np.int64] | None) -> Any:
         """The CRC of each row ``u8[i, 1:end[i]]`` followed by CRC_EXTRA
         (``end`` None: every row but its last two bytes)."""
-        size = u8.shape[1]
+        if end is None:
+            return row_crcs(u8, self.crc_extra)
         if MCRF4XX is not None:
             crc, extra = MCRF4XX, self._extra
             flat = u8.reshape(-1).data  # a memoryview of the bytes, no copy
-            if end is None:
-                return frame_crcs(flat, range(0, len(flat), size), size, extra)
+            size = u8.shape[1]
             return [
                 crc(extra, crc(flat[j + 1 : j + e]))
                 for j, e in zip(range(0, len(flat), size), end.tolist(), strict=True)
             ]
-        if end is None:
-            end = np.full(len(u8), size - 2, dtype=np.int64)
         return _column_crc(u8, end, self.crc_extra)
 
     def pack(self, seq: int, sysid: int, compid: int, payload: bytes) -> bytes:

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mavwire.crc import frame_crcs
+from mavwire.crc import row_crcs
 from sim_vehicle.commands import ECHO_MASK, SETPOINT_LIMIT
 
 if TYPE_CHECKING:
@@ -52,7 +52,7 @@ station's step of a 250-vehicle network is about 250 frames."""
 
 _SP = mav.MAVLink_set_position_target_local_ned_message
 _SP_ID = _SP.id  # 84: one byte on the wire, then two zeros
-_EXTRA = bytes((_SP.crc_extra,))
+_EXTRA_BYTE = _SP.crc_extra
 _PAYLOAD = np.dtype(
     [
         ("time_boot_ms", "<u4"),
@@ -115,7 +115,7 @@ def take_stream(core: EmulatorCore, ep: Port, grams: Sequence[bytes], addr: Addr
     if not (u8[:, _HEAD_AT] == _HEAD).all():
         return False
     frames = u8.view(_FRAME)[:, 0]
-    if frame_crcs(blob, range(0, len(blob), _SIZE), _SIZE, _EXTRA) != frames["crc"].tolist():
+    if (row_crcs(u8, _EXTRA_BYTE) != frames["crc"]).any():
         return False
     pay = frames["payload"]
     vehicles, sysids = core.vehicles, ep.sysids

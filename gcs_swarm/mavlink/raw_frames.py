@@ -21,7 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as _dialect
 from gcs_swarm.mavlink.inbound import STATUS_FIELDS
 from mavwire.crc import MCRF4XX as _MCRF4XX
 from mavwire.crc import frame_crc as _frame_crc
-from mavwire.crc import frame_crcs as _frame_crcs
+from mavwire.crc import row_crcs as _row_crcs
 
 __all__ = [
     "LPN_PAYLOAD",
@@ -159,6 +159,7 @@ vx, vy, vz [m/s] NED (28 bytes; the telemetry table's row)."""
 _LPN_LAY = RAW_LAYOUTS[_LPN_ID0]
 assert _LPN_LAY.size == LPN_PAYLOAD.itemsize
 _LPN_SIZE = 12 + LPN_PAYLOAD.itemsize
+_LPN_EXTRA = _LPN_LAY.extra[0]
 """A whole (untrimmed) unsigned LOCAL_POSITION_NED frame [bytes]: 40."""
 _LPN_FRAME = np.dtype([("head", "u1", (10,)), ("payload", LPN_PAYLOAD), ("crc", "<u2")])
 _AT = np.arange(_LPN_SIZE, dtype=np.intp)
@@ -197,7 +198,7 @@ def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
     frames are found by their length bytes alone and their headers checked
     as columns (``Codec.decode``'s test: the magic, no incompatibility flag,
     an id of one byte); the untrimmed reports go column-wise (one gather,
-    their CRCs frame by frame with ``raw_frame``'s function), every other
+    their CRCs at once, ``mavwire.crc.row_crcs``), every other
     frame through ``raw_frame``."""
     blob = b"".join(grams)
     starts: list[int] = []
@@ -234,13 +235,11 @@ def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
     lpn = np.flatnonzero(is_whole | (head[:, 7] == _LPN_ID0)).tolist()
     whole = np.flatnonzero(is_whole).tolist()
     if whole:
-        at_w = at[whole]
-        frames = u[at_w[:, None] + _AT].view(_LPN_FRAME)[:, 0]
-        crcs = _frame_crcs(blob, at_w.tolist(), _LPN_SIZE, _LPN_LAY.extra)
-        good = frames["crc"].tolist()
-        if crcs != good:
-            first = next(k for k, (c, w) in enumerate(zip(crcs, good, strict=True)) if c != w)
-            bad = min(bad, whole[first])
+        rows = u[at[whole][:, None] + _AT]
+        frames = rows.view(_LPN_FRAME)[:, 0]
+        wrong = np.flatnonzero(_row_crcs(rows, _LPN_EXTRA) != frames["crc"])
+        if len(wrong):
+            bad = min(bad, whole[int(wrong[0])])
     if bad < len(starts):  # the datagrams before the bad frame's
         keep = bisect_right(cuts, bad)
         return None if keep == 0 else frame_batch(grams[:keep])

@@ -20,6 +20,7 @@ _ALLOWED = {
     "__future__",
     "bisect",
     "collections",
+    "functools",
     "itertools",
     "typing",
     "numpy",
