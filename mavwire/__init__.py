@@ -6,9 +6,9 @@ and nothing of either end's state machines or message semantics.
   ``setup_signing``, ``signing_timestamp``) and a parser whose failed
   signature checks do not move a stream's timestamp (``SigningMAVLink``);
 - ``mavwire.crc``: the MAVLink checksum, pymavlink's C CRC when installed
-  (``frame_crc``, ``MCRF4XX``), many frames' at once by position tables
-  (``row_crcs``: ``table_crcs`` from ``ROWS_MIN`` frames on), and its column-wise numpy
-  step (``crc_step``);
+  (``frame_crc``, ``MCRF4XX``), many frames' at once (``row_crcs``: by
+  position tables, ``table_crcs``, from ``ROWS_MIN`` frames on), and its
+  column-wise numpy step (``crc_step``);
 - ``mavwire.datagrams``: frames joined into UDP datagrams of at most
   ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``);
 - ``mavwire.framing``: unsigned MAVLink 2 frames of one message type built

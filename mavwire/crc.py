@@ -78,9 +78,9 @@ def crc_step(crc: npt.NDArray[Any], byte: npt.NDArray[Any]) -> npt.NDArray[Any]:
 ROWS_MIN = 20
 """From this many frames on ``row_crcs`` takes the position tables; fewer
 go frame by frame when pymavlink's C CRC is installed. The tables cost
-about 4 us for a batch plus 0.07 us a frame of 40 bytes, pymavlink's C CRC
-0.3 us a frame: even near 18 frames (``bench_codec.py``, frame by frame
-against ``table_crcs``, 2026-12-06)."""
+about 4 us a batch plus 0.07 us a frame of 40 bytes, pymavlink's C CRC
+0.3 us a frame: the two are about even at 16-20 frames (``bench_codec.py``,
+frame by frame against ``table_crcs``, 2026-12-06)."""
 
 
 def row_crcs(rows: npt.NDArray[np.uint8], extra: int) -> npt.NDArray[np.uint16]:

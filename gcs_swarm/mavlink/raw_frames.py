@@ -159,8 +159,9 @@ vx, vy, vz [m/s] NED (28 bytes; the telemetry table's row)."""
 _LPN_LAY = RAW_LAYOUTS[_LPN_ID0]
 assert _LPN_LAY.size == LPN_PAYLOAD.itemsize
 _LPN_SIZE = 12 + LPN_PAYLOAD.itemsize
-_LPN_EXTRA = _LPN_LAY.extra[0]
 """A whole (untrimmed) unsigned LOCAL_POSITION_NED frame [bytes]: 40."""
+_LPN_EXTRA = _LPN_LAY.extra[0]
+"""LOCAL_POSITION_NED's CRC_EXTRA byte, as an int (``row_crcs``' argument)."""
 _LPN_FRAME = np.dtype([("head", "u1", (10,)), ("payload", LPN_PAYLOAD), ("crc", "<u2")])
 _AT = np.arange(_LPN_SIZE, dtype=np.intp)
 _CHECKED = np.array([0, 2, 8, 9], dtype=np.intp)
