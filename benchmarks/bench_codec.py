@@ -161,31 +161,21 @@ def main() -> float:
 
 def crc_batches() -> None:
     """The position tables against pymavlink's C CRC frame by frame."""
-    from mavwire.crc import MCRF4XX, table_crcs
+    from mavwire.crc import MCRF4XX, frame_by_frame_crcs, table_crcs
 
     if MCRF4XX is None:
         print("frames' CRCs: pymavlink's C CRC (fastcrc) is not installed; not compared")
         return
-    crc = MCRF4XX
     print(f"frames' CRCs, 40-byte frames, median of {ROUNDS} rounds (us per batch, [min..max])")
     rng = np.random.default_rng(1)
     for n in (8, 16, 20, 32, 250):
         rows = rng.integers(0, 256, size=(n, 40), dtype=np.uint8)
-        one_by_one = _frame_by_frame(crc, rows, bytes((185,)))
-        assert table_crcs(rows, 185).tolist() == one_by_one()
+        assert table_crcs(rows, 185).tolist() == frame_by_frame_crcs(rows, 185)
         line = []
-        for fn in (one_by_one, lambda rows=rows: table_crcs(rows, 185)):
-            med, lo, hi = _median_us(fn, 2_000)
+        for fn in (frame_by_frame_crcs, table_crcs):
+            med, lo, hi = _median_us(lambda fn=fn, rows=rows: fn(rows, 185), 2_000)
             line.append(f"{med:7.2f} [{lo:.2f}..{hi:.2f}]")
         print(f"  {n:3d} frames: frame by frame {line[0]}, position tables {line[1]}", flush=True)
-
-
-def _frame_by_frame(
-    crc: Callable[..., int], rows: np.ndarray, extra: bytes
-) -> Callable[[], list[int]]:
-    """pymavlink's C CRC of each row's frame, one call after another."""
-    flat, size = rows.reshape(-1).data, rows.shape[1]
-    return lambda: [crc(extra, crc(flat[s + 1 : s + size - 2])) for s in range(0, len(flat), size)]
 
 
 if __name__ == "__main__":

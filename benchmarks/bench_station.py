@@ -441,17 +441,15 @@ async def caught_up(stations: list[Any], n: int, period_s: float = 0.5) -> tuple
     a second (a station working through its sockets' backlog takes more;
     one period's jitter is one step of a network, under 1 % at 1,500).
     (the seconds waited, the reports taken above n x RATE_HZ meanwhile)."""
-    t0 = time.monotonic()
-    r0 = last = sum(s.reports_in for s in stations)
-    t_last = t0
+    t0 = t_prev = time.monotonic()
+    r0 = r_prev = sum(s.reports_in for s in stations)
     while True:
         await asyncio.sleep(period_s)
         now, r = time.monotonic(), sum(s.reports_in for s in stations)
-        rate, last, t_last_was = (r - last) / (now - t_last), r, t_last
-        t_last = now
-        if rate <= 1.05 * n * RATE_HZ or now - t0 >= CATCH_UP_TIMEOUT_S:
-            waited = t_last_was - t0  # the last period was already caught up
-            return waited, max(0.0, (r - r0) - n * RATE_HZ * (now - t0))
+        if (r - r_prev) / (now - t_prev) <= 1.05 * n * RATE_HZ or now - t0 >= CATCH_UP_TIMEOUT_S:
+            # Caught up from the start of this period on.
+            return t_prev - t0, max(0.0, (r - r0) - n * RATE_HZ * (now - t0))
+        t_prev, r_prev = now, r
 
 
 async def station_run(

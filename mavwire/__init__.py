@@ -7,7 +7,8 @@ and nothing of either end's state machines or message semantics.
   signature checks do not move a stream's timestamp (``SigningMAVLink``);
 - ``mavwire.crc``: the MAVLink checksum, pymavlink's C CRC when installed
   (``frame_crc``, ``MCRF4XX``), many frames' at once (``row_crcs``: by
-  position tables, ``table_crcs``, from ``ROWS_MIN`` frames on), and its
+  position tables, ``table_crcs``, from ``ROWS_MIN`` frames on, else
+  ``frame_by_frame_crcs``), and its
   column-wise numpy step (``crc_step``);
 - ``mavwire.datagrams``: frames joined into UDP datagrams of at most
   ``MAX_DATAGRAM_BYTES`` (``datagram_bounds``);
@@ -30,6 +31,7 @@ from mavwire.crc import (
     MCRF4XX,
     ROWS_MIN,
     crc_step,
+    frame_by_frame_crcs,
     frame_crc,
     row_crcs,
     table_crcs,
@@ -62,6 +64,7 @@ __all__ = [
     "SigningMAVLink",
     "crc_step",
     "datagram_bounds",
+    "frame_by_frame_crcs",
     "frame_crc",
     "mavlink",
     "row_crcs",

@@ -27,6 +27,7 @@ __all__ = [
     "MCRF4XX",
     "ROWS_MIN",
     "crc_step",
+    "frame_by_frame_crcs",
     "frame_crc",
     "row_crcs",
     "table_crcs",
@@ -88,15 +89,21 @@ def row_crcs(rows: npt.NDArray[np.uint8], extra: int) -> npt.NDArray[np.uint16]:
     its magic byte to its CRC (the CRC covers ``row[1:size - 2]``, then the
     CRC_EXTRA byte ``extra``), as uint16: by the position tables (module
     docstring) from ``ROWS_MIN`` rows on, or without pymavlink's C CRC."""
-    crc = MCRF4XX
-    if len(rows) < ROWS_MIN and crc is not None:
-        size = rows.shape[1]
-        flat, e = np.ascontiguousarray(rows).reshape(-1).data, bytes((extra,))
-        return np.array(
-            [crc(e, crc(flat[s + 1 : s + size - 2])) for s in range(0, len(flat), size)],
-            dtype=np.uint16,
-        )
+    if len(rows) < ROWS_MIN and MCRF4XX is not None:
+        return np.array(frame_by_frame_crcs(rows, extra), dtype=np.uint16)
     return table_crcs(rows, extra)
+
+
+def frame_by_frame_crcs(rows: npt.NDArray[np.uint8], extra: int) -> list[int]:
+    """``row_crcs`` one frame after another (pymavlink's C CRC when
+    installed, ``frame_crc`` otherwise): below ``ROWS_MIN`` rows, and
+    ``bench_codec.py``'s reference for ``table_crcs``."""
+    size, e = rows.shape[1], bytes((extra,))
+    flat = np.ascontiguousarray(rows).reshape(-1).data
+    crc = MCRF4XX
+    if crc is None:
+        return [frame_crc(flat[s + 1 : s + size - 2], e) for s in range(0, len(flat), size)]
+    return [crc(e, crc(flat[s + 1 : s + size - 2])) for s in range(0, len(flat), size)]
 
 
 def table_crcs(rows: npt.NDArray[np.uint8], extra: int) -> npt.NDArray[np.uint16]:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from mavwire import ROWS_MIN, crc_step, frame_crc, row_crcs
+from mavwire import ROWS_MIN, crc_step, frame_by_frame_crcs, frame_crc, row_crcs
 from mavwire import crc as mw_crc
 
 
@@ -91,6 +91,7 @@ def test_row_crcs_is_pymavlinks_x25crc_of_each_row(
             assert got.dtype == np.uint16 and got.shape == (n,)
             want = [_x25(r[1:-2].tobytes(), bytes((extra,))) for r in rows]
             assert got.tolist() == want, (size, n)
+            assert frame_by_frame_crcs(rows, extra) == want, (size, n)
     # A view that is not contiguous (every other row), as a gather may give.
     rows = rng.integers(0, 256, size=(2 * ROWS_MIN + 2, 40), dtype=np.uint8)
     for part in (rows[::2], rows[: ROWS_MIN - 2 : 2]):
