@@ -151,7 +151,9 @@ def test_schema_is_draft_2020_12_json() -> None:
     assert s["oneOf"] == [{"required": ["vehicles"]}, {"required": ["networks"]}]
 
 
-@pytest.mark.parametrize(("path", "obj"), _objects(MISSION), ids=lambda x: str(x) or "top")
+@pytest.mark.parametrize(
+    ("path", "obj"), _objects(MISSION), ids=[p or "top" for p, _ in _objects(MISSION)]
+)
 def test_every_dataclass_field_has_a_key_and_every_key_a_field(path: str, obj: Obj) -> None:
     if obj.cls is not None:
         from_keys = {k.target for k in obj.keys if k.target}
