@@ -17,9 +17,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/gcs-swarm run config/missions/example1_octahedron.yaml
 
-## test: install everything and run the whole test suite
+## test: install everything and run the whole test suite (one worker per core)
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist worksteal
 
 ## lint: ruff (lint + format check) and mypy --strict on the package
 lint: $(STAMP)
