@@ -50,12 +50,19 @@ class _TableBatch:
     _pending: list[int]
     _fresh_rows: list[int]
     _fresh_in: list[int]
+    _attached_in: list[int]
     _rate_t0: list[int | None]
     _rate_n: list[int]
     _incomplete: set[int]
 
     def _observe_pending(self) -> None:
         raise NotImplementedError  # TelemetryTable's
+
+    @property
+    def any_attached(self) -> bool:
+        """Whether any row takes reports (its vehicle FLYING): until one
+        does, ``write_many`` has nowhere to write and a batch is not tried."""
+        return any(self._attached_in)
 
     def write_many(
         self,

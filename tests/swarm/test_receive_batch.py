@@ -59,7 +59,7 @@ class _World:
     """One station's core and link state; ``frames`` and ``inbound`` record
     what ``on_frame`` and ``on_inbound`` were handed."""
 
-    def __init__(self) -> None:
+    def __init__(self, start: bool = True) -> None:
         m = parse_mission(_mission())
         links = {v.key: f"udpin:0.0.0.0:{14550 + v.net_index}" for v in m.vehicles}
         self.core = core = SwarmCore(station_config(m, links))
@@ -79,9 +79,15 @@ class _World:
             if key != base + 1:
                 vp.position = LocalPositionNed(key, 1, 1000, 0.0, 3.0 * key, -5.0, 0, 0, 0)
         core.members.discard(base + N)  # vehicle N stays READY: its reports go to its protocol
+        if start:
+            self.start()
+            assert core.table._incomplete == {core.table.slot[base + 1]}
+
+    def start(self) -> None:
+        """The formation starts (every member but vehicle N FLYING)."""
+        core, base = self.core, self.base
         core.start(0.0)
         assert core.vehicles[base + N].phase is Phase.READY
-        assert core.table._incomplete == {core.table.slot[base + 1]}
 
     def one_by_one(self, grams: list[bytes], now: float) -> None:
         """What ``receive`` of each datagram in turn does (``Link._on_bytes``)."""
@@ -217,6 +223,31 @@ def _datagrams(rng: random.Random, frames: list[bytes]) -> list[bytes]:
     if rng.random() < 0.02:
         out.insert(rng.randrange(len(out) + 1), b"\x00garbage")
     return out
+
+
+def test_no_batch_is_taken_before_anyone_flies() -> None:
+    """Before the formation starts no row takes reports (``any_attached``):
+    every datagram goes one by one, each report to its protocol, and the
+    state is what ``receive`` of each leaves; once it starts, batches go."""
+    one, many = _World(start=False), _World(start=False)
+    traffic = _Traffic(random.Random(7))
+    beats = [b"".join(traffic.beat(s) for s in range(1, N + 2))]
+    for w in (one, many):
+        w.one_by_one(beats, 0.02)
+        assert not w.core.table.any_attached
+    grams = [b"".join(traffic.plain(s, 1100) for s in range(1, N))]
+    grams += [b"".join(traffic.plain(s, 1120) for s in range(1, N))]
+    one.one_by_one(grams, 0.04)
+    assert many.batched(grams, 0.04) == 0
+    assert one.state() == many.state()
+    assert many.link.stats.frames_batched == 0
+    for w in (one, many):
+        w.start()
+        assert w.core.table.any_attached
+    grams = [b"".join(traffic.plain(s, 1140) for s in range(1, N))]
+    one.one_by_one(grams, 0.06)
+    assert many.batched(grams, 0.06) == 1
+    assert one.state() == many.state()
 
 
 @pytest.mark.parametrize("seed", range(4))
