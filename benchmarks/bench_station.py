@@ -119,6 +119,12 @@ know nothing of each other fall: some close together, some apart."""
 STEP = "swarm"
 """``--step``: the mission's ``step`` (``network``: a step per network whose
 reports are all in, docs/formation-law.md section 3b)."""
+LEAVE = 0
+"""``--leave K`` (with ``--networks``): K vehicles of each network leave the
+formation 0.5 s into it (mission events; the mission's end action, hold,
+for them) and go on reporting, as vehicles that leave a large swarm do:
+their reports are not a flying row's, so the datagrams that hold them are
+ones the station's batch path declines (swarm/link_batch.py)."""
 
 
 def _gains(cutoff_m: float | None = None):  # type: ignore[no-untyped-def]
@@ -288,6 +294,13 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
             pos = "[" + ", ".join(f"{float(w)!r}" for w in sphere[i]) + "]"
         sysid = i % GROUP + 1 if networks else i + 1
         lines.append(f"{indent}- {{sysid: {sysid}, start: {pos}}}")
+    if networks and LEAVE:
+        lines.append("events:")
+        for j in range(math.ceil(n / GROUP)):
+            size = min(GROUP, n - j * GROUP)
+            for i in range(LEAVE):  # spread over the network's system ids
+                sysid = (i + 1) * size // (LEAVE + 1)
+                lines.append(f"  - {{t: 0.5, network: n{j}, leave: {sysid}}}")
     return "\n".join(lines) + "\n"
 
 
@@ -587,9 +600,14 @@ def main() -> None:
                     help="vehicles per network or station group (default 250)")  # fmt: skip
     ap.add_argument("--networks", action="store_true",
                     help="N > 250 as one mission of several networks on one station")  # fmt: skip
+    ap.add_argument("--leave", type=int, default=0, metavar="K",
+                    help="with --networks: K vehicles of each network leave 0.5 s into "
+                         "the formation and go on reporting")  # fmt: skip
     mission_options(ap)
     args = ap.parse_args()
     global RATE_HZ, GROUP, CUTOFF, STEP, SETTLE_S, SPREAD, PHASES, HEARTBEATS, EMULATORS, OVERRUN
+    global LEAVE
+    LEAVE = args.leave
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
     HEARTBEATS, EMULATORS, OVERRUN = args.heartbeats, args.emulators, args.overrun
@@ -608,6 +626,7 @@ def main() -> None:
     how += f", step: {STEP}" + (", phases spread" if SPREAD else "")
     how += f", heartbeats {HEARTBEATS}, overrun {OVERRUN}"
     how += f", {EMULATORS} emulator processes" if EMULATORS > 1 else ""
+    how += f", {LEAVE} of each network left at 0.5 s" if LEAVE else ""
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))
         how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))

@@ -23,9 +23,11 @@ on 2 cores, 2026-12-03: reports read 10-17 s after they were sent, no end
 mode confirmed in 10 s). Flying vehicles' reports all go into the table
 (cheap: newest wins there); nothing changes while the station keeps up.
 What it reads together from one bound peer (a network's shared endpoint)
-goes first to ``LinkState.receive_batch``, which takes at once the
+goes first to ``LinkState.receive_batches``, which takes at once the
 datagrams that hold only flying vehicles' reports and unchanged status
-(swarm/link_batch.py); the rest as above.
+(swarm/link_batch.py), and hands each one it declines (one holding a
+report of a vehicle that is not flying) back alone, going on past it; the
+rest as above.
 """
 
 from __future__ import annotations
@@ -318,7 +320,8 @@ class Link:
         of them arrived when they were read: one time for the lot (the
         setpoints' latency counts the decoding of the datagrams before a
         report's). Those of at least ``BATCH_BYTES`` together go first to
-        ``LinkState.receive_batch``, which takes as many as it can at once."""
+        ``LinkState.receive_batches``, which takes as many as it can at
+        once, handing back here each datagram it declines, alone."""
         batch = [(data, addr)]
         ahead = self._ahead
         while ahead is not None and len(batch) < READ_AHEAD:
@@ -333,11 +336,16 @@ class Link:
                 self._on_bytes(item, peer, datagram=True, now=now)
             return
         if sum(len(item) for item, _ in batch) >= BATCH_BYTES:
-            taken = state.receive_batch([item for item, _ in batch], addr, now)
-            if taken:
-                if self._on_telemetry is not None:
-                    self._on_telemetry(self)
-                del batch[:taken]
+            on_telemetry = self._on_telemetry
+
+            def alone(item: bytes) -> None:  # a datagram the batch declined
+                self._on_bytes(item, addr, datagram=True, now=now)
+
+            def took() -> None:
+                if on_telemetry is not None:
+                    on_telemetry(self)
+
+            del batch[: state.receive_batches([item for item, _ in batch], addr, now, alone, took)]
         if len(batch) <= 1:
             for item, peer in batch:
                 self._on_bytes(item, peer, datagram=True, now=now)

@@ -6,11 +6,16 @@ unchanged HEARTBEATs and status messages), the frames are read in one pass
 (``raw_frames.frame_batch``), the reports written column-wise
 (``TelemetryTable.write_many``) and the counters moved once: the state
 ``LinkState.receive`` of each datagram in turn leaves
-(tests/swarm/test_receive_batch.py), at a fraction of its cost. No I/O.
+(tests/swarm/test_receive_batch.py), at a fraction of its cost.
+``receive_batches`` goes on past a datagram the batch declines (a vehicle
+of the network that is not flying: one that left, a reserve): that one
+goes alone to the caller's ``receive``, and the batch takes what follows
+from the same parse. No I/O.
 """
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from collections.abc import Callable, Hashable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -21,9 +26,17 @@ if TYPE_CHECKING:
     from gcs_swarm.mavlink.telemetry_table import TelemetryTable
     from gcs_swarm.swarm.link_state import LinkStats
 
-__all__: list[str] = []
+__all__ = ["SPLITS"]
 
 Peer = Hashable
+
+SPLITS = 8
+"""Datagrams a read's batch declines that ``receive_batches`` hands on
+alone and goes on past, at most; after that (or a retry that took
+nothing) the rest goes one by one. One vehicle of a network that is not
+flying puts its reports in one datagram of each period's; eight bound a
+read's work when the station has fallen behind (``READ_AHEAD`` datagrams,
+several periods) and many vehicles are not flying."""
 
 
 class _LinkBatch:
@@ -41,7 +54,57 @@ class _LinkBatch:
     _heard: dict[int, float]
     _on_frame: Callable[[bytes, Any], None] | None
 
-    def receive_batch(self, grams: Sequence[bytes], peer: Peer, now: float) -> int:
+    def receive_batches(
+        self, grams: Sequence[bytes], peer: Peer, now: float,
+        alone: Callable[[bytes], None], took: Callable[[], None],
+    ) -> int:  # fmt: skip
+        """``receive_batch`` of ``grams``, and past each datagram it
+        declines: that one goes to ``alone`` (the caller's ``receive`` of it,
+        its messages handed on), then the batch takes what follows, from
+        the same parse while it lasts, at most ``SPLITS`` times, while each
+        retry takes something. ``took()`` after each run of datagrams taken
+        (the caller's ``on_telemetry``). Returns how many datagrams of
+        ``grams`` were handled (the caller receives the rest). The state
+        left is that of ``receive`` of each datagram in turn, as
+        ``receive_batch``'s; but a datagram handed on alone is not read
+        ahead (``Link``'s ``superseded``): a vehicle not flying gets each of
+        its reports in it, not only its newest of the read."""
+        base, done = 0, 0  # the first datagram parsed, the first not handled
+        batch = self._parse(grams, peer)
+        for split in range(SPLITS + 1):
+            if batch is None:
+                break
+            end = base + self.receive_batch(grams, peer, now, parsed=batch, start=done - base)
+            if end > done:
+                took()
+            elif split:  # the retry after a datagram alone took nothing
+                break
+            done = end
+            if done == len(grams) or split == SPLITS:
+                break
+            alone(grams[done])
+            done += 1
+            if done - base >= len(batch.cuts):  # past the parse (frame_batch stopped there)
+                base = done
+                batch = self._parse(grams[done:], peer) if done < len(grams) else None
+        return done
+
+    def _parse(self, grams: Sequence[bytes], peer: Peer) -> FrameBatch | None:
+        """``frame_batch`` of ``grams``, or None when no batch can be taken
+        from ``peer`` now (no table, no codec, a signed link, or no row
+        taking reports)."""
+        table, codec = self._table, self._codecs.get(peer)
+        if table is None or codec is None or codec.signing_key is not None:
+            return None
+        if not table.any_attached:
+            # Nobody flies yet (start-up): every report goes to its protocol,
+            # so the frames are not parsed twice (measured at 1,500 vehicles:
+            # 15 % of the start-up's loop in batches declined, 2026-12-06).
+            return None
+        return frame_batch(grams)
+
+    def receive_batch(self, grams: Sequence[bytes], peer: Peer, now: float, *,
+                      parsed: FrameBatch | None = None, start: int = 0) -> int:  # fmt: skip
         """``receive`` of the first datagrams of ``grams`` (from ``peer``,
         arrived by ``now``) in turn, at once, as far as nothing of them would
         come out as a message: every frame a flying vehicle's report its row
@@ -56,23 +119,19 @@ class _LinkBatch:
         ``receive`` for the rest). For a link that reads many vehicles'
         datagrams at a time from one peer (a network's shared endpoint);
         its array work costs about what 30 frames one by one do
-        (``runtime.links.BATCH_BYTES``)."""
+        (``runtime.links.BATCH_BYTES``). With ``parsed`` (``_parse`` of
+        ``grams``, which are then not read again) from datagram ``start``
+        on, those before it handled; returns the first datagram not taken."""
         self.positions_written = 0
-        table, codec = self._table, self._codecs.get(peer)
-        if table is None or codec is None or codec.signing_key is not None:
-            return 0
-        if not table.any_attached:
-            # Nobody flies yet (start-up): every report goes to its protocol,
-            # so the frames are not parsed twice (measured at 1,500 vehicles:
-            # 15 % of the start-up's loop in batches declined, 2026-12-06).
-            return 0
-        batch = frame_batch(grams)
-        if batch is None:
-            return 0
+        batch = self._parse(grams, peer) if parsed is None else parsed
+        if batch is None or start >= len(batch.cuts):
+            return start
         sysids = batch.head[:, 5].tolist()
         # Runs of whole datagrams in which no vehicle reports twice.
         lpn, cuts = batch.lpn, batch.cuts
-        taken = lo = at = 0  # datagrams taken, their frames, lpn entries before lo
+        taken = start  # datagrams taken; their frames (lo) and the lpn entries before lo (at)
+        lo = cuts[start - 1] if start else 0
+        at = bisect_left(lpn, lo)
         while taken < len(cuts):
             seen: set[int] = set()
             end, hi = at, taken
@@ -85,10 +144,37 @@ class _LinkBatch:
                     break
                 seen |= run
                 end, hi = stop, hi + 1
-            if hi == taken or not self._take(batch, sysids, lo, cuts[hi - 1], at, end, peer, now):
+            if hi == taken:
+                break
+            if not self._take(batch, sysids, lo, cuts[hi - 1], at, end, peer, now):
+                # A vehicle not flying (or not this link's) in the run: the
+                # datagrams before its first may still go (receive_batches
+                # hands that one on alone).
+                cut = self._first_not_flying(sysids, cuts, taken, hi, peer)
+                if cut is not None and cut > taken:
+                    end = bisect_left(lpn, cuts[cut - 1])
+                    if self._take(batch, sysids, lo, cuts[cut - 1], at, end, peer, now):
+                        taken = cut
                 break
             taken, lo, at = hi, cuts[hi - 1], end
         return taken
+
+    def _first_not_flying(self, sysids: list[int], cuts: list[int], first: int, end: int,
+                          peer: Peer) -> int | None:  # fmt: skip
+        """The first datagram of ``first`` to ``end - 1`` with a frame of a
+        vehicle whose row takes no reports (not flying), that this link does
+        not serve, or that is not bound to ``peer``; None if there is none."""
+        table = self._table
+        assert table is not None
+        rows, routes, owners = self._rows, self._routes, table.owners
+        lo = cuts[first - 1] if first else 0
+        for d in range(first, end):
+            for sysid in set(sysids[lo : cuts[d]]):
+                k = rows.get(sysid)
+                if k is None or routes.get(sysid) != peer or owners[k] is None:
+                    return d
+            lo = cuts[d]
+        return None
 
     def _take(self, batch: FrameBatch, sysids: list[int], lo: int, hi: int, a: int, b: int,
               peer: Peer, now: float) -> bool:  # fmt: skip
