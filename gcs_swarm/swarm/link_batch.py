@@ -15,7 +15,7 @@ from the same parse. No I/O.
 
 from __future__ import annotations
 
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Hashable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -146,49 +146,50 @@ class _LinkBatch:
                 end, hi = stop, hi + 1
             if hi == taken:
                 break
-            if not self._take(batch, sysids, lo, cuts[hi - 1], at, end, peer, now):
-                # A vehicle not flying (or not this link's) in the run: the
-                # datagrams before its first may still go (receive_batches
-                # hands that one on alone).
-                cut = self._first_not_flying(sysids, cuts, taken, hi, peer)
-                if cut is not None and cut > taken:
+            bad = self._not_flying(sysids, lo, cuts[hi - 1], peer)
+            if bad is not None:
+                # A frame of a vehicle not flying (or not this link's, or
+                # not bound to ``peer``: receive's rules) in the run: the
+                # datagrams before the one holding it may still go
+                # (receive_batches hands that one on alone).
+                cut = bisect_right(cuts, bad)
+                if cut > taken:
                     end = bisect_left(lpn, cuts[cut - 1])
                     if self._take(batch, sysids, lo, cuts[cut - 1], at, end, peer, now):
                         taken = cut
                 break
+            if not self._take(batch, sysids, lo, cuts[hi - 1], at, end, peer, now):
+                break
             taken, lo, at = hi, cuts[hi - 1], end
         return taken
 
-    def _first_not_flying(self, sysids: list[int], cuts: list[int], first: int, end: int,
-                          peer: Peer) -> int | None:  # fmt: skip
-        """The first datagram of ``first`` to ``end - 1`` with a frame of a
-        vehicle whose row takes no reports (not flying), that this link does
-        not serve, or that is not bound to ``peer``; None if there is none."""
+    def _not_flying(self, sysids: list[int], lo: int, hi: int, peer: Peer) -> int | None:
+        """The first frame of ``lo`` to ``hi - 1`` of a vehicle whose row
+        takes no reports (not flying), that this link does not serve, or
+        that is not bound to ``peer``; None if there is none."""
         table = self._table
         assert table is not None
         rows, routes, owners = self._rows, self._routes, table.owners
-        lo = cuts[first - 1] if first else 0
-        for d in range(first, end):
-            for sysid in set(sysids[lo : cuts[d]]):
-                k = rows.get(sysid)
-                if k is None or routes.get(sysid) != peer or owners[k] is None:
-                    return d
-            lo = cuts[d]
-        return None
+        bad = set()
+        for sysid in set(sysids[lo:hi]):
+            k = rows.get(sysid)
+            if k is None or routes.get(sysid) != peer or owners[k] is None:
+                bad.add(sysid)
+        if not bad:
+            return None
+        return next(j for j in range(lo, hi) if sysids[j] in bad)
 
     def _take(self, batch: FrameBatch, sysids: list[int], lo: int, hi: int, a: int, b: int,
               peer: Peer, now: float) -> bool:  # fmt: skip
         """``receive_batch``'s frames ``lo`` to ``hi - 1`` (its reports ``a``
-        to ``b - 1``), all or none."""
+        to ``b - 1``), all or none; each of a flying vehicle this link
+        serves, bound to ``peer`` (``_not_flying``)."""
         table, codec = self._table, self._codecs[peer]
         assert table is not None
         if table.attention:  # serviced after each datagram by receive's caller: not here
             return False
-        rows, routes = self._rows, self._routes
+        rows = self._rows
         ids = sysids[lo:hi]
-        for sysid in set(ids):
-            if sysid not in rows or routes.get(sysid) != peer:
-                return False  # not served, or not (yet) bound to this peer: receive's rules
         said = []
         for j, raw in batch.others:
             if lo <= j < hi:
