@@ -85,11 +85,14 @@ def test_a_held_emulator_that_skips_reports_once_when_it_runs_again() -> None:
     # Never two reports of one vehicle less than a step apart in vehicle time.
     times = [t for _, t in seen]
     assert all(b - a >= STEP_MS for a, b in itertools.pairwise(times)), times
-    # The first report after the hold came in one datagram burst of one: the
-    # next arrives a step later, not within the same millisecond.
+    # The first report after the hold came alone, not in a burst of the held
+    # steps' (catch_up sends about seven within a few milliseconds): within
+    # 5 ms of it at most one more, the next step's when the machine ran that
+    # one late and the one after on time (measured, with two test workers
+    # and a busy loop on two cores: 380 ms of vehicle time 3.4 ms after 360).
     after = [(at, t) for at, t in seen if at >= held_to]
     assert len(after) >= 3
-    assert after[1][0] - after[0][0] >= 0.005, after[:3]
+    assert sum(at - after[0][0] < 0.005 for at, _ in after) <= 2, after[:4]
     # ... and tells of the steps missed: its vehicle time is past the hold's.
     before = [t for at, t in seen if at < held_from]
     assert after[0][1] - before[-1] >= HOLD_S * 1000 - STEP_MS
