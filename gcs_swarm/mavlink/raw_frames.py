@@ -178,12 +178,14 @@ class FrameBatch(NamedTuple):
     back); every other frame as ``raw_frame`` decodes it, a ``RawHeartbeat``
     or a ``RawStatus`` (``others``: (index, tuple)); and where each
     datagram ends (``cuts``: the frames before its end; ``len(cuts)``
-    datagrams)."""
+    datagrams); ``sysids`` every frame's system id (``head``'s column 5) as
+    ints, read once for the batch's every run."""
 
     blob: bytes
     starts: list[int]
     ends: list[int]
     head: npt.NDArray[np.uint8]
+    sysids: list[int]
     lpn: list[int]
     payload: npt.NDArray[Any]
     others: list[tuple[int, Any]]
@@ -252,4 +254,4 @@ def frame_batch(grams: Sequence[bytes]) -> FrameBatch | None:
             payload[bisect_right(lpn, j) - 1] = (values[0], values[1:])
     else:
         payload = frames["payload"] if whole else np.zeros(0, dtype=LPN_PAYLOAD)
-    return FrameBatch(blob, starts, ends, head, lpn, payload, others, cuts)
+    return FrameBatch(blob, starts, ends, head, head[:, 5].tolist(), lpn, payload, others, cuts)

@@ -40,8 +40,8 @@ several periods) and many vehicles are not flying."""
 
 
 class _LinkBatch:
-    """``LinkState``'s ``receive_batch``, over the state it declares (the
-    link state's, made in its ``__init__``)."""
+    """``LinkState``'s ``receive_batches`` and ``receive_batch``, over the
+    state it declares (the link state's, made in its ``__init__``)."""
 
     base: int
     stats: LinkStats
@@ -128,7 +128,7 @@ class _LinkBatch:
         batch = self._parse(grams, peer) if parsed is None else parsed
         if batch is None or start >= len(batch.cuts):
             return start
-        sysids = batch.head[:, 5].tolist()
+        sysids = batch.sysids
         # Runs of whole datagrams in which no vehicle reports twice.
         lpn, cuts = batch.lpn, batch.cuts
         taken = start  # datagrams taken; their frames (lo) and the lpn entries before lo (at)
