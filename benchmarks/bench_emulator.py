@@ -167,7 +167,7 @@ def in_process(n: int, cycles: int, defer: bool, columns: bool = False) -> tuple
     clock: a physics step of each network in turn (``core.step``: its
     LOCAL_POSITION_NED sent to a socket drained between steps, not timed),
     then that network's 250 acceleration setpoints in datagrams of at most
-    ``MAX_DATAGRAM_BYTES`` (``core.join_frames``), each parsed by the
+    ``MAX_DATAGRAM_BYTES`` (``mavwire.datagrams.join_frames``), each parsed by the
     endpoint and received by the core (``server.Emulator._receive``).
     ``defer``: the deferred lane on or off (``EmulatorCore.defer_stream``);
     ``columns``: a network's datagrams taken together first
@@ -180,8 +180,9 @@ def in_process(n: int, cycles: int, defer: bool, columns: bool = False) -> tuple
     import numpy as np
 
     from gcs_swarm.runtime.run import emulator_config
+    from mavwire.datagrams import join_frames
     from sim_vehicle import signing
-    from sim_vehicle.core import EmulatorCore, join_frames
+    from sim_vehicle.core import EmulatorCore
     from sim_vehicle.impairments import Impairer
     from sim_vehicle.lane import take_stream
     from sim_vehicle.link import Endpoint, bind_udp

@@ -12,7 +12,7 @@ from bisect import bisect_right
 from collections.abc import Sequence
 from itertools import accumulate
 
-__all__ = ["MAX_DATAGRAM_BYTES", "datagram_bounds"]
+__all__ = ["MAX_DATAGRAM_BYTES", "datagram_bounds", "join_frames"]
 
 MAX_DATAGRAM_BYTES = 1200
 """Largest UDP payload [bytes] either end writes when it joins frames. 1200
@@ -44,3 +44,22 @@ def datagram_bounds(sizes: Sequence[int], limit: int = MAX_DATAGRAM_BYTES) -> li
         cuts.append((stop, cum[stop]))
         first = stop
     return cuts
+
+
+def join_frames(frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
+    """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
+    (``datagram_bounds``); each datagram with the nonzero keys of its frames
+    (the vehicles whose LOCAL_POSITION_NED it carries)."""
+    if not frames:
+        return []
+    datas, keys = zip(*frames, strict=True)
+    bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
+    if len(bounds) == 1:  # the usual case
+        return [(b"".join(datas), [k for k in keys if k])]
+    data = b"".join(datas)
+    out: list[tuple[bytes, list[int]]] = []
+    first = start = 0
+    for stop, end in bounds:
+        out.append((data[start:end], [k for k in keys[first:stop] if k]))
+        first, start = stop, end
+    return out

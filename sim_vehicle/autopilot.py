@@ -72,7 +72,6 @@ class Autopilot:
         compid: int = 1,
         airborne_at: Vec3 | None = None,
         streams: dict[int, float] | None = None,
-        heartbeat_phase_s: float = 0.0,
     ) -> None:
         self.sysid, self.compid, self.origin, self.params = sysid, compid, origin, params
         self._guid_timeout: tuple[int, float] | None = None  # (params generation, s): _timeout_s
@@ -110,7 +109,6 @@ class Autopilot:
         time sim time is the wall clock (times the speed-up, as a sped-up SITL counts it)."""
         self.last_gcs_hb_wall: float | None = None
         self.fs_active = False
-        self._next_hb = now + heartbeat_phase_s  # its boot's instant in the second
         self._streams: dict[int, list[float]] = {}  # msgid -> [interval s, next due]
         for msgid, hz in (streams or {}).items():
             self.set_interval(msgid, 1.0 / hz if hz > 0 else -1.0, now)
@@ -158,30 +156,9 @@ class Autopilot:
 
     # ---------------------------------------------------------------- streams
     def set_interval(self, msgid: int, interval_s: float, now: float) -> bool:
-        """SET_MESSAGE_INTERVAL semantics: interval s, 0 default, < 0 off. False: unknown id."""
-        if msgid not in commands.STREAMABLE:
-            return False
-        if interval_s == 0.0:
-            interval_s = 1.0 / commands.STREAMABLE[msgid]
-        if msgid == LPN:
-            cap_hz = self.params["SIM_LPN_MAX_HZ"]
-            if interval_s > 0 and cap_hz > 0:
-                interval_s = max(interval_s, 1.0 / cap_hz)  # the router's rate wins
-            self.lpn_interval_s = interval_s if interval_s > 0 else None
-            self.lpn_kick = interval_s > 0
-            self.version += 1
-        elif interval_s > 0:
-            kept = self._streams.pop(msgid, None)
-            due = reports.bucket_due(self._streams.values(), interval_s, now)
-            if not self.stream_buckets:
-                due = now
-            elif kept is not None and kept[0] == interval_s:
-                due = kept[1]  # asked again at its interval: its bucket stays (ArduPilot)
-            self._streams[msgid] = [interval_s, due]
-            self.deadline = min(self.deadline, due)
-        else:
-            self._streams.pop(msgid, None)
-        return True
+        """SET_MESSAGE_INTERVAL semantics: interval s, 0 default, < 0 off. False:
+        unknown id (``reports.set_interval``)."""
+        return reports.set_interval(self, msgid, interval_s, now)
 
     stream_buckets = True  # ArduPilot's buckets (reports.bucket_due); False: first at once
 
@@ -237,7 +214,9 @@ class Autopilot:
     # -------------------------------------------------------------- messages
     def handle(self, msg: mav.MAVLink_message, now: float, kin: Kin) -> list[mav.MAVLink_message]:
         """Apply one decoded inbound message; return the replies (unpacked)."""
-        return commands.dispatch(self, msg, now, kin)
+        out = commands.dispatch(self, msg, now, kin)
+        self._replan(now)
+        return out
 
     # ------------------------------------------------------------ transitions
     def set_mode(self, mode: int, now: float, kin: Kin) -> bool:
@@ -381,6 +360,7 @@ class Autopilot:
         t = self._t_phase
         self.set_control(self._ctl, now, kin)
         self._t_phase = t
+        self._replan(now)
 
     def _hold_here(self, now: float, kin: Kin) -> None:
         self.hold_ned = kin.pos
@@ -399,9 +379,6 @@ class Autopilot:
             out.append(telemetry.home_position(t, self.origin, self.home))
             out.append(telemetry.statustext(mav.MAV_SEVERITY_INFO, "EKF3 IMU0 origin set"))
         out.extend(guards.land_detector(self, now, kin))
-        if now >= self._next_hb - 1e-6:
-            out.append(self.heartbeat())
-            self._next_hb = max(self._next_hb + 1.0, now + 0.5)
         if self._boot_end is not None and not self.booted and now >= self._boot_end - 1e-9:
             # SITL measured: GUIDED accepted at once, then ~1 s later boot ends and the
             # vehicle is back in STABILIZE (HEARTBEAT custom_mode 0).
@@ -455,8 +432,15 @@ class Autopilot:
                 self.version += 1
         return out
 
+    def _replan(self, now: float) -> None:
+        """The deadline no later than the state now asks (after a message or a
+        parameter changed it: an auto-disarm, the GCS failsafe, the fence)."""
+        d = self.deadline
+        self._update_deadline(now)
+        self.deadline = min(d, self.deadline)
+
     def _update_deadline(self, now: float) -> None:
-        d = self._next_hb
+        d = math.inf  # the 1 Hz HEARTBEAT is the emulator's stream (schedule), not a poll
         if not self.ekf_ready:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
         for sched in self._streams.values():
@@ -472,12 +456,17 @@ class Autopilot:
             d = min(d, self._last_sp + self._timeout_s())
         elif ctl == "ground" and self.armed and self.params["DISARM_DELAY"] > 0:
             d = min(d, self._t_phase + self.params["DISARM_DELAY"])
-        if self.armed and self.last_gcs_hb is not None and self.params["FS_GCS_ENABLE"] != 0:
-            due = self.last_gcs_hb + self.params["FS_GCS_TIMEOUT"] + 1e-3
-            # lockstep: sim time runs faster than the station's wall clock; look again
-            # every 0.1 s of sim time once it could be due (guards.safety_checks)
-            d = min(d, due if self.wall_s is None else max(due, now + 0.1))
-        self.deadline = d
+        self.deadline = min(d, self._gcs_due(now))
+
+    def _gcs_due(self, now: float) -> float:
+        """When the GCS failsafe must be looked at (inf: it cannot trigger)."""
+        p = self.params
+        if not self.armed or self.last_gcs_hb is None or p["FS_GCS_ENABLE"] == 0:
+            return math.inf
+        due = self.last_gcs_hb + p["FS_GCS_TIMEOUT"] + 1e-3
+        # lockstep: sim time runs faster than the station's wall clock; look again
+        # every 0.1 s of sim time once it could be due (guards.safety_checks)
+        return due if self.wall_s is None else max(due, now + 0.1)
 
     def contact(self, now: float) -> None:
         """A ground station was first heard (or connected): boot ends SIM_BOOT_S later,

@@ -1,4 +1,4 @@
-"""Vectorised MAVLink 2 encoder for LOCAL_POSITION_NED, the one hot-path message.
+"""Vectorised MAVLink 2 encoders for LOCAL_POSITION_NED and HEARTBEAT, the streams.
 
 Owns ``encode_local_position_ned``: N frames at once from numpy columns,
 through ``mavwire.FrameBuilder`` (the column-wise frame building the station
@@ -6,7 +6,9 @@ shares), byte-identical to pymavlink's ``MAVLink_local_position_ned_message.pack
 (tests check it), so the per-vehicle Python cost of the 50 Hz stream is one
 slice and one ``sendto``; and ``lpn_frames_small``, the same bytes one frame
 at a time with ``struct`` for a handful of vehicles, where numpy's per-call
-cost outweighs the work (``small.SMALL_N``). Frame layout (MAVLink 2, unsigned)::
+cost outweighs the work (``small.SMALL_N``); ``encode_heartbeats`` and
+``heartbeat_frames_small``, the same for the 1 Hz HEARTBEAT (a network's
+at once when they go together). Frame layout (MAVLink 2, unsigned)::
 
     0xFD len incompat=0 compat=0 seq sysid compid msgid(3, LE) payload[len] crc(2, LE)
 
@@ -33,11 +35,14 @@ from mavwire.crc import frame_crc
 from mavwire.framing import FrameBuilder, frame_payload
 
 __all__ = [
+    "HEARTBEAT_FIELDS",
     "LPN_CRC_EXTRA",
     "LPN_MSGID",
     "RawSetpoint",
     "decode_setpoint",
+    "encode_heartbeats",
     "encode_local_position_ned",
+    "heartbeat_frames_small",
     "lpn_frames_small",
     "pack_frame",
 ]
@@ -94,6 +99,41 @@ def lpn_frames_small(
     except OverflowError:
         return None
     return out
+
+
+_HB = mav.MAVLink_heartbeat_message
+HEARTBEAT_FIELDS = ("custom_mode", "type", "autopilot", "base_mode", "system_status",
+                    "mavlink_version")  # fmt: skip
+"""HEARTBEAT's fields in wire order (``heartbeat_frames``' columns)."""
+_HB_FRAMES = FrameBuilder(
+    _HB.id,
+    _HB.crc_extra,
+    np.dtype([(HEARTBEAT_FIELDS[0], "<u4")] + [(k, "u1") for k in HEARTBEAT_FIELDS[1:]]),
+)
+_HB_PAYLOAD = struct.Struct("<IBBBBB")
+
+
+def encode_heartbeats(
+    seq: NDArray[np.int64],
+    sysid: NDArray[np.int64],
+    compid: NDArray[np.int64],
+    fields: NDArray[np.int64],
+) -> list[bytes]:
+    """HEARTBEAT frames, one per row, column-wise (``FrameBuilder.build``): row
+    i's ``fields[i]`` (``HEARTBEAT_FIELDS`` in order) at ``seq[i]`` from
+    ``sysid[i]``/``compid[i]``; the bytes pymavlink's ``pack`` of that message
+    gives, unsigned (the emulator's 1 Hz stream, a network's at once)."""
+    named = {k: fields[:, j] for j, k in enumerate(HEARTBEAT_FIELDS)}
+    return _HB_FRAMES.build(seq, sysid, compid, named).tolist()
+
+
+def heartbeat_frames_small(
+    seq: Sequence[int], sysid: Sequence[int], compid: Sequence[int], fields: Sequence[Sequence[int]]
+) -> list[bytes]:
+    """The frames of ``encode_heartbeats``, one ``struct.pack`` each (plain
+    Python lists in: a few rows)."""
+    pack, frame = _HB_PAYLOAD.pack, _HB_FRAMES.pack
+    return [frame(s, i, c, pack(*f)) for s, i, c, f in zip(seq, sysid, compid, fields, strict=True)]
 
 
 _PLAIN: dict[type, tuple[bytes, bytes, Any, Any] | None] = {}

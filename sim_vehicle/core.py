@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mavwire.datagrams import MAX_DATAGRAM_BYTES, datagram_bounds
+from mavwire.datagrams import join_frames
 from sim_vehicle import lockstep, schedule
 from sim_vehicle.codec import RawSetpoint, pack_frame
 from sim_vehicle.commands import stream_accel, stream_accel_fields, streamed_accel
@@ -32,33 +32,22 @@ from sim_vehicle.impairments import DelayLine, impair
 from sim_vehicle.small import few
 from sim_vehicle.stats import EmulatorStats
 from sim_vehicle.telemetry import Kin
-from sim_vehicle.vehicles import Addr, HostedVehicle, Port, VehicleState, autopilot_for
+from sim_vehicle.vehicles import (
+    Addr,
+    HostedVehicle,
+    Port,
+    VehicleState,
+    autopilot_for,
+    heartbeat_phase_s,
+    state_of,
+)
 
-__all__ = ["MAX_PEERS", "EmulatorCore", "join_frames"]
+__all__ = ["MAX_PEERS", "EmulatorCore"]
 
 MAX_PEERS = 8
 """Peers one port serves at most (the oldest goes first)."""
 _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 _SETPOINT_CLASS = mav.MAVLink_set_position_target_local_ned_message
-
-
-def join_frames(frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
-    """Join (frame, key) pairs into datagrams of at most ``MAX_DATAGRAM_BYTES``
-    (``datagram_bounds``); each datagram with the nonzero keys of its frames
-    (the vehicles whose LOCAL_POSITION_NED it carries)."""
-    if not frames:
-        return []
-    datas, keys = zip(*frames, strict=True)
-    bounds = datagram_bounds(list(map(len, datas)), MAX_DATAGRAM_BYTES)
-    if len(bounds) == 1:  # the usual case
-        return [(b"".join(datas), [k for k in keys if k])]
-    data = b"".join(datas)
-    out: list[tuple[bytes, list[int]]] = []
-    first = start = 0
-    for stop, end in bounds:
-        out.append((data[start:end], [k for k in keys[first:stop] if k]))
-        first, start = stop, end
-    return out
 
 
 class EmulatorCore:
@@ -98,6 +87,7 @@ class EmulatorCore:
         self._kins = None
         self.fleet.ground[row] = 0.0 if spec.airborne else start[2]
         self.fleet.boot[row] = now
+        self.fleet.hb_next[row] = now + heartbeat_phase_s(cfg, spec)
         noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, key, 3]))
         v = HostedVehicle(spec, ap, enc, ep, row, noise_rng, initial)
         self.vehicles[key] = v
@@ -155,27 +145,7 @@ class EmulatorCore:
     def snapshot(self, v: HostedVehicle, endpoint: Addr, tcp: Addr | None) -> VehicleState:
         """``v`` now, served on ``endpoint`` (and TCP ``tcp``)."""
         self._fold(v)
-        k, ap = self.kin(v), v.ap
-        return VehicleState(
-            sysid=v.spec.key,
-            mode=ap.mode,
-            mode_name=ap.mode_name,
-            armed=ap.armed,
-            landed=k.landed,
-            ekf_ready=ap.ekf_ready,
-            holding=ap.holding,
-            pos_ned_m=k.pos,
-            vel_ned_m_s=k.vel,
-            accel_ned_m_s2=k.acc,
-            sim_time_s=self.sim_time_s,
-            origin=v.spec.origin,
-            home_ned_m=ap.home,
-            endpoint=endpoint,
-            params=dict(ap.params.values),
-            control=ap.control,
-            tcp_endpoint=tcp,
-            landed_state=ap.landed_state,
-        )
+        return state_of(v, self.kin(v), self.sim_time_s, endpoint, tcp)
 
     def contact(self, v: HostedVehicle) -> None:
         """A station was heard by (or connected to) ``v``: lockstep rule 1, boot's end."""
@@ -408,6 +378,11 @@ class EmulatorCore:
 
     def sync(self, v: HostedVehicle, now: float) -> None:
         """Copy an autopilot's published state into its fleet row (after handle/poll)."""
+        ap = v.ap
+        if (ap.mode, ap.armed) != v.row_heartbeat:  # new (or first): its HEARTBEAT's fields,
+            v.row_heartbeat = (ap.mode, ap.armed)  # and a poll at the next step, whose land
+            self.fleet.set_heartbeat(v.row, ap.heartbeat())  # detector looks (ArduCopter's
+            ap.deadline = min(ap.deadline, now)  # every loop; nothing else acts if not due)
         if not self._sync_target(v):
             return
         ap, f, row = v.ap, self.fleet, v.row
@@ -474,7 +449,14 @@ class EmulatorCore:
             if ep.sysids and not ep.silent:
                 ep.sendto(data, peer)
                 self._sent_reports(lpn)
-        f = self.fleet
+        f, rows = self.fleet, self.rows
+        # The 1 Hz HEARTBEATs first (of the state before the polls); signed: one by one
+        beats = [r for r in schedule.due_heartbeats(f, now) if rows[r].ep.peers]
+        if beats:
+            hbs = (f.heartbeat_frames(beats) if self.config.signing_key is None
+                   else [self.pack(rows[r], rows[r].ap.heartbeat()) for r in beats])  # fmt: skip
+            for frame, r in zip(hbs, beats, strict=True):
+                rows[r].ep.outbox.append((frame, 0))
         polled = schedule.due_polls(f, now)
         wall_s = wall() if wall is not None and polled else None
         for row in polled:
@@ -489,7 +471,6 @@ class EmulatorCore:
                 v.ep.outbox.extend((self.pack(v, m), 0) for m in out_msgs)
         due = schedule.due_reports(f, now)
         if due.size:
-            rows = self.rows
             for pair, r in zip(self._report_frames(due, now), due.tolist(), strict=True):
                 ep = rows[r].ep
                 if ep.peers:

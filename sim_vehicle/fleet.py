@@ -1,7 +1,8 @@
 """The vectorised rows of every hosted vehicle. No I/O.
 
 Owns the numpy arrays the hot path runs on: kinematic state, tracking targets
-(dynamics Eq. D3), dynamics limits, the LOCAL_POSITION_NED schedule, the
+(dynamics Eq. D3), dynamics limits, the LOCAL_POSITION_NED and HEARTBEAT
+schedules and the HEARTBEAT's fields, the
 MAVLink sequence counters and the lockstep ``awaiting`` flags, one row per
 vehicle. Rows are compacted on removal (rare); callers keep their row index
 up to date through ``rows``.
@@ -10,12 +11,19 @@ up to date through ``rows``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim_vehicle import dynamics, dynamics_rows
-from sim_vehicle.codec import encode_local_position_ned, lpn_frames_small
+from sim_vehicle.codec import (
+    HEARTBEAT_FIELDS,
+    encode_heartbeats,
+    encode_local_position_ned,
+    heartbeat_frames_small,
+    lpn_frames_small,
+)
 from sim_vehicle.dynamics import DynParams, KinState, Targets
 from sim_vehicle.small import few
 from sim_vehicle.targets import ControlTarget
@@ -31,7 +39,7 @@ _V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp", "vbias")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
-    "jerk_xy", "jerk_z", "lean", "drag", "vbias_flip", "vbias_tau",
+    "jerk_xy", "jerk_z", "lean", "drag", "vbias_flip", "vbias_tau", "hb_next",
 )  # fmt: skip
 _INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
 _I1 = ("seq", "sysid", "compid")
@@ -76,6 +84,8 @@ class Fleet:
     landed: NDArray[np.bool_]
     awaiting: NDArray[np.bool_]
     holding: NDArray[np.bool_]
+    hb_next: NDArray[np.float64]  # when the row's next 1 Hz HEARTBEAT goes (sim s)
+    hb_fields: NDArray[np.int64]  # its HEARTBEAT's fields (N, 6): codec.HEARTBEAT_FIELDS
 
     def __init__(self) -> None:
         self.n = 0
@@ -96,6 +106,7 @@ class Fleet:
             setattr(self, name, np.zeros(0, dtype=np.int64))
         for name in _B1:
             setattr(self, name, np.zeros(0, dtype=bool))
+        self.hb_fields = np.zeros((0, len(HEARTBEAT_FIELDS)), dtype=np.int64)
 
     def add(self, sysid: int, compid: int, pos: tuple[float, float, float], landed: bool) -> int:
         """Append a row at rest at ``pos``; returns its index."""
@@ -115,6 +126,9 @@ class Fleet:
         self.landed = np.append(self.landed, landed)
         self.awaiting = np.append(self.awaiting, False)
         self.holding = np.append(self.holding, False)
+        self.hb_fields = np.concatenate(
+            [self.hb_fields, np.zeros((1, len(HEARTBEAT_FIELDS)), np.int64)]
+        )
         self.n += 1
         self._views = None
         return self.n - 1
@@ -122,7 +136,7 @@ class Fleet:
     def remove(self, row: int) -> None:
         """Delete a row (later rows shift down by one)."""
         self._write_a_ff()
-        for name in (*_V3, *_V1, *_I1, *_B1):
+        for name in (*_V3, *_V1, *_I1, *_B1, "hb_fields"):
             setattr(self, name, np.delete(getattr(self, name), row, axis=0))
         self.n -= 1
         self._views = None
@@ -344,3 +358,26 @@ class Fleet:
                 return frames
         buf, lens = self.encode_lpn(rows, time_boot_ms, pos, vel)
         return [buf[i, :e].tobytes() for i, e in enumerate(lens.tolist())]
+
+    def set_heartbeat(self, row: int, msg: Any) -> None:
+        """The row's HEARTBEAT fields from ``msg`` (its autopilot's ``heartbeat()``)."""
+        self.hb_fields[row] = [getattr(msg, k) for k in HEARTBEAT_FIELDS]
+
+    def heartbeat_frames(self, rows: list[int]) -> list[bytes]:
+        """The HEARTBEAT frame of each of ``rows`` (distinct) from its
+        ``hb_fields``; bumps their seq. A few rows one ``struct.pack`` each,
+        more column-wise: the same bytes (``codec.encode_heartbeats``)."""
+        if few(len(rows)):
+            seq = [int(self.seq[r]) for r in rows]
+            frames = heartbeat_frames_small(
+                seq, [int(self.sysid[r]) for r in rows], [int(self.compid[r]) for r in rows],
+                [self.hb_fields[r].tolist() for r in rows],
+            )  # fmt: skip
+            for r, q in zip(rows, seq, strict=True):
+                self.seq[r] = (q + 1) & 0xFF
+            return frames
+        at = np.array(rows, dtype=np.intp)
+        seq_col = self.seq[at]
+        frames = encode_heartbeats(seq_col, self.sysid[at], self.compid[at], self.hb_fields[at])
+        self.seq[at] = (seq_col + 1) & 0xFF
+        return frames

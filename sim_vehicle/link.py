@@ -8,7 +8,7 @@ client at a time, as SITL serves ``tcp:127.0.0.1:5760``). Sends
 go straight to the non-blocking socket (a full socket buffer drops the
 datagram and counts it, as a radio would); receives come through asyncio.
 Datagrams are batched per peer up to ``mavwire.MAX_DATAGRAM_BYTES`` (the
-station's limit too; ``core.join_frames``). A TCP client is one more peer of
+station's limit too; ``mavwire.datagrams.join_frames``). A TCP client is one more peer of
 its endpoint, under the address ``("tcp:HOST", PORT)`` (``TCP_PREFIX``):
 everything sent to the endpoint's peers goes to it too, as a byte stream.
 """
@@ -23,9 +23,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mavwire.datagrams import join_frames
 from sim_vehicle import signing
 from sim_vehicle.codec import RawSetpoint, decode_setpoint
-from sim_vehicle.core import join_frames
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.lane import may_be_stream
 from sim_vehicle.stats import LinkStats
@@ -164,7 +164,7 @@ class Endpoint(asyncio.DatagramProtocol):
         parser.have_prefix_error = False
 
     def batch(self, frames: list[tuple[bytes, int]]) -> list[tuple[bytes, list[int]]]:
-        """``core.join_frames``: (frame, key) pairs joined into datagrams."""
+        """``join_frames``: (frame, key) pairs joined into datagrams."""
         return join_frames(frames)
 
     def sendto(self, data: bytes, addr: Addr) -> None:

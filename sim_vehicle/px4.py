@@ -197,7 +197,6 @@ class Px4Autopilot(Autopilot):
         compid: int = 1,
         airborne_at: Vec3 | None = None,
         streams: dict[int, float] | None = None,
-        heartbeat_phase_s: float = 0.0,
     ) -> None:
         self._sp_times: tuple[float, float] = (-math.inf, -math.inf)
         self._sp_queue: deque[tuple[float, str, dict[str, Any], int]] = deque()
@@ -207,7 +206,7 @@ class Px4Autopilot(Autopilot):
         self.failsafe_at: float | None = None
         """Sim time the offboard-loss failsafe last engaged (None: never)."""
         super().__init__(sysid, origin, params, now, compid=compid, airborne_at=airborne_at,
-                         streams=streams, heartbeat_phase_s=heartbeat_phase_s)  # fmt: skip
+                         streams=streams)  # fmt: skip
         params.set("MAV_SYS_ID", sysid)
         self._sync_params()
         self.prearm_ok = airborne_at is not None or params["SIM_PREARM_S"] <= 0.0
@@ -427,6 +426,10 @@ class Px4Autopilot(Autopilot):
             self.set_control("land", now, kin)  # no RC: holds position, descends
         what = _NAMES.get(_TO_PX4[inside], "?")
         return telemetry.statustext(mav.MAV_SEVERITY_CRITICAL, f"Failsafe activated: {what}")
+
+    def _update_deadline(self, now: float) -> None:
+        super()._update_deadline(now)
+        self._px4_deadline(now)
 
     def _px4_deadline(self, now: float) -> None:
         d = self.deadline

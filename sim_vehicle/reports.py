@@ -1,7 +1,8 @@
 """The messages a vehicle reports on request or by stream (REQUEST_MESSAGE, SET_MESSAGE_INTERVAL).
 
 Owns ``build``: one instance of a streamable or requestable message from an
-``Autopilot``'s state and the vehicle's kinematics. NO I/O.
+``Autopilot``'s state and the vehicle's kinematics; ``set_interval``: a
+stream's interval and its next message (ArduPilot's buckets). NO I/O.
 """
 
 from __future__ import annotations
@@ -12,12 +13,13 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle import telemetry
+from sim_vehicle.commands import STREAMABLE
 from sim_vehicle.telemetry import Kin
 
 if TYPE_CHECKING:
     from sim_vehicle.autopilot import Autopilot
 
-__all__ = ["bucket_due", "build"]
+__all__ = ["bucket_due", "build", "set_interval"]
 
 GUIDED = 4
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
@@ -80,3 +82,35 @@ def bucket_due(streams: Iterable[list[float]], interval_s: float, now: float) ->
         if interval == interval_s:
             return due + interval_s
     return now + interval_s
+
+
+def set_interval(ap: Autopilot, msgid: int, interval_s: float, now: float) -> bool:
+    """SET_MESSAGE_INTERVAL of ``ap``: interval s, 0 the default, < 0 off; False
+    for an id it cannot stream. LOCAL_POSITION_NED's is the emulator's
+    vectorised stream (``lpn_interval_s``, capped at SIM_LPN_MAX_HZ, the
+    router's rate); the others go in ``ap._streams``, due in a bucket
+    (``bucket_due``) unless ``ap.stream_buckets`` is False (then at once)."""
+    if msgid not in STREAMABLE:
+        return False
+    if interval_s == 0.0:
+        interval_s = 1.0 / STREAMABLE[msgid]
+    if msgid == LPN:
+        cap_hz = ap.params["SIM_LPN_MAX_HZ"]
+        if interval_s > 0 and cap_hz > 0:
+            interval_s = max(interval_s, 1.0 / cap_hz)  # the router's rate wins
+        ap.lpn_interval_s = interval_s if interval_s > 0 else None
+        ap.lpn_kick = interval_s > 0
+        ap.version += 1
+    elif interval_s > 0:
+        streams = ap._streams
+        kept = streams.pop(msgid, None)
+        due = bucket_due(streams.values(), interval_s, now)
+        if not ap.stream_buckets:
+            due = now
+        elif kept is not None and kept[0] == interval_s:
+            due = kept[1]  # asked again at its interval: its bucket stays (ArduPilot)
+        streams[msgid] = [interval_s, due]
+        ap.deadline = min(ap.deadline, due)
+    else:
+        ap._streams.pop(msgid, None)
+    return True

@@ -1,10 +1,12 @@
 """Telemetry scheduling on the fleet rows: who is polled, who reports, the frames. NO I/O.
 
-After each physics step the emulator polls the autopilots whose ``deadline``
+After each physics step the emulator sends the 1 Hz HEARTBEAT of every row
+whose ``hb_next`` is due (``due_heartbeats``; the frames from the rows'
+fields, ``Fleet.heartbeat_frames``), polls the autopilots whose ``deadline``
 is due (and those the step landed or lifted: the land detector looks), then
-sends LOCAL_POSITION_NED, the one vectorised stream, for every row whose
-``lpn_next`` is due, all at once (``codec``). Owns those three pieces
-(``due_polls``, ``due_reports``, ``report_frames``) and ``kins``, the rows'
+sends LOCAL_POSITION_NED for every row whose ``lpn_next`` is due, all at
+once (``codec``). Owns those pieces (``due_heartbeats``, ``due_polls``,
+``due_reports``, ``report_frames``) and ``kins``, the rows'
 kinematics as the autopilots read them. Each has a plain-Python side for few
 vehicles (``small``), the same numbers. Driven by ``now`` (sim seconds).
 """
@@ -23,7 +25,9 @@ from sim_vehicle.impairments import EPS_S
 from sim_vehicle.small import few
 from sim_vehicle.telemetry import Kin
 
-__all__ = ["bias_factor", "due_polls", "due_reports", "kin", "kins", "report_frames"]
+__all__ = [
+    "bias_factor", "due_heartbeats", "due_polls", "due_reports", "kin", "kins", "report_frames",
+]  # fmt: skip
 
 
 def bias_factor(
@@ -75,6 +79,24 @@ def due_polls(fleet: Fleet, now: float) -> list[int]:
         polled = sorted(set(polled).union(f.changed))
         f.changed = []
     return polled
+
+
+def due_heartbeats(fleet: Fleet, now: float) -> list[int]:
+    """Rows whose 1 Hz HEARTBEAT is due at ``now`` (``hb_next`` within 1 us), in
+    order; their ``hb_next`` moves a second on, or to half a second from ``now``
+    when that is due already (a clock that was held sends one, not a burst)."""
+    f = fleet
+    if few(f.n):
+        nxt = f.hb_next.tolist()
+        rows = [r for r, t in enumerate(nxt) if now >= t - 1e-6]
+        for r in rows:
+            f.hb_next[r] = max(nxt[r] + 1.0, now + 0.5)
+        return rows
+    due = np.flatnonzero(now >= f.hb_next - 1e-6)
+    if due.size:
+        f.hb_next[due] = np.maximum(f.hb_next[due] + 1.0, now + 0.5)
+    out: list[int] = due.tolist()
+    return out
 
 
 def due_reports(fleet: Fleet, now: float) -> NDArray[np.intp]:

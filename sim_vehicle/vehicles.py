@@ -20,10 +20,11 @@ from sim_vehicle.config import EmulatorConfig, VehicleSpec
 from sim_vehicle.impairments import Impairer
 from sim_vehicle.params import PARAM_TABLE, ParamStore
 from sim_vehicle.px4 import PX4_OVERRIDES, Px4Autopilot, Px4ParamStore
-from sim_vehicle.telemetry import Vec3
+from sim_vehicle.telemetry import Kin, Vec3
 
 __all__ = [
     "Addr", "HostedVehicle", "Port", "VehicleState", "autopilot_for", "heartbeat_phase_s",
+    "state_of",
 ]  # fmt: skip
 
 Addr = tuple[str, int]
@@ -95,12 +96,28 @@ class HostedVehicle:
     row_deadline: float | None = None
     row_holding: bool | None = None
     row_target: ControlTarget | None = None
+    row_heartbeat: tuple[int, bool] | None = None  # (mode, armed) its HEARTBEAT fields are of
     # noise_pos, noise_vel, lpn_interval, velocity bias (N, E, D), its reversal, time constant
     row_dyn: tuple[float, float, float, tuple[float, float, float], float, float] | None = field(
         default=None
     )
     # (parameter store, its generation, the report interval) row_dyn was read at
     row_dyn_key: tuple[object, int, float | None] | None = None
+
+
+def state_of(
+    v: HostedVehicle, k: Kin, sim_time_s: float, endpoint: Addr, tcp: Addr | None
+) -> VehicleState:
+    """``v``'s snapshot with kinematics ``k`` at ``sim_time_s``, served on
+    ``endpoint`` (and TCP ``tcp``)."""
+    ap = v.ap
+    return VehicleState(
+        sysid=v.spec.key, mode=ap.mode, mode_name=ap.mode_name, armed=ap.armed,
+        landed=k.landed, ekf_ready=ap.ekf_ready, holding=ap.holding, pos_ned_m=k.pos,
+        vel_ned_m_s=k.vel, accel_ned_m_s2=k.acc, sim_time_s=sim_time_s, origin=v.spec.origin,
+        home_ned_m=ap.home, endpoint=endpoint, params=dict(ap.params.values),
+        control=ap.control, tcp_endpoint=tcp, landed_state=ap.landed_state,
+    )  # fmt: skip
 
 
 def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopilot:
@@ -143,7 +160,6 @@ def autopilot_for(cfg: EmulatorConfig, spec: VehicleSpec, now: float) -> Autopil
         compid=spec.compid,
         airborne_at=start if spec.airborne else None,
         streams=dict(cfg.streams),
-        heartbeat_phase_s=heartbeat_phase_s(cfg, spec),
     )
 
 
@@ -153,9 +169,10 @@ def heartbeat_phase_s(cfg: EmulatorConfig, spec: VehicleSpec) -> float:
     an emulator's vehicles send theirs in one step, as a SITL swarm started by
     one script does (measured: docs/mavlink-protocol.md). ``"spread"``: a
     phase of its own, as a fleet's vehicles booted one by one keep theirs
-    (at 1,500 in networks of 250, "together" makes one step of each network
-    a second 7-8 ms long in the emulator and puts 250 HEARTBEATs in one
-    period at the station: benchmarks/README.md, twelfth session), drawn from
+    (at 1,500 in networks of 250, "together" puts 250 HEARTBEATs in one
+    period at the station; the emulator's step that sends them, a stream
+    of the fleet since the eighteenth session, costs 0.72-0.84 ms against
+    0.49: docs/emulator.md), drawn from
     the emulator's seed and the vehicle's key: the same in every run,
     lockstep included. The HEARTBEAT a new peer gets at once (docs/emulator.md,
     rule 1) goes as before."""
