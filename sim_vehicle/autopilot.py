@@ -55,6 +55,7 @@ ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
 """MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 _ACCEL_ONLY = commands.ECHO_MASK["accel"]
+_HEARTBEAT = mav.MAVLink_heartbeat_message
 """The echoed type_mask of an acceleration setpoint (3135)."""
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
 
@@ -215,7 +216,8 @@ class Autopilot:
     def handle(self, msg: mav.MAVLink_message, now: float, kin: Kin) -> list[mav.MAVLink_message]:
         """Apply one decoded inbound message; return the replies (unpacked)."""
         out = commands.dispatch(self, msg, now, kin)
-        self._replan(now)
+        if type(msg) is not _HEARTBEAT:  # one plans only its own (gcs_heartbeat)
+            self._replan(now)
         return out
 
     # ------------------------------------------------------------ transitions
@@ -476,9 +478,11 @@ class Autopilot:
             self.deadline = min(self.deadline, self._boot_end)
 
     def gcs_heartbeat(self, now: float) -> list[mav.MAVLink_message]:
-        """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe)."""
+        """A HEARTBEAT from SYSID_MYGCS arrived (feeds the GCS failsafe, whose
+        check it plans: ``handle`` plans nothing else for a HEARTBEAT)."""
         self.last_gcs_hb = now
         self.last_gcs_hb_wall = self.wall_s
+        self.deadline = min(self.deadline, self._gcs_due(now))
         if self.fs_active:
             self.fs_active = False
             return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]

@@ -31,6 +31,7 @@ from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import DelayLine, impair
 from sim_vehicle.small import few
 from sim_vehicle.stats import EmulatorStats
+from sim_vehicle.targets import NO_KIN
 from sim_vehicle.telemetry import Kin
 from sim_vehicle.vehicles import (
     Addr,
@@ -48,6 +49,7 @@ MAX_PEERS = 8
 """Peers one port serves at most (the oldest goes first)."""
 _SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 _SETPOINT_CLASS = mav.MAVLink_set_position_target_local_ned_message
+_HB = mav.MAVLink_heartbeat_message
 
 
 class EmulatorCore:
@@ -220,7 +222,11 @@ class EmulatorCore:
         whose autopilot is ``stream_deferrable`` (already flying the stream)
         and is not landed writes its a_ff into the fleet row and is held;
         the autopilot's own ``stream_accel`` runs once, for the last one
-        held, when anything else is asked of it (``_fold``). Its ``wall_s``
+        held, when anything else is asked of it (``_fold``) but a HEARTBEAT,
+        which commutes with it: the GCS failsafe's clock moves and the
+        deadline is lowered to its check, as a setpoint lowers it to
+        GUID_TIMEOUT (``Autopilot.gcs_heartbeat``; the HEARTBEAT reads no
+        ``Kin``: ``commands.dispatch``). Its ``wall_s``
         is not set: only the GCS failsafe reads it, at a poll or a HEARTBEAT,
         each of which sets it first."""
         now = self.sim_time_s
@@ -253,7 +259,7 @@ class EmulatorCore:
                 continue
             msg = m
             for v in targets:
-                if v.lane_a is not None:
+                if v.lane_a is not None and cls is not _HB:  # a HEARTBEAT commutes with it
                     self._fold(v)
                 ap = v.ap
                 if wall_s is not None:
@@ -277,7 +283,8 @@ class EmulatorCore:
                     else:
                         self.sync(v, now)
                     continue
-                replies = ap.handle(msg, now, self.kin(v))
+                # a HEARTBEAT (commands.dispatch: the GCS failsafe's clock) reads no Kin
+                replies = ap.handle(msg, now, NO_KIN if cls is _HB else self.kin(v))
                 if replies:
                     self.transmit(ep, [(self.pack(v, r), 0) for r in replies])
                 self.sync(v, now)

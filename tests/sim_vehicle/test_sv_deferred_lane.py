@@ -6,8 +6,10 @@ of datagrams on a hand-advanced clock: the station's acceleration stream
 (ordinary values, hard downward ones that land a vehicle, NaN and absurd
 ones, another component's), pauses longer than GUID_TIMEOUT (a brake,
 then the stream again), GUID_TIMEOUT changed in flight, mode changes,
-position targets, the GCS HEARTBEAT to every vehicle of the port, arming
-and disarming. One core holds the streamed setpoints it may
+position targets, the GCS HEARTBEAT to every vehicle of the port (which
+does not fold a held setpoint: it commutes with one), arming and
+disarming; with the GCS failsafe off, and on at 0.3 s (the pauses set it
+off; the HEARTBEATs plan its check). One core holds the streamed setpoints it may
 (``defer_stream``, ``EmulatorCore._deliver``), the other calls each
 vehicle's autopilot for every one, as before the lane. After every
 physics step every fleet array and every datagram the two sent must be
@@ -22,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -62,7 +65,7 @@ class _Port:
         pass
 
 
-def _core(defer: bool) -> tuple[EmulatorCore, _Port]:
+def _core(defer: bool, fs_gcs: int = 0) -> tuple[EmulatorCore, _Port]:
     cfg = EmulatorConfig(
         vehicles=(
             VehicleSpec(sysid=1, start_ned_m=(0.0, 0.0, -1.0), airborne=True),
@@ -71,6 +74,7 @@ def _core(defer: bool) -> tuple[EmulatorCore, _Port]:
         clock="lockstep",
         dynamics="ardupilot",
         streams={mav.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 1.0},
+        params={"FS_GCS_ENABLE": fs_gcs, "FS_GCS_TIMEOUT": 0.3},
     )
     core, port = EmulatorCore(cfg), _Port()
     core.defer_stream = defer
@@ -163,8 +167,9 @@ def _s(kind: str, steps: int, value: Any = _Z, event: Any = _NO) -> Any:
           _s("stream", 10, (1.0, 0.0, 0.0)), _s("event", 1, event=("mode", 1, 17)),
           _s("stream", 10), _s("event", 1, event=("mode", 1, 4)), _s("stream", 10),
           _s("event", 1, event=("arm", 2, 0.0)), _s("stream", 10)])  # fmt: skip
-def test_held_setpoints_fly_as_setpoints_taken_at_once(plan: list[Any]) -> None:
-    (lane, lane_port), (direct, direct_port) = _core(True), _core(False)
+@pytest.mark.parametrize("fs_gcs", [0, 1])
+def test_held_setpoints_fly_as_setpoints_taken_at_once(fs_gcs: int, plan: list[Any]) -> None:
+    (lane, lane_port), (direct, direct_port) = _core(True, fs_gcs), _core(False, fs_gcs)
     parsers = [mav.MAVLink(None), mav.MAVLink(None)]
     for kind, value, event, steps in plan:
         for _ in range(steps if kind != "event" else 1):
