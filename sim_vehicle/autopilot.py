@@ -55,8 +55,8 @@ ACCEPTED, TEMPORARILY_REJECTED, FAILED = 0, 1, 4
 """MAV_RESULT values of the COMMAND_ACKs the hooks answer."""
 LPN = mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 _ACCEL_ONLY = commands.ECHO_MASK["accel"]
-_HEARTBEAT = mav.MAVLink_heartbeat_message
 """The echoed type_mask of an acceleration setpoint (3135)."""
+_HEARTBEAT = mav.MAVLink_heartbeat_message
 _MOVING = {"brake", "takeoff", "land", "rtl_climb", "rtl_return", "rtl_loiter", "spool", "fall"}
 
 
@@ -152,7 +152,9 @@ class Autopilot:
         return MODE_NAMES.get(self.mode, f"MODE{self.mode}")
 
     def heartbeat(self) -> mav.MAVLink_message:
-        """This vehicle's HEARTBEAT."""
+        """This vehicle's HEARTBEAT: a function of ``mode`` and ``armed`` only (an
+        override too), which the emulator copies into the fleet row when either
+        changes (``EmulatorCore.sync``) for its 1 Hz stream."""
         return telemetry.heartbeat(self.mode, self.armed, self.mode in _GUIDED_LIKE)
 
     # ---------------------------------------------------------------- streams
