@@ -102,15 +102,14 @@ def lpn_frames_small(
 
 
 _HB = mav.MAVLink_heartbeat_message
-HEARTBEAT_FIELDS = ("custom_mode", "type", "autopilot", "base_mode", "system_status",
-                    "mavlink_version")  # fmt: skip
-"""HEARTBEAT's fields in wire order (``heartbeat_frames``' columns)."""
+HEARTBEAT_FIELDS: tuple[str, ...] = tuple(_HB.ordered_fieldnames)
+"""HEARTBEAT's fields in wire order (pymavlink's; ``encode_heartbeats``' columns)."""
 _HB_FRAMES = FrameBuilder(
     _HB.id,
     _HB.crc_extra,
     np.dtype([(HEARTBEAT_FIELDS[0], "<u4")] + [(k, "u1") for k in HEARTBEAT_FIELDS[1:]]),
 )
-_HB_PAYLOAD = struct.Struct("<IBBBBB")
+_HB_PAYLOAD: struct.Struct = _HB.unpacker  # pymavlink's own struct of the payload, "<IBBBBB"
 
 
 def encode_heartbeats(
