@@ -217,15 +217,20 @@ def convergence_times(
 
 
 def curve_difference(
-    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], *, floor: float = 0.005
+    a: tuple[np.ndarray, np.ndarray],
+    b: tuple[np.ndarray, np.ndarray],
+    *,
+    floor: float = 0.005,
+    until_s: float | None = None,
 ) -> dict[str, float]:
     """How far error curve ``b`` is from ``a`` (``error_curve``'s (t, e) pairs):
     both on a 1 s grid from 10 s, each a 5 s running mean, ``|e_b - e_a| / e_a``
     wherever ``e_a`` is at least ``floor`` (below it a flown formation's own
     wander, 0.1-0.2 % on SITL, is most of the error). Its median and its
-    largest value, and when [s]."""
+    largest value, and when [s]; ``until_s``: the grid ends there."""
     (ta, ea), (tb, eb) = a, b
-    grid = np.arange(10.0, min(float(ta[-1]), float(tb[-1])), 1.0)
+    end = min(float(ta[-1]), float(tb[-1]))
+    grid = np.arange(10.0, end if until_s is None else min(end, until_s), 1.0)
     k = np.ones(5) / 5.0
     ya = np.convolve(np.interp(grid, ta, ea), k, "valid")
     yb = np.convolve(np.interp(grid, tb, eb), k, "valid")
@@ -328,15 +333,31 @@ def formation_start(
     return first, boot
 
 
-def emulator_replay_twin(mission: Mission, sitl_folder: Path, *, spacing_m: float = 5.0) -> Mission:
+def emulator_replay_twin(
+    mission: Mission,
+    sitl_folder: Path,
+    *,
+    spacing_m: float = 5.0,
+    jitter_m: float = 0.0,
+    seed: int = 0,
+) -> Mission:
     """The emulator twin of one SITL run from the moment its formation started:
     each emulated vehicle spawned hovering where the SITL vehicle was then
     (``formation_start``), so the two fly the same formation from the same
     state (a start-up on the ground would leave each vehicle up to the
     mission's start tolerance, 0.3 m, from where SITL's was, and this
     mission's time to form moves by +-6 % for 1 cm there: docs/sitl.md); the
-    velocity bias reverses at the same boot time as SITL's (304 s)."""
+    velocity bias reverses at the same boot time as SITL's (304 s).
+    ``jitter_m`` [m]: each start moved by N(0, jitter_m) per axis (generator
+    seeded with ``seed``), for an ensemble of twins from starts as uncertain
+    as SITL's (its vehicles were still moving: ``twin_ensemble``)."""
     starts, boot = formation_start(sitl_folder, mission)
+    if jitter_m > 0.0:
+        rng = np.random.default_rng(seed)
+        starts = {
+            k: tuple(float(c) for c in np.asarray(p) + rng.normal(0.0, jitter_m, 3))
+            for k, p in sorted(starts.items())
+        }
     since = float(np.median(list(boot.values())))  # the instances' boot time at the start
     flip = EmulatorConfig.ARDUPILOT_VBIAS_FLIP_S - since
     twin = emulator_twin(mission, spacing_m=spacing_m)

@@ -74,6 +74,13 @@ def test_the_replay_twin_of_an_emulator_run_flies_the_same_formation(tmp_path: P
     twin = emulator_replay_twin(run, run_folder)
     assert twin.emulator.spawn == "air"
     assert {v.sysid: v.start for v in twin.vehicles} == starts
+    # An ensemble member (the octahedron's SITL test): the same starts moved
+    # by N(0, 1 cm) per axis, the same for the same seed, another for another.
+    members = [emulator_replay_twin(run, run_folder, jitter_m=0.01, seed=s) for s in (1, 1, 2)]
+    moved = [{v.sysid: v.start for v in member.vehicles} for member in members]
+    assert moved[0] == moved[1] and moved[0] != moved[2]
+    dev = np.array([np.subtract(moved[0][k], starts[k]) for k in sorted(starts)])
+    assert 0.0 < np.abs(dev).max() <= 0.05 and 0.003 <= dev.std() <= 0.02, dev
     twin_folder = _fly(twin, tmp_path / "twin")
 
     # The twin's first control step is where the run's was, to the 1 mm of

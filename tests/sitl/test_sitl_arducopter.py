@@ -9,8 +9,9 @@ ready, then the mission itself), so the whole file takes about 30 minutes.
 What each asserts is what the issue's "Figures to reach" ask, on SITL, and the
 same mission flown by the emulator from the state SITL's formation started in
 is set beside it (``sitl_flights.emulator_replay_twin``, ``compare``): time to
-form within 10 %, final radii within 1 %, minimum separation within 0.2 m;
-how closely the formation's RMS error against the law's equilibrium follows
+form within 10 % (the octahedron's: within 10 % of the range of an ensemble
+of twins, ``_assert_twin_agrees``), final radii within 1 %, minimum
+separation within 0.2 m; how closely the formation's RMS error against the law's equilibrium follows
 SITL's is reported. The figures are written as JSON
 (``GCS_SWARM_SITL_REPORT``) and copied into docs/sitl.md by hand.
 """
@@ -68,14 +69,31 @@ def _fly_in_process(mission: Mission, log_dir: Path, **kw: Any) -> tuple[dict[st
     return summary_of(holder[0].path), holder[0].path
 
 
-def _twin_figures(mission: Mission, sitl_folder: Path, tmp: Path) -> dict[str, Any]:
-    """Fly the emulator twin of the SITL run (``emulator_replay_twin``: from the
-    state SITL's formation started in) and compare the two."""
-    twin = emulator_replay_twin(mission, sitl_folder)
+def _fly_twin(twin: Mission, tmp: Path) -> Path:
     holder: list[Any] = []
     asyncio.run(run_mission(twin, log_dir=tmp, picture=False, on_folder=holder.append))
-    emu_folder = holder[0].path
+    return Path(holder[0].path)
+
+
+def _twin_figures(
+    mission: Mission, sitl_folder: Path, tmp: Path, *, ensemble: int = 0
+) -> dict[str, Any]:
+    """Fly the emulator twin of the SITL run (``emulator_replay_twin``: from the
+    state SITL's formation started in) and compare the two; with ``ensemble``,
+    that many more twins from starts moved by ``ENSEMBLE_JITTER_M`` (seeds 1,
+    2, ...), whose times to form are reported with the replay twin's."""
+    twin = emulator_replay_twin(mission, sitl_folder)
+    emu_folder = _fly_twin(twin, tmp)
     out = compare(summary_of(sitl_folder), summary_of(emu_folder))
+    if ensemble:
+        times = [out["emulator"]["time_to_form_s"]]
+        for seed in range(1, ensemble + 1):
+            jittered = emulator_replay_twin(
+                mission, sitl_folder, jitter_m=ENSEMBLE_JITTER_M, seed=seed
+            )
+            folder = _fly_twin(jittered, tmp / f"jitter{seed}")
+            times.append(summary_of(folder)["overall"]["time_to_form_s"])
+        out["ensemble_time_to_form_s"] = times
     # Reported, not asserted: a formation on a sphere is free to turn about its
     # leader, so two flights that form the same shape may hold it turned.
     out["rms_position_difference_m"] = rms_position_difference(
@@ -88,10 +106,17 @@ def _twin_figures(mission: Mission, sitl_folder: Path, tmp: Path) -> dict[str, A
         "sitl": convergence_times(*sitl_series, law, BANDS),
         "emulator": convergence_times(*emu_series, law, BANDS),
     }
-    out["error_curve_difference"] = curve_difference(
-        error_curve(*sitl_series, law), error_curve(*emu_series, law)
-    )
+    sitl_curve, emu_curve = error_curve(*sitl_series, law), error_curve(*emu_series, law)
+    out["error_curve_difference"] = curve_difference(sitl_curve, emu_curve)
+    out["error_curve_difference_first_30s"] = curve_difference(sitl_curve, emu_curve, until_s=30.0)
     return out
+
+
+ENSEMBLE_JITTER_M = 0.01
+"""[m] per axis, how far the octahedron's ensemble twins start from SITL's
+recorded starts: SITL's vehicles began its formation still moving (up to
+0.18 m/s; the replay twin's start at rest), and this mission's time to form
+moves by tens of percent for 1 cm there (docs/sitl.md, 2026-12-07)."""
 
 
 BANDS = (0.05, 0.02, 0.01)
@@ -122,12 +147,20 @@ def _law_errors(mission: Mission) -> np.ndarray:
 def _assert_twin_agrees(fig: dict[str, Any]) -> None:
     """The twin predicts SITL: the time to form (the summary's, every radius
     and distance within 1 % of its last value) within 10 %, final radii within
-    1 %, minimum separation within 0.2 m. How closely the twin's error curve
-    follows SITL's (``error_curve_difference``) is reported, not asserted:
-    SITL's own band entries on the octahedron spread by 40 % between runs
-    from similar starts (docs/sitl.md, 2026-12-03, later)."""
+    1 %, minimum separation within 0.2 m. With an ensemble (the octahedron,
+    whose slow phase passes near a saddle of the law, so that 1 cm at the
+    start moves its time to form by a third: docs/sitl.md, 2026-12-07) SITL's
+    time to form is to lie within 10 % of the twins' range instead. How
+    closely the twin's error curve follows SITL's (``error_curve_difference``)
+    is reported, not asserted: SITL's own band entries on the octahedron
+    spread by 40 % between runs from similar starts (docs/sitl.md,
+    2026-12-03, later)."""
     s, e = fig["sitl"], fig["emulator"]
-    if s["time_to_form_s"] is not None and e["time_to_form_s"] is not None:
+    ensemble = [t for t in fig.get("ensemble_time_to_form_s", ()) if t is not None]
+    if s["time_to_form_s"] is not None and ensemble:
+        lo, hi = min(ensemble), max(ensemble)
+        assert 0.9 * lo <= s["time_to_form_s"] <= 1.1 * hi, fig
+    elif s["time_to_form_s"] is not None and e["time_to_form_s"] is not None:
         assert abs(e["time_to_form_s"] - s["time_to_form_s"]) <= 0.10 * s["time_to_form_s"], fig
     for k in ("radius_min_m", "radius_max_m"):
         assert abs(e[k] - s[k]) <= 0.01 * s[k], fig
@@ -180,7 +213,7 @@ def test_octahedron_in_the_envelope(tmp_path: Path) -> None:
         "min_separation_m": o["min_separation_m"], "time_to_form_s": o["time_to_form_s"],
         "separation_configured_m": mission.law.safety.separation,
     }  # fmt: skip
-    fig = _twin_figures(mission, folder, tmp_path / "emu")
+    fig = _twin_figures(mission, folder, tmp_path / "emu", ensemble=3)
     figures["emulator_vs_sitl"] = fig
     write_figures(tmp_path, "sitl_octahedron", figures)
     assert s["outcome"] == "completed"
