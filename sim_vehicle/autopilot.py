@@ -164,6 +164,8 @@ class Autopilot:
         return reports.set_interval(self, msgid, interval_s, now)
 
     stream_buckets = True  # ArduPilot's buckets (reports.bucket_due); False: first at once
+    FLEET_STREAMS = reports.FLEET_STREAMS  # those it may leave to the status path
+    fleet_streams: frozenset[int] = frozenset()  # those it does (EmulatorCore.add)
 
     def interval_of(self, msgid: int) -> float:
         """Current interval in s of ``msgid`` (-1 when not streamed)."""
@@ -395,7 +397,7 @@ class Autopilot:
                 m = self.build(msgid, now, kin)
                 if m is not None:
                     out.append(m)
-                sched[1] = max(sched[1] + sched[0], now + 0.5 * sched[0])
+                sched[1] = reports.next_due(sched, now)
         out.extend(self._transitions(now, kin))
         self._update_deadline(now)
         return out
@@ -447,8 +449,7 @@ class Autopilot:
         d = math.inf  # the 1 Hz HEARTBEAT is the emulator's stream (schedule), not a poll
         if not self.ekf_ready:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
-        for sched in self._streams.values():
-            d = min(d, sched[1])
+        d = min(d, reports.polled_due(self))  # the status path's are the emulator's
         if self._boot_end is not None and not self.booted:
             d = min(d, self._boot_end)
         if self.touch is not None and self.armed and not self.land_complete:

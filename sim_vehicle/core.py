@@ -2,7 +2,8 @@
 
 Owns ``EmulatorCore``: the hosted vehicles (``vehicles``: autopilot, fleet
 row, encoder, noise stream), the physics step and what follows it
-(``schedule``: polls and the LOCAL_POSITION_NED stream), inbound messages
+(``schedule``: HEARTBEATs, polls, the status path of ``reports``, the
+LOCAL_POSITION_NED stream), inbound messages
 (peer rules, lockstep answers, the uplink impairment, delivery to the
 autopilots) and outbound frames (sequence numbers, datagram joining, the
 downlink impairment, ``impairments``). It is driven by ``step()`` and
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.datagrams import join_frames
-from sim_vehicle import lockstep, schedule
+from sim_vehicle import lockstep, reports, schedule
 from sim_vehicle.codec import RawSetpoint, pack_frame
 from sim_vehicle.commands import stream_accel, stream_accel_fields, streamed_accel
 from sim_vehicle.config import EmulatorConfig, VehicleSpec
@@ -76,6 +77,9 @@ class EmulatorCore:
         self.defer_stream = True
         """The deferred lane (``_deliver``); False: every setpoint calls its
         autopilot at once (what the lane is tested against)."""
+        self.status_path = True
+        """ArduCopter's status streams without a poll (``reports``); False: each
+        from its autopilot's poll (what the path is tested against)."""
 
     # ------------------------------------------------------------ vehicles
     def add(self, spec: VehicleSpec, ep: Port, initial: bool, enc: Any) -> HostedVehicle:
@@ -84,6 +88,8 @@ class EmulatorCore:
         cfg, key = self.config, spec.key
         now = self.sim_time_s
         ap = autopilot_for(cfg, spec, now)
+        if self.status_path:
+            ap.fleet_streams = ap.FLEET_STREAMS
         start = spec.start_ned_m
         row = self.fleet.add(spec.sysid, spec.compid, start, landed=not spec.airborne)
         self._kins = None
@@ -182,7 +188,7 @@ class EmulatorCore:
             if len(ep.peers) > MAX_PEERS:
                 ep.peers.pop(next(iter(ep.peers)))
         if self.lockstep:  # the ``awaiting`` flags block only a lockstep clock
-            self._answered(ep, msgs)
+            lockstep.answered(self.fleet, lockstep.setpoint_rows(self.vehicles, ep, msgs))
         if new_peer:  # rule 1: a new peer gets a HEARTBEAT at once
             self.greet(ep, addr)
         elif good and ep.out == addr and id(ep) not in self.out_heard:
@@ -198,20 +204,6 @@ class EmulatorCore:
             stats.duplicated += 1
         for _ in range(fate.now):
             self._deliver(ep, msgs, wall_s)
-
-    def _answered(self, ep: Port, msgs: list[Any]) -> None:
-        """Lockstep rule 3: the vehicles of ``ep`` a setpoint of ``msgs`` is for have
-        answered (it counts even if the uplink then loses it)."""
-        rows = []
-        vehicles, sysids = self.vehicles, ep.sysids
-        for m in msgs:
-            if m.get_msgId() == _SETPOINT_ID:
-                ts = m.target_system
-                for sysid in sysids if ts == 0 else (ts,):
-                    v = vehicles.get(sysids.get(sysid, -1))
-                    if v is not None and v.ep is ep:
-                        rows.append(v.row)
-        lockstep.answered(self.fleet, rows)
 
     def _deliver(self, ep: Port, msgs: list[Any], wall_s: float | None) -> None:
         """Each message to the autopilots it is for, in order; a setpoint
@@ -390,6 +382,8 @@ class EmulatorCore:
             v.row_heartbeat = (ap.mode, ap.armed)  # and a poll at the next step, whose land
             self.fleet.set_heartbeat(v.row, ap.heartbeat())  # detector looks (ArduCopter's
             ap.deadline = min(ap.deadline, now)  # every loop; nothing else acts if not due)
+        if ap.fleet_streams:
+            self.fleet.st_next[v.row] = reports.fleet_due(ap)
         if not self._sync_target(v):
             return
         ap, f, row = v.ap, self.fleet, v.row
@@ -419,6 +413,18 @@ class EmulatorCore:
             f.lpn_next[row] = now + iv
             if v.ep.peers:
                 self.transmit(v.ep, self._report_frames(np.array([row], dtype=np.intp), now))
+
+    def _status(self, v: HostedVehicle, now: float) -> None:
+        """``v``'s status-path streams due at ``now``, without a poll (reports)."""
+        ap, f = v.ap, self.fleet
+        ids, f.st_next[v.row] = reports.take_fleet_streams(ap, now)
+        if not ids or not v.ep.peers:
+            return
+        if self.config.signing_key is None:
+            frames = schedule.status_frames(f, ap, v.row, ids, now)
+        else:
+            frames = [self.pack(v, ap.build(m, now, self.kin(v))) for m in ids]
+        v.ep.outbox.extend((frame, 0) for frame in frames)
 
     def _report_frames(self, rows: NDArray[np.intp], now: float) -> list[tuple[bytes, int]]:
         by_row = self.rows
@@ -465,9 +471,13 @@ class EmulatorCore:
             for frame, r in zip(hbs, beats, strict=True):
                 rows[r].ep.outbox.append((frame, 0))
         polled = schedule.due_polls(f, now)
+        only = set(schedule.due_status(f, now)).difference(polled)  # no poll: reports
         wall_s = wall() if wall is not None and polled else None
-        for row in polled:
+        for row in sorted(only.union(polled)) if only else polled:
             v = self.rows[row]
+            if row in only:  # its status-path streams alone are due
+                self._status(v, now)
+                continue
             if v.lane_a is not None:
                 self._fold(v)
             if wall_s is not None:

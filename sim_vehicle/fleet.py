@@ -39,9 +39,9 @@ _V3 = ("pos", "vel", "acc", "shp", "a_ff", "p_t", "v_t", "wp", "vbias")
 _V1 = (
     "wv", "vmax_xy", "vmax_up", "vmax_dn", "acc_lim", "tau", "acc_max", "ground",
     "lpn_interval", "lpn_next", "noise_pos", "noise_vel", "deadline", "boot",
-    "jerk_xy", "jerk_z", "lean", "drag", "vbias_flip", "vbias_tau", "hb_next",
+    "jerk_xy", "jerk_z", "lean", "drag", "vbias_flip", "vbias_tau", "hb_next", "st_next",
 )  # fmt: skip
-_INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean")
+_INF_DEFAULT = ("lpn_interval", "jerk_xy", "jerk_z", "lean", "st_next")
 _I1 = ("seq", "sysid", "compid")
 _B1 = ("landed", "awaiting", "holding")
 
@@ -86,6 +86,7 @@ class Fleet:
     holding: NDArray[np.bool_]
     hb_next: NDArray[np.float64]  # when the row's next 1 Hz HEARTBEAT goes (sim s)
     hb_fields: NDArray[np.int64]  # its HEARTBEAT's fields (N, 6): codec.HEARTBEAT_FIELDS
+    st_next: NDArray[np.float64]  # when its status-path streams are next due (reports)
 
     def __init__(self) -> None:
         self.n = 0

@@ -337,6 +337,7 @@ class Px4Autopilot(Autopilot):
         self._sp_times = (self._sp_times[1], now)
 
     stream_buckets = False  # each stream on its own, the first message at once
+    FLEET_STREAMS: frozenset[int] = frozenset()  # no status path (reports)
 
     def stream_deferrable(self) -> bool:
         return False  # each setpoint is heard (the stream-loss clock) and queued (Eq. D8)

@@ -3,7 +3,9 @@
 After each physics step the emulator sends the 1 Hz HEARTBEAT of every row
 whose ``hb_next`` is due (``due_heartbeats``; the frames from the rows'
 fields, ``Fleet.heartbeat_frames``), polls the autopilots whose ``deadline``
-is due (and those the step landed or lifted: the land detector looks), then
+is due (and those the step landed or lifted: the land detector looks) and,
+in the same row order, sends the status-path streams of rows not polled
+whose ``st_next`` is due (``due_status``, ``status_frames``: reports), then
 sends LOCAL_POSITION_NED for every row whose ``lpn_next`` is due, all at
 once (``codec``). Owns those pieces (``due_heartbeats``, ``due_polls``,
 ``due_reports``, ``report_frames``) and ``kins``, the rows'
@@ -14,19 +16,24 @@ vehicles (``small``), the same numbers. Driven by ``now`` (sim seconds).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from sim_vehicle import reports
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import EPS_S
 from sim_vehicle.small import few
 from sim_vehicle.telemetry import Kin
 
+if TYPE_CHECKING:
+    from sim_vehicle.autopilot import Autopilot
+
 __all__ = [
-    "bias_factor", "due_heartbeats", "due_polls", "due_reports", "kin", "kins", "report_frames",
+    "bias_factor", "due_heartbeats", "due_polls", "due_reports", "due_status", "kin", "kins",
+    "report_frames", "status_frames",
 ]  # fmt: skip
 
 
@@ -96,6 +103,33 @@ def due_heartbeats(fleet: Fleet, now: float) -> list[int]:
     if due.size:
         f.hb_next[due] = np.maximum(f.hb_next[due] + 1.0, now + 0.5)
     out: list[int] = due.tolist()
+    return out
+
+
+def due_status(fleet: Fleet, now: float) -> list[int]:
+    """Rows whose status-path streams are due at ``now`` (``st_next``, as a
+    deadline is due: ``due_polls``), ascending."""
+    f = fleet
+    if few(f.n):
+        lim = now + EPS_S
+        return [r for r, d in enumerate(f.st_next.tolist()) if d <= lim]
+    out: list[int] = np.flatnonzero(f.st_next <= now + EPS_S).tolist()
+    return out
+
+
+def status_frames(
+    fleet: Fleet, ap: Autopilot, row: int, msgids: list[int], now: float
+) -> list[bytes]:
+    """The unsigned frames of ``msgids`` (``reports.take_fleet_streams``) of
+    ``ap`` on ``row`` at ``now``; bumps the row's seq for each."""
+    f = fleet
+    pos, vel = f.pos[row].tolist(), f.vel[row].tolist()
+    seq, sysid, compid = int(f.seq[row]), int(f.sysid[row]), int(f.compid[row])
+    out = []
+    for msgid in msgids:
+        out.append(reports.status_frame(ap, msgid, now, pos, vel, (seq, sysid, compid)))
+        seq = (seq + 1) & 0xFF
+    f.seq[row] = seq
     return out
 
 

@@ -112,21 +112,31 @@ def sys_status(ekf_ready: bool) -> mav.MAVLink_message:
 
 def gps_raw_int(now: float, origin: Vec3, kin: Kin, fix: int) -> mav.MAVLink_message:
     """GPS_RAW_INT at the true position (fix 3D once the GPS is up)."""
-    lat, lon, alt = ned_to_geo(origin, kin.pos)
-    spd = math.hypot(kin.vel[0], kin.vel[1])
-    cog = math.degrees(math.atan2(kin.vel[1], kin.vel[0])) % 360.0
-    return mav.MAVLink_gps_raw_int_message(
-        time_usec=round(now * 1e6),
-        fix_type=fix,
-        lat=_e7(lat),
-        lon=_e7(lon),
-        alt=round(alt * 1000),
-        eph=121,
-        epv=200,
-        vel=round(spd * 100),
-        cog=round(cog * 100) % 36000,
-        satellites_visible=10 if fix >= 3 else 0,
-    )
+    return mav.MAVLink_gps_raw_int_message(**gps_raw_int_fields(now, origin, kin.pos, kin.vel, fix))
+
+
+def gps_raw_int_fields(now: float, origin: Vec3, pos: Vec3, vel: Vec3, fix: int) -> dict[str, int]:
+    """``gps_raw_int``'s fields, every one (the extensions at 0), for a packer
+    that builds no message (``reports.status_frame``)."""
+    lat, lon, alt = ned_to_geo(origin, pos)
+    spd = math.hypot(vel[0], vel[1])
+    cog = math.degrees(math.atan2(vel[1], vel[0])) % 360.0
+    return {
+        "time_usec": round(now * 1e6),
+        "fix_type": fix,
+        "lat": _e7(lat),
+        "lon": _e7(lon),
+        "alt": round(alt * 1000),
+        "eph": 121,
+        "epv": 200,
+        "vel": round(spd * 100),
+        "cog": round(cog * 100) % 36000,
+        "satellites_visible": 10 if fix >= 3 else 0,
+        **_GPS_EXTENSIONS,
+    }
+
+
+_GPS_EXTENSIONS = dict.fromkeys(("alt_ellipsoid", "h_acc", "v_acc", "vel_acc", "hdg_acc", "yaw"), 0)
 
 
 def global_position_int(
