@@ -48,7 +48,6 @@ __all__ = ["MAX_PEERS", "EmulatorCore"]
 
 MAX_PEERS = 8
 """Peers one port serves at most (the oldest goes first)."""
-_SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 _SETPOINT_CLASS = mav.MAVLink_set_position_target_local_ned_message
 _HB = mav.MAVLink_heartbeat_message
 
