@@ -48,9 +48,7 @@ EXT = mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
 STATUS = {EKF: 2.0, GPS: 2.0, EXT: 2.0}
 
 
-def _core(
-    path: bool, airborne: bool, n: int = 2, streams: Any = None
-) -> tuple[EmulatorCore, _Port]:
+def _core(path: bool, airborne: bool, n: int = 2) -> tuple[EmulatorCore, _Port]:
     cfg = EmulatorConfig(
         vehicles=tuple(
             VehicleSpec(
@@ -62,7 +60,7 @@ def _core(
         ),
         clock="lockstep",
         dynamics="ardupilot",
-        streams=STATUS if streams is None else streams,
+        streams=STATUS,
         params={"DISARM_DELAY": 4.0},
     )
     core, port = EmulatorCore(cfg), _Port()

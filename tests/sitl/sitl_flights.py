@@ -350,7 +350,8 @@ def emulator_replay_twin(
     velocity bias reverses at the same boot time as SITL's (304 s).
     ``jitter_m`` [m]: each start moved by N(0, jitter_m) per axis (generator
     seeded with ``seed``), for an ensemble of twins from starts as uncertain
-    as SITL's (its vehicles were still moving: ``twin_ensemble``)."""
+    as SITL's (its vehicles were still moving: the octahedron's SITL test,
+    ``test_sitl_arducopter._twin_figures``)."""
     starts, boot = formation_start(sitl_folder, mission)
     if jitter_m > 0.0:
         rng = np.random.default_rng(seed)

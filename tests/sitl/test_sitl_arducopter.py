@@ -11,8 +11,8 @@ same mission flown by the emulator from the state SITL's formation started in
 is set beside it (``sitl_flights.emulator_replay_twin``, ``compare``): time to
 form within 10 % (the octahedron's: within 10 % of the range of an ensemble
 of twins, ``_assert_twin_agrees``), final radii within 1 %, minimum
-separation within 0.2 m; how closely the formation's RMS error against the law's equilibrium follows
-SITL's is reported. The figures are written as JSON
+separation within 0.2 m; how closely the formation's RMS error against the
+law's equilibrium follows SITL's is reported. The figures are written as JSON
 (``GCS_SWARM_SITL_REPORT``) and copied into docs/sitl.md by hand.
 """
 
@@ -69,12 +69,6 @@ def _fly_in_process(mission: Mission, log_dir: Path, **kw: Any) -> tuple[dict[st
     return summary_of(holder[0].path), holder[0].path
 
 
-def _fly_twin(twin: Mission, tmp: Path) -> Path:
-    holder: list[Any] = []
-    asyncio.run(run_mission(twin, log_dir=tmp, picture=False, on_folder=holder.append))
-    return Path(holder[0].path)
-
-
 def _twin_figures(
     mission: Mission, sitl_folder: Path, tmp: Path, *, ensemble: int = 0
 ) -> dict[str, Any]:
@@ -83,16 +77,16 @@ def _twin_figures(
     that many more twins from starts moved by ``ENSEMBLE_JITTER_M`` (seeds 1,
     2, ...), whose times to form are reported with the replay twin's."""
     twin = emulator_replay_twin(mission, sitl_folder)
-    emu_folder = _fly_twin(twin, tmp)
-    out = compare(summary_of(sitl_folder), summary_of(emu_folder))
+    emu_summary, emu_folder = _fly_in_process(twin, tmp)
+    out = compare(summary_of(sitl_folder), emu_summary)
     if ensemble:
         times = [out["emulator"]["time_to_form_s"]]
         for seed in range(1, ensemble + 1):
             jittered = emulator_replay_twin(
                 mission, sitl_folder, jitter_m=ENSEMBLE_JITTER_M, seed=seed
             )
-            folder = _fly_twin(jittered, tmp / f"jitter{seed}")
-            times.append(summary_of(folder)["overall"]["time_to_form_s"])
+            s, _ = _fly_in_process(jittered, tmp / f"jitter{seed}")
+            times.append(s["overall"]["time_to_form_s"])
         out["ensemble_time_to_form_s"] = times
     # Reported, not asserted: a formation on a sphere is free to turn about its
     # leader, so two flights that form the same shape may hold it turned.
