@@ -449,7 +449,7 @@ class Autopilot:
         d = math.inf  # the 1 Hz HEARTBEAT is the emulator's stream (schedule), not a poll
         if not self.ekf_ready:
             d = min(d, self.boot + self.params["SIM_EKF_DELAY"])
-        d = min(d, reports.polled_due(self))  # the status path's are the emulator's
+        d = min(d, reports.first_due(self, status_path=False))  # not the status path's
         if self._boot_end is not None and not self.booted:
             d = min(d, self._boot_end)
         if self.touch is not None and self.armed and not self.land_complete:

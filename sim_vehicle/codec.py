@@ -45,6 +45,7 @@ __all__ = [
     "heartbeat_frames_small",
     "lpn_frames_small",
     "pack_frame",
+    "plain_spec",
 ]
 
 LPN_MSGID = 32
@@ -165,12 +166,19 @@ def pack_frame(msg: Any, seq: int, sysid: int, compid: int) -> bytes | None:
     pymavlink's Python framing (the emulator's status streams: thousands a
     second). None for a message with an array or a text field (the caller
     packs it with pymavlink)."""
-    cls = type(msg)
-    spec = _PLAIN[cls] if cls in _PLAIN else _PLAIN.setdefault(cls, _plain(cls))
+    spec = plain_spec(type(msg))
     if spec is None:
         return None
     mid, extra, pack, get = spec
     return frame_payload(mid, extra, seq, sysid, compid, pack(*get(msg)))
+
+
+def plain_spec(cls: type) -> tuple[bytes, bytes, Any, Any] | None:
+    """(3-byte id, CRC_EXTRA byte, its struct's pack, a getter of a message's
+    fields in wire order) of pymavlink message class ``cls``, or None for one
+    with an array or a text field: what ``pack_frame`` frames with (also
+    ``reports.status_frame``)."""
+    return _PLAIN[cls] if cls in _PLAIN else _PLAIN.setdefault(cls, _plain(cls))
 
 
 _SP = mav.MAVLink_set_position_target_local_ned_message

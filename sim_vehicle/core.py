@@ -382,7 +382,7 @@ class EmulatorCore:
             self.fleet.set_heartbeat(v.row, ap.heartbeat())  # detector looks (ArduCopter's
             ap.deadline = min(ap.deadline, now)  # every loop; nothing else acts if not due)
         if ap.fleet_streams:
-            self.fleet.st_next[v.row] = reports.fleet_due(ap)
+            self.fleet.st_next[v.row] = reports.first_due(ap, status_path=True)
         if not self._sync_target(v):
             return
         ap, f, row = v.ap, self.fleet, v.row

@@ -17,6 +17,7 @@ from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.small import few
@@ -26,8 +27,7 @@ if TYPE_CHECKING:
 
 __all__ = ["GRACE_TURNS", "answered", "blocked", "pace_delay", "setpoint_rows", "started"]
 
-_SETPOINT_ID = 84
-"""SET_POSITION_TARGET_LOCAL_NED's message id."""
+_SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
 GRACE_TURNS = 8
 """Event-loop turns a lockstep step still waits for its answers once the

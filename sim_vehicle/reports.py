@@ -3,15 +3,15 @@
 Owns ``build``: one instance of a streamable or requestable message from an
 ``Autopilot``'s state and the vehicle's kinematics; ``set_interval``: a
 stream's interval and its next message (ArduPilot's buckets); the status
-path's pieces (``FLEET_STREAMS``, ``polled_due``, ``fleet_due``,
-``take_fleet_streams``, ``status_frame``). NO I/O.
+path's pieces (``FLEET_STREAMS``, ``first_due``, ``take_fleet_streams``,
+``status_frame``). NO I/O.
 
 **The status path.** ArduCopter's 2 Hz EKF_STATUS_REPORT, GPS_RAW_INT and
 EXTENDED_SYS_STATE are functions of the autopilot's EKF and landed state,
 its origin and boot time, and the row's position and velocity. An
 autopilot whose ``fleet_streams`` name them (``EmulatorCore.add``) leaves
-them out of its poll deadline (``polled_due``); the emulator looks at each
-row's ``Fleet.st_next`` (``fleet_due``, copied at every ``sync``) and, for
+them out of its poll deadline (``first_due``); the emulator looks at each
+row's ``Fleet.st_next`` (``first_due`` of them, copied at every ``sync``) and, for
 a row whose only due work they are, takes them (``take_fleet_streams``,
 the poll's own rule for a stream) and packs their frames without a poll or
 a message object (``status_frame``). A row polled anyway sends them from
@@ -24,12 +24,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from operator import itemgetter
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavwire.framing import frame_payload
 from sim_vehicle import telemetry
+from sim_vehicle.codec import plain_spec
 from sim_vehicle.commands import STREAMABLE
 from sim_vehicle.telemetry import Kin
 
@@ -37,8 +38,8 @@ if TYPE_CHECKING:
     from sim_vehicle.autopilot import Autopilot
 
 __all__ = [
-    "FLEET_STREAMS", "bucket_due", "build", "fleet_due", "next_due", "polled_due",
-    "set_interval", "status_frame", "take_fleet_streams",
+    "FLEET_STREAMS", "bucket_due", "build", "first_due", "next_due", "set_interval",
+    "status_frame", "take_fleet_streams",
 ]  # fmt: skip
 
 GUIDED = 4
@@ -152,28 +153,20 @@ def next_due(sched: list[float], now: float) -> float:
     return max(sched[1] + sched[0], now + 0.5 * sched[0])
 
 
-def polled_due(ap: Autopilot) -> float:
-    """The first due time of ``ap``'s streams its poll sends (inf: none)."""
+def first_due(ap: Autopilot, *, status_path: bool) -> float:
+    """The first due time of ``ap``'s streams the status path sends
+    (``status_path``) or of those its poll sends (not); inf: none."""
     fleet, d = ap.fleet_streams, math.inf
     for msgid, sched in ap._streams.items():
-        if msgid not in fleet and sched[1] < d:
-            d = sched[1]
-    return d
-
-
-def fleet_due(ap: Autopilot) -> float:
-    """The first due time of ``ap``'s status-path streams (inf: none)."""
-    fleet, d = ap.fleet_streams, math.inf
-    for msgid, sched in ap._streams.items():
-        if msgid in fleet and sched[1] < d:
+        if (msgid in fleet) is status_path and sched[1] < d:
             d = sched[1]
     return d
 
 
 def take_fleet_streams(ap: Autopilot, now: float) -> tuple[list[int], float]:
     """The status-path streams of ``ap`` due at ``now``, in the order its
-    poll sends streams, each moved on as the poll moves it; and then
-    ``fleet_due``."""
+    poll sends streams, each moved on as the poll moves it; and then their
+    ``first_due``."""
     out, fleet, d = [], ap.fleet_streams, math.inf
     for msgid, sched in ap._streams.items():
         if msgid in fleet:
@@ -185,15 +178,20 @@ def take_fleet_streams(ap: Autopilot, now: float) -> tuple[list[int], float]:
     return out, d
 
 
-def _payload(msg: mav.MAVLink_message) -> bytes:
-    return bytes(msg.unpacker.pack(*(getattr(msg, k) for k in msg.ordered_fieldnames)))
-
-
 _CONSTANT: dict[tuple[int, int], bytes] = {}
 """(message id, the state it depends on) -> its payload: EKF_STATUS_REPORT
 by the EKF's readiness, EXTENDED_SYS_STATE by the landed state."""
 _GPS_ORDER = itemgetter(*_GPS.ordered_fieldnames)
-_IDS = {c.id: (c.id.to_bytes(3, "little"), bytes((c.crc_extra,))) for c in (_EKF, _GPS, _EXT)}
+
+
+def _spec(cls: type) -> tuple[bytes, bytes, Any, Any]:
+    spec = plain_spec(cls)
+    assert spec is not None  # none of the three has an array or a text field
+    return spec
+
+
+_SPECS = {c.id: _spec(c) for c in (_EKF, _GPS, _EXT)}
+"""Each one's id, CRC_EXTRA, pack and field getter (``codec.plain_spec``)."""
 
 
 def status_frame(
@@ -207,17 +205,17 @@ def status_frame(
     """The unsigned frame of status-path stream ``msgid`` of ``ap`` at
     ``now`` (``pos``, ``vel``: its row's kinematics; ``ids``: seq, sysid,
     compid): the bytes ``build``'s message packs to, without the message."""
+    mid, extra, pack, get = _SPECS[msgid]
     if msgid == _GPS.id:
         f = telemetry.gps_raw_int_fields(
             now - ap.boot, ap.origin, pos, vel, 3 if ap.ekf_ready else 1
         )
-        payload = _GPS.unpacker.pack(*_GPS_ORDER(f))
+        payload = pack(*_GPS_ORDER(f))
     else:
         key = (msgid, int(ap.ekf_ready) if msgid == _EKF.id else ap.landed_state)
         payload = _CONSTANT.get(key, b"")
         if not payload:
             msg = (telemetry.ekf_status_report(ap.ekf_ready) if msgid == _EKF.id
                    else telemetry.extended_sys_state(ap.landed_state))  # fmt: skip
-            payload = _CONSTANT[key] = _payload(msg)
-    mid, extra = _IDS[msgid]
+            payload = _CONSTANT[key] = pack(*get(msg))
     return frame_payload(mid, extra, ids[0], ids[1], ids[2], payload)
