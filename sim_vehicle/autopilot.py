@@ -16,12 +16,8 @@ GUIDED, armed and airborne; accel/velocity targets are applied until
 GUID_TIMEOUT (floored at 0.1 s as ArduCopter does), then the vehicle brakes to
 a hover and stays in GUIDED.
 
-READING of ArduCopter's land detector (``land_detector.cpp``, ``mode_land.cpp``,
-``motors.cpp``): a disarmed vehicle is always "land complete"; an armed one
-becomes so after ``LAND_DETECT_S`` (1 s) on the ground. In LAND (and RTL's
-final descent) that disarms it; in any other mode it idles on the ground,
-armed, until DISARM_DELAY disarms it. A disarmed or landed vehicle never
-tracks a target: a mode change then changes nothing physical.
+READING of ArduCopter's land detector: docs/emulator.md, "Landing and the land
+detector" (``guards.land_detector``); of GUIDED's Accel sub-mode: Eq. D9 there.
 """
 
 from __future__ import annotations
@@ -95,6 +91,8 @@ class Autopilot:
         self.lpn_kick = False  # the core sends one LOCAL_POSITION_NED at once, then clears it
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
+        self.accel_sub = False  # GUIDED's Accel sub-mode: its velocity reference (Eq. D9)
+        self.take_bias: float | None = None  # Eq. D9: entered then; the core adds the bias
         self.hold_ned: Vec3 = airborne_at or ZERO
         self.sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
         self.echo_mask = 3576
@@ -231,6 +229,7 @@ class Autopilot:
             return False
         self.mode = mode
         self.streaming = False
+        self.accel_sub = False  # a mode entered starts its controllers afresh
         if not self.armed:  # a disarmed vehicle never moves on its own
             self.set_control("ground" if kin.landed else "fall", now, kin)
         elif kin.landed:
@@ -290,6 +289,7 @@ class Autopilot:
         """GUIDED 'init': brake to a stop and hold (invalid setpoint, unsupported frame)."""
         self.sp = {}
         self.echo_mask = 3576
+        self.accel_sub = False
         self.set_control("brake", now, kin)
 
     def apply_setpoint(
@@ -320,6 +320,8 @@ class Autopilot:
         if due < self.deadline:  # min(deadline, due), as apply_setpoint
             self.deadline = due
         # set_control("accel", now, kin): the hold point stays, "accel" is not moving
+        if not self.accel_sub:
+            self._enter_accel(now)
         self._ctl = "accel"
         self._t_phase = now
         self.target = self._targets.accel(a)
@@ -349,6 +351,10 @@ class Autopilot:
     def set_control(self, ctl: str, now: float, kin: Kin) -> None:
         """Fly ``ctl`` from ``now``: its target (``targets.TargetBuilder``) replaces the
         published one (``version`` bumped); a moving phase is polled at once."""
+        if ctl not in ("accel", "brake", "hold"):  # GUID_TIMEOUT's brake and hold keep it
+            self.accel_sub = False
+        elif ctl == "accel" and not self.accel_sub:
+            self._enter_accel(now)
         self._ctl = ctl
         self._t_phase = now
         tg, self.hold_ned, low = self._targets.target(
@@ -360,6 +366,14 @@ class Autopilot:
         self.version += 1
         if ctl in _MOVING:
             self.deadline = now
+
+    VEL_REFERENCE = True  # Eq. D9 applies (ArduCopter; not PX4's OFFBOARD acceleration)
+
+    def _enter_accel(self, now: float) -> None:
+        """Eq. D9: GUIDED's Accel sub-mode starts its velocity reference at the
+        reported velocity, whose bias the core adds to the vehicle's (``schedule.take_bias``)."""
+        self.accel_sub = True
+        self.take_bias = now if self.VEL_REFERENCE else None
 
     def refresh(self, now: float, kin: Kin) -> None:
         """Re-derive the target after a parameter change (phase timers kept)."""
@@ -461,17 +475,7 @@ class Autopilot:
             d = min(d, self._last_sp + self._timeout_s())
         elif ctl == "ground" and self.armed and self.params["DISARM_DELAY"] > 0:
             d = min(d, self._t_phase + self.params["DISARM_DELAY"])
-        self.deadline = min(d, self._gcs_due(now))
-
-    def _gcs_due(self, now: float) -> float:
-        """When the GCS failsafe must be looked at (inf: it cannot trigger)."""
-        p = self.params
-        if not self.armed or self.last_gcs_hb is None or p["FS_GCS_ENABLE"] == 0:
-            return math.inf
-        due = self.last_gcs_hb + p["FS_GCS_TIMEOUT"] + 1e-3
-        # lockstep: sim time runs faster than the station's wall clock; look again
-        # every 0.1 s of sim time once it could be due (guards.safety_checks)
-        return due if self.wall_s is None else max(due, now + 0.1)
+        self.deadline = min(d, guards.gcs_due(self, now))
 
     def contact(self, now: float) -> None:
         """A ground station was first heard (or connected): boot ends SIM_BOOT_S later,
@@ -485,7 +489,7 @@ class Autopilot:
         check it plans: ``handle`` plans nothing else for a HEARTBEAT)."""
         self.last_gcs_hb = now
         self.last_gcs_hb_wall = self.wall_s
-        self.deadline = min(self.deadline, self._gcs_due(now))
+        self.deadline = min(self.deadline, guards.gcs_due(self, now))
         if self.fs_active:
             self.fs_active = False
             return [telemetry.statustext(mav.MAV_SEVERITY_WARNING, "GCS Failsafe Cleared")]

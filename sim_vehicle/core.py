@@ -372,6 +372,9 @@ class EmulatorCore:
         v.seen_version = ap.version
         f.set_target(row, ap.target, v.row_target)
         v.row_target = ap.target
+        if ap.take_bias is not None:  # Eq. D9
+            schedule.take_bias(f, row, ap.take_bias)
+            ap.take_bias = None
         return True
 
     def sync(self, v: HostedVehicle, now: float) -> None:

@@ -18,7 +18,7 @@ from sim_vehicle.telemetry import Kin
 if TYPE_CHECKING:
     from sim_vehicle.autopilot import Autopilot
 
-__all__ = ["LAND_DETECT_S", "land_detector", "safety_checks"]
+__all__ = ["LAND_DETECT_S", "gcs_due", "land_detector", "safety_checks"]
 
 LAND_DETECT_S = 1.0
 """LAND_DETECTOR_TRIGGER_SEC: time on the ground before "land complete"."""
@@ -88,3 +88,14 @@ def safety_checks(ap: Autopilot, now: float, kin: Kin) -> list[mav.MAVLink_messa
     else:
         ap.breaches = 0
     return out
+
+
+def gcs_due(ap: Autopilot, now: float) -> float:
+    """When ``ap``'s GCS failsafe must be looked at (inf: it cannot trigger)."""
+    p = ap.params
+    if not ap.armed or ap.last_gcs_hb is None or p["FS_GCS_ENABLE"] == 0:
+        return math.inf
+    due = ap.last_gcs_hb + p["FS_GCS_TIMEOUT"] + 1e-3
+    # lockstep: sim time runs faster than the station's wall clock; look again
+    # every 0.1 s of sim time once it could be due (safety_checks)
+    return due if ap.wall_s is None else max(due, now + 0.1)

@@ -338,6 +338,7 @@ class Px4Autopilot(Autopilot):
 
     stream_buckets = False  # each stream on its own, the first message at once
     FLEET_STREAMS: frozenset[int] = frozenset()  # no status path (reports)
+    VEL_REFERENCE = False  # OFFBOARD acceleration: a feed-forward, no velocity reference (D9)
 
     def stream_deferrable(self) -> bool:
         return False  # each setpoint is heard (the stream-loss clock) and queued (Eq. D8)

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "bias_factor", "due_heartbeats", "due_polls", "due_reports", "due_status", "kin", "kins",
-    "report_frames", "status_frames",
+    "report_frames", "status_frames", "take_bias",
 ]  # fmt: skip
 
 
@@ -51,6 +51,17 @@ def bias_factor(
         dt = boot_s[after] - flip_s[after]
         out[after] = 2.0 * np.exp(-dt / np.maximum(tau_s[after], 1e-9)) - 1.0
     return out
+
+
+def take_bias(fleet: Fleet, row: int, now: float) -> None:
+    """Eq. D9 (docs/emulator.md): the row's velocity takes its reported velocity's
+    bias at ``now`` (Eq. T1), as ArduCopter's does when GUIDED's Accel sub-mode
+    starts its velocity reference at the EKF's (biased) velocity and flies it."""
+    f, r = fleet, slice(row, row + 1)
+    if not f.vbias[row].any():  # no bias (the ideal preset): the row's bits untouched
+        return
+    g = bias_factor(np.array([now - f.boot[row]]), f.vbias_flip[r], f.vbias_tau[r])
+    f.vel[row] += f.vbias[row] * g[0]
 
 
 def kins(fleet: Fleet) -> list[Kin]:

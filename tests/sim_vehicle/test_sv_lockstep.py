@@ -68,8 +68,10 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
             await _accel_steps(emu, (1.0, 0.0, 0.0), n)
             st = emu.vehicle_state(1)
             # the pure dynamics advanced by hand n steps (jerk Eq. D5 at PSC_JERK_XY 5 m/s^3,
-            # lean cap D6 at 30 deg, lag D1-D2 at the preset's 0.1 s): the same to rounding
-            ref = KinState(np.array([START]), np.zeros((1, 3)), np.zeros((1, 3)),
+            # lean cap D6 at 30 deg, lag D1-D2 at the preset's 0.1 s), from the reported
+            # velocity's bias its first setpoint gave it (Eq. D9): the same to rounding
+            bias = np.array([EmulatorConfig.ARDUPILOT_VEL_BIAS_NED_M_S])
+            ref = KinState(np.array([START]), bias, np.zeros((1, 3)),
                            np.zeros(1, dtype=bool), np.zeros((1, 3)))  # fmt: skip
             one = np.ones(1)
             par = DynParams(0.1 * one, 5.0 * one, 0.0 * one, 5.0 * one, 5.0 * one,
@@ -79,7 +81,7 @@ def test_ardupilot_like_lag_matches_the_measured_step() -> None:
             np.testing.assert_allclose(st.vel_ned_m_s, ref.vel_ned_m_s[0], rtol=0, atol=1e-9)
             # closed form: the ramp 0.1, 0.2, .. 1.0 m/s^2 over 10 steps (5 m/s^3 x 0.02 s per
             # step) costs DT * sum(1 - k / 10) = 0.09 m/s, the lag tau (1 - e^-t/tau) = 0.1 m/s
-            assert abs(st.vel_ned_m_s[0] - (n * DT - 0.09 - 0.1)) < 1e-6
+            assert abs(st.vel_ned_m_s[0] - (bias[0, 0] + n * DT - 0.09 - 0.1)) < 1e-6
             # SITL, 3 s of +1 m/s^2 from hover: 2.74 m/s (sheet), 2.78 (2026-12-01), 2.80
             # (2026-12-03, timed by the vehicle's echo of the target, which it ignored for the
             # first 2.2 s); the reversed step -1 m/s^2 gave 2.85 m/s, the accel reached
