@@ -92,7 +92,7 @@ class Autopilot:
         self.deadline = now
         self._ctl = "hold" if airborne_at else "ground"
         self.accel_sub = False  # GUIDED's Accel sub-mode: its velocity reference (Eq. D9)
-        self.take_bias: float | None = None  # Eq. D9: entered then; the core adds the bias
+        self.accel_entry: float | None = None  # Eq. D9: entered then, until the core acted
         self.hold_ned: Vec3 = airborne_at or ZERO
         self.sp: dict[str, Any] = {}  # what GUIDED tracks (for the echo)
         self.echo_mask = 3576
@@ -371,9 +371,9 @@ class Autopilot:
 
     def _enter_accel(self, now: float) -> None:
         """Eq. D9: GUIDED's Accel sub-mode starts its velocity reference at the
-        reported velocity, whose bias the core adds to the vehicle's (``schedule.take_bias``)."""
+        reported velocity, whose bias the core adds to the vehicle's (``schedule.enter_accel``)."""
         self.accel_sub = True
-        self.take_bias = now if self.VEL_REFERENCE else None
+        self.accel_entry = now
 
     def refresh(self, now: float, kin: Kin) -> None:
         """Re-derive the target after a parameter change (phase timers kept)."""

@@ -66,6 +66,9 @@ class VehicleSpec:
     endpoint. ``start_ned_m``: start position relative to ``origin`` (NED m,
     z <= 0). ``airborne``: start EKF-ready, armed, in GUIDED, hovering at
     ``start_ned_m`` (z must then be < 0), home on the ground below it.
+    ``start_vel_ned_m_s``: an airborne vehicle's velocity (NED m/s) from its first
+    GUIDED acceleration setpoint on (it hovers at ``start_ned_m`` until then; Eq. D9,
+    docs/emulator.md): a replay of a vehicle still moving when its formation started.
     ``vid``: the key of this vehicle in the ``Emulator`` API (default: ``sysid``);
     set it to host more than 254 vehicles, each on its own endpoint, with
     repeated system ids (as separate SITL instances may all be SYSID 1).
@@ -76,6 +79,7 @@ class VehicleSpec:
     origin: tuple[float, float, float] = DEFAULT_ORIGIN
     start_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     airborne: bool = False
+    start_vel_ned_m_s: tuple[float, float, float] | None = None
     compid: int = 1
     vid: int | None = None
     autopilot: Literal["ardupilot", "px4"] = "ardupilot"
@@ -98,6 +102,13 @@ class VehicleSpec:
         )
         if self.airborne:
             _check(self.start_ned_m[2] < 0.0, "start_ned_m: an airborne start needs z < 0 (NED)")
+        if self.start_vel_ned_m_s is not None:
+            _check(self.airborne, "start_vel_ned_m_s: only for an airborne start")
+            _check(
+                len(self.start_vel_ned_m_s) == 3
+                and all(math.isfinite(c) and abs(c) <= 10.0 for c in self.start_vel_ned_m_s),
+                f"start_vel_ned_m_s: expected 3 finite m/s within 10, got {self.start_vel_ned_m_s}",
+            )
 
     @property
     def key(self) -> int:

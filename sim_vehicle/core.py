@@ -372,9 +372,9 @@ class EmulatorCore:
         v.seen_version = ap.version
         f.set_target(row, ap.target, v.row_target)
         v.row_target = ap.target
-        if ap.take_bias is not None:  # Eq. D9
-            schedule.take_bias(f, row, ap.take_bias)
-            ap.take_bias = None
+        if ap.accel_entry is not None:  # Eq. D9
+            schedule.enter_accel(f, row, ap.accel_entry, ap.VEL_REFERENCE, v.moving_start)
+            ap.accel_entry = v.moving_start = None
         return True
 
     def sync(self, v: HostedVehicle, now: float) -> None:

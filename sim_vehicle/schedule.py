@@ -26,14 +26,14 @@ from sim_vehicle import reports
 from sim_vehicle.fleet import Fleet
 from sim_vehicle.impairments import EPS_S
 from sim_vehicle.small import few
-from sim_vehicle.telemetry import Kin
+from sim_vehicle.telemetry import Kin, Vec3
 
 if TYPE_CHECKING:
     from sim_vehicle.autopilot import Autopilot
 
 __all__ = [
-    "bias_factor", "due_heartbeats", "due_polls", "due_reports", "due_status", "kin", "kins",
-    "report_frames", "status_frames", "take_bias",
+    "bias_factor", "due_heartbeats", "due_polls", "due_reports", "due_status", "enter_accel",
+    "kin", "kins", "report_frames", "status_frames",
 ]  # fmt: skip
 
 
@@ -53,12 +53,17 @@ def bias_factor(
     return out
 
 
-def take_bias(fleet: Fleet, row: int, now: float) -> None:
-    """Eq. D9 (docs/emulator.md): the row's velocity takes its reported velocity's
-    bias at ``now`` (Eq. T1), as ArduCopter's does when GUIDED's Accel sub-mode
-    starts its velocity reference at the EKF's (biased) velocity and flies it."""
+def enter_accel(fleet: Fleet, row: int, now: float, reference: bool, start: Vec3 | None) -> None:
+    """Eq. D9 (docs/emulator.md): the row enters GUIDED's Accel sub-mode at ``now``.
+    With a ``start`` velocity (a moving spawn's, its first entry) its velocity
+    becomes that; else, where the sub-mode has a velocity ``reference``
+    (ArduCopter's, started at the EKF's biased velocity and flown), its velocity
+    takes its reported velocity's bias at ``now`` (Eq. T1)."""
     f, r = fleet, slice(row, row + 1)
-    if not f.vbias[row].any():  # no bias (the ideal preset): the row's bits untouched
+    if start is not None:
+        f.vel[row] = start
+        return
+    if not reference or not f.vbias[row].any():  # no bias (ideal): the row's bits untouched
         return
     g = bias_factor(np.array([now - f.boot[row]]), f.vbias_flip[r], f.vbias_tau[r])
     f.vel[row] += f.vbias[row] * g[0]

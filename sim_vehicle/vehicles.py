@@ -92,6 +92,8 @@ class HostedVehicle:
     lane: bool = False
     lane_a: Vec3 | None = None
     lane_t: float = 0.0
+    # the velocity it flies from at its first GUIDED Accel entry (Eq. D9), until then
+    moving_start: Vec3 | None = None
     # what sync wrote into the fleet row last (rows move with their data on removal)
     row_deadline: float | None = None
     row_holding: bool | None = None
@@ -103,6 +105,9 @@ class HostedVehicle:
     )
     # (parameter store, its generation, the report interval) row_dyn was read at
     row_dyn_key: tuple[object, int, float | None] | None = None
+
+    def __post_init__(self) -> None:
+        self.moving_start = self.spec.start_vel_ned_m_s
 
 
 def state_of(

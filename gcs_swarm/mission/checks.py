@@ -116,9 +116,10 @@ def _check_ground(
     ctx: Context, vehicles: tuple[Vehicle, ...], emulator: Emulator, settings: Settings | None
 ) -> None:
     """A sim vehicle must start above its own home (the emulator's ground),
-    and its home must be placeable: with ``origin: first-vehicle`` and a real
-    first vehicle the origin is known only in flight, too late for the
-    emulator, which starts first."""
+    only one spawned in the air takes a start velocity, and its home must be
+    placeable: with ``origin: first-vehicle`` and a real first vehicle the
+    origin is known only in flight, too late for the emulator, which starts
+    first."""
     origin = settings.origin if settings is not None else None
     if origin == "first-vehicle" and not vehicles[0].is_sim and any(v.is_sim for v in vehicles):
         key = "mission.origin"
@@ -131,6 +132,11 @@ def _check_ground(
     for i, v in enumerate(vehicles):
         if not v.is_sim:
             continue
+        if v.start_velocity is not None and (emulator.spawn != "air" or v.reserve):
+            path = f"{v.where}.start_velocity"
+            ctx.add(ctx.line_of(path), path,
+                    "a start velocity needs emulator.spawn: air and a vehicle flying from"
+                    " the start (one on the ground or in reserve starts at rest)")  # fmt: skip
         if isinstance(v.origin, GeoPoint):
             if not isinstance(origin, GeoPoint):
                 continue

@@ -48,6 +48,9 @@ from gcs_swarm.mission.settings_format import SETTINGS, geo_field
 
 __all__ = ["LAW_SOURCES", "MISSION"]
 
+#: Each axis of a sim vehicle's start velocity [m/s]: a vehicle settling at its start
+#: (the replay twin's SITL vehicles moved at up to 0.2 m/s), not one in cruise.
+START_SPEED_LIMIT_M_S = 10.0
 #: Vehicles' system ids: 255 is the station's own (mavlink-protocol.md "Identity").
 _SYSID = Num(lo=1, hi=254, integer=True, note="255 is the ground station")
 
@@ -72,6 +75,13 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
             "only a sim vehicle takes an origin; a real one reports its own (GPS_GLOBAL_ORIGIN)",
         )
         ok = False
+    if v["start_velocity"] is not None and link != "sim":
+        ctx.add(
+            ctx.line_of(f"{path}.start_velocity"),
+            f"{path}.start_velocity",
+            "only a sim vehicle takes a start velocity; a real one flies from its own",
+        )
+        ok = False
     if not ok:
         return INVALID
     q = v["q"] if v["q"] is not None else ctx.defaults.get("q", Gains().q_default)
@@ -87,6 +97,7 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
         reserve=v["reserve"],
         origin=v["origin"],
         setpoint=setpoint,
+        start_velocity=v["start_velocity"],
         where=path,
     )
 
@@ -136,6 +147,14 @@ VEHICLE = Obj(
             None,
             "sim only: home (EKF origin), mission frame [m] or geodetic;"
             " default [i * emulator.origin_spread, 0, emulator.ground]",
+        ),
+        Key(
+            "start_velocity",
+            Vec3("[east, north, up]", limit=START_SPEED_LIMIT_M_S),
+            None,
+            "sim only, with emulator.spawn air: the velocity it flies from at its first"
+            " acceleration setpoint, mission frame [m/s] (a replay of a vehicle still moving"
+            " when its formation started); default: at rest",
         ),
     ),
 )

@@ -254,6 +254,9 @@ class Vehicle:
     After loading, every sim vehicle has an origin (defaults filled in).
     setpoint: what its setpoints carry, the law's acceleration alone or with
     the velocity it integrates to (Eq. V1, docs/setpoints.md).
+    start_velocity [m/s] mission frame: only for sim vehicles spawned in the
+    air, the velocity it flies from at its first acceleration setpoint
+    (None: at rest; docs/emulator.md, Eq. D9).
     """
 
     sysid: int
@@ -264,6 +267,7 @@ class Vehicle:
     reserve: bool = False
     origin: Vec3 | GeoPoint | None = None
     setpoint: Setpoint = "acceleration"
+    start_velocity: Vec3 | None = None
     network: str = DEFAULT_NETWORK
     """The network it is on (its system-id space and links); ``net_index`` its
     place in the mission's ``networks`` list."""

@@ -18,7 +18,12 @@ from gcs_swarm.control.velocity_bias import BiasSettings
 from gcs_swarm.errors import StartupError, UsageError
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.codec import SIGNING_KEY_BYTES, STATION_SYSID
-from gcs_swarm.mavlink.coordinates import GeoOrigin, mission_to_ned, origin_offset_m
+from gcs_swarm.mavlink.coordinates import (
+    GeoOrigin,
+    mission_to_ned,
+    origin_offset_m,
+    vector_mission_to_ned,
+)
 from gcs_swarm.mavlink.vehicle_params import ParamSettings
 from gcs_swarm.mission import GeoPoint as MissionGeoPoint
 from gcs_swarm.mission import Mission, Vehicle
@@ -285,17 +290,21 @@ def emulator_config(
         # station learns origins from that message, and an origin it cannot
         # represent would put a constant bias of up to ~1 cm on the vehicle.
         home = _snap(homes[v.key])
-        start = (0.0, 0.0, 0.0)
+        start, moving = (0.0, 0.0, 0.0), None
         if airborne and not v.reserve:
             offset = origin_offset_m(home, ref)
             ned = mission_to_ned(v.start, offset)
             start = (float(ned[0]), float(ned[1]), float(ned[2]))
+            if v.start_velocity is not None:  # Eq. D9: flown from the first setpoint
+                vel = vector_mission_to_ned(v.start_velocity)
+                moving = (float(vel[0]), float(vel[1]), float(vel[2]))
         specs.append(
             VehicleSpec(
                 sysid=v.sysid,
                 origin=(home.lat_deg, home.lon_deg, home.alt_m),
                 start_ned_m=start,
                 airborne=airborne and not v.reserve,
+                start_vel_ned_m_s=moving,
                 autopilot="px4" if v.autopilot == "px4" else "ardupilot",
             )
         )

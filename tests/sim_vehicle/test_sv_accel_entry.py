@@ -24,6 +24,8 @@ from sv_client import Client, connect
 
 from sim_vehicle import Emulator, EmulatorConfig, VehicleSpec
 from sim_vehicle.autopilot import Autopilot
+from sim_vehicle.fleet import Fleet
+from sim_vehicle.schedule import enter_accel
 from sim_vehicle.telemetry import Kin
 from sim_vehicle.vehicles import autopilot_for
 
@@ -116,19 +118,58 @@ def _ap(autopilot: Literal["ardupilot", "px4"]) -> Autopilot:
     return autopilot_for(_cfg(vehicles=(spec,)), spec, 0.0)
 
 
-def test_the_entry_is_marked_once_and_not_on_px4() -> None:
+def test_the_entry_is_marked_once() -> None:
     kin = Kin(START, ZERO, ZERO, False)
     ap = _ap("ardupilot")
     ap.stream_accel(ZERO, 1.0)
-    assert ap.take_bias == 1.0
-    ap.take_bias = None  # the core took it
+    assert ap.accel_entry == 1.0
+    ap.accel_entry = None  # the core acted
     ap.stream_accel(ZERO, 1.02)
     ap.apply_setpoint("accel", {"a": ZERO}, 3135, 1.04, kin)
-    assert ap.take_bias is None
+    assert ap.accel_entry is None
     # a position setpoint leaves the sub-mode; the next acceleration enters it again
     ap.apply_setpoint("posvel", {"p": START, "v": ZERO}, 3520, 1.06, kin)
     ap.stream_accel(ZERO, 1.08)
-    assert ap.take_bias == 1.08
-    px4 = _ap("px4")
-    px4.stream_accel(ZERO, 1.0)
-    assert px4.take_bias is None
+    assert ap.accel_entry == 1.08
+    assert ap.VEL_REFERENCE and not _ap("px4").VEL_REFERENCE
+
+
+def test_enter_accel_adds_the_bias_only_with_a_reference_and_a_start_replaces_it() -> None:
+    f = Fleet()
+    row = f.add(1, 1, START, landed=False)
+    f.vel[row] = (0.1, 0.2, 0.3)
+    f.vbias[row] = BIAS
+    f.boot[row] = 0.0
+    enter_accel(f, row, 5.0, False, None)  # PX4: no velocity reference
+    assert f.vel[row].tolist() == [0.1, 0.2, 0.3]
+    enter_accel(f, row, 5.0, True, None)  # before the reversal (flip 0: never)
+    np.testing.assert_allclose(f.vel[row], np.add((0.1, 0.2, 0.3), BIAS), rtol=0, atol=1e-15)
+    f.vbias_flip[row], f.vbias_tau[row] = 4.0, 14.0  # 1 tau after the flip: (2/e - 1) of it
+    f.vel[row] = ZERO
+    enter_accel(f, row, 18.0, True, None)
+    np.testing.assert_allclose(f.vel[row], np.array(BIAS) * (2 / np.e - 1), rtol=0, atol=1e-15)
+    enter_accel(f, row, 18.0, True, (0.5, -0.25, 0.125))  # a moving spawn's start: that alone
+    assert f.vel[row].tolist() == [0.5, -0.25, 0.125]
+
+
+def test_a_moving_spawn_hovers_then_flies_from_its_start_velocity() -> None:
+    v0 = (0.05, 0.17, -0.01)
+    spec = VehicleSpec(sysid=1, start_ned_m=START, airborne=True, start_vel_ned_m_s=v0)
+
+    async def run() -> None:
+        cfg = _cfg(vehicles=(spec,), lockstep_timeout_s=0.01)
+        async with asyncio.timeout(60), Emulator(cfg) as emu:
+            c = await connect(emu.endpoints[1])
+            c.heartbeat()
+            await c.recv("HEARTBEAT")
+            await c.command(1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 32, 20000)
+            for _ in range(20):  # reports, no setpoint: it hovers where it was spawned
+                await c.recv("LOCAL_POSITION_NED")
+            st = emu.vehicle_state(1)
+            assert st.vel_ned_m_s == ZERO and st.pos_ned_m == START
+            await _zero_accel(emu, c, 50)
+            # the start velocity, as it is (the bias not added on that entry)
+            np.testing.assert_allclose(emu.vehicle_state(1).vel_ned_m_s, v0, rtol=0, atol=1e-12)
+            c.close()
+
+    asyncio.run(run())

@@ -24,11 +24,12 @@ import subprocess
 import sys
 from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from gcs_swarm.mavlink.coordinates import vector_ned_to_mission
 from gcs_swarm.mission import Mission, load_mission
 from gcs_swarm.report.replay import record_from_tlog
 from gcs_swarm.report.tlog import read_tlog
@@ -304,13 +305,22 @@ def load(name: str) -> Mission:
     return load_mission(MISSIONS / name)
 
 
-def formation_start(
-    folder: Path, mission: Mission
-) -> tuple[dict[int, tuple[float, float, float]], dict[int, float]]:
-    """Where each vehicle of a flown run was when the formation started
-    (mission frame [m], the first control step's positions) and its own
-    boot time then [s] (``time_boot_ms`` of the last LOCAL_POSITION_NED it
-    had sent before the first acceleration setpoint)."""
+class FormationStart(NamedTuple):
+    """Each vehicle of a flown run when its formation started (``formation_start``)."""
+
+    starts: dict[int, tuple[float, float, float]]
+    """Where it was: mission frame [m], the first control step's positions."""
+    boot: dict[int, float]
+    """Its own boot time [s]: ``time_boot_ms`` of the last LOCAL_POSITION_NED it
+    had sent before its first acceleration setpoint."""
+    velocity: dict[int, tuple[float, float, float]]
+    """That report's velocity, mission frame [m/s]: on ArduCopter what it flew the
+    formation from (its Accel sub-mode's velocity reference, Eq. D9)."""
+
+
+def formation_start(folder: Path, mission: Mission) -> FormationStart:
+    """Where, at what boot time and from what velocity each vehicle of a flown
+    run started its formation (``FormationStart``)."""
     rec = record_from_tlog(folder / "flight.tlog", mission)
     ids = [int(s) for s in np.asarray(rec.ids).tolist()]
     first = {}
@@ -318,19 +328,22 @@ def formation_start(
         k = np.flatnonzero(np.isfinite(rec.pos_m[:, j, 0]))
         first[sysid] = tuple(float(c) for c in rec.pos_m[k[0], j])
     boot: dict[int, float] = {}
-    last_ms: dict[int, int] = {}
+    velocity: dict[int, tuple[float, float, float]] = {}
+    last: dict[int, Any] = {}
     for r in read_tlog(folder / "flight.tlog"):
         h = r.header
         if h.direction == "in" and h.msgid == _LPN_ID:
-            msg = _MAV.decode(bytearray(r.frame))
-            last_ms[h.sysid] = int(msg.time_boot_ms)
+            last[h.sysid] = _MAV.decode(bytearray(r.frame))
         elif h.direction == "out" and h.msgid == _SPT_ID:
             msg = _MAV.decode(bytearray(r.frame))
-            if msg.type_mask == _ACCEL_ONLY and msg.target_system in last_ms:
-                boot.setdefault(msg.target_system, last_ms[msg.target_system] * 1e-3)
+            k = msg.target_system
+            if msg.type_mask == _ACCEL_ONLY and k in last and k not in boot:
+                boot[k] = int(last[k].time_boot_ms) * 1e-3
+                v = vector_ned_to_mission((last[k].vx, last[k].vy, last[k].vz))
+                velocity[k] = (float(v[0]), float(v[1]), float(v[2]))
                 if len(boot) == len(ids):
                     break
-    return first, boot
+    return FormationStart(first, boot, velocity)
 
 
 def emulator_replay_twin(
@@ -340,19 +353,23 @@ def emulator_replay_twin(
     spacing_m: float = 5.0,
     jitter_m: float = 0.0,
     seed: int = 0,
+    from_rest: bool = False,
 ) -> Mission:
     """The emulator twin of one SITL run from the moment its formation started:
     each emulated vehicle spawned hovering where the SITL vehicle was then
-    (``formation_start``), so the two fly the same formation from the same
+    (``formation_start``) and flying, from its first setpoint, from the
+    velocity SITL's flew from (its reported velocity then, Eq. D9; at rest
+    with ``from_rest``), so the two fly the same formation from the same
     state (a start-up on the ground would leave each vehicle up to the
     mission's start tolerance, 0.3 m, from where SITL's was, and this
-    mission's time to form moves by +-6 % for 1 cm there: docs/sitl.md); the
+    mission's time to form moves by +-6 % for 1 cm there; from rest the
+    twins were 10-30 % slower than SITL from its start: docs/sitl.md); the
     velocity bias reverses at the same boot time as SITL's (304 s).
     ``jitter_m`` [m]: each start moved by N(0, jitter_m) per axis (generator
     seeded with ``seed``), for an ensemble of twins from starts as uncertain
     as SITL's (its vehicles were still moving: the octahedron's SITL test,
     ``test_sitl_arducopter._twin_figures``)."""
-    starts, boot = formation_start(sitl_folder, mission)
+    starts, boot, velocity = formation_start(sitl_folder, mission)
     if jitter_m > 0.0:
         rng = np.random.default_rng(seed)
         starts = {
@@ -362,7 +379,12 @@ def emulator_replay_twin(
     since = float(np.median(list(boot.values())))  # the instances' boot time at the start
     flip = EmulatorConfig.ARDUPILOT_VBIAS_FLIP_S - since
     twin = emulator_twin(mission, spacing_m=spacing_m)
-    vehicles = tuple(dataclasses.replace(v, start=starts[v.sysid]) for v in twin.vehicles)
+    vehicles = tuple(
+        dataclasses.replace(
+            v, start=starts[v.sysid], start_velocity=None if from_rest else velocity[v.sysid]
+        )
+        for v in twin.vehicles
+    )
     emu = dataclasses.replace(
         twin.emulator, spawn="air", velocity_bias_flip=flip if flip > 0.0 else 0.0
     )

@@ -62,7 +62,7 @@ def test_the_replay_twin_of_an_emulator_run_flies_the_same_formation(tmp_path: P
     run = emulator_twin(m)  # stands in for the SITL run: a full start-up on the ground
     run_folder = _fly(run, tmp_path / "run")
 
-    starts, boot = formation_start(run_folder, run)
+    starts, boot, velocity = formation_start(run_folder, run)
     assert sorted(starts) == [v.sysid for v in m.vehicles]
     # Each vehicle was ready within the start tolerance of its mission start.
     tol = m.settings.startup.start_tolerance
@@ -74,6 +74,12 @@ def test_the_replay_twin_of_an_emulator_run_flies_the_same_formation(tmp_path: P
     twin = emulator_replay_twin(run, run_folder)
     assert twin.emulator.spawn == "air"
     assert {v.sysid: v.start for v in twin.vehicles} == starts
+    # flown from the velocity each vehicle reported at the switch (Eq. D9): that
+    # report's, as the emulator's ArduCopter flies from it (the bias included)
+    assert {v.sysid: v.start_velocity for v in twin.vehicles} == velocity
+    assert all(np.linalg.norm(u) < 0.1 for u in velocity.values()), velocity
+    rest = emulator_replay_twin(run, run_folder, from_rest=True)
+    assert all(v.start_velocity is None for v in rest.vehicles)
     # An ensemble member (the octahedron's SITL test): the same starts moved
     # by N(0, 1 cm) per axis, the same for the same seed, another for another.
     members = [emulator_replay_twin(run, run_folder, jitter_m=0.01, seed=s) for s in (1, 1, 2)]
@@ -85,7 +91,7 @@ def test_the_replay_twin_of_an_emulator_run_flies_the_same_formation(tmp_path: P
 
     # The twin's first control step is where the run's was, to the 1 mm of
     # LOCAL_POSITION_NED's float32 and the GPS origin's 1e-7 degrees.
-    twin_starts, _ = formation_start(twin_folder, twin)
+    twin_starts, _, _ = formation_start(twin_folder, twin)
     for sysid, p in starts.items():
         np.testing.assert_allclose(twin_starts[sysid], p, atol=2e-3)
 

@@ -22,7 +22,7 @@ emulator:
   base_port: 0
   shared: %s
 vehicles:
-  - {sysid: 1, start: [2, 0, 0]}
+  - {sysid: 1, start: [2, 0, 0], start_velocity: [0.25, -0.5, 0.125]}
   - {sysid: 2, start: [-2, 0, 0]}
 """
 
@@ -38,6 +38,8 @@ def test_emulator_keys_reach_the_emulator_config(tmp_path: Path) -> None:
     assert cfg.params == {"SIM_ACC_MAX": 7.5}
     assert (cfg.noise_pos_m, cfg.noise_vel_m_s) == (0.01, 0.02)
     assert all(v.airborne for v in cfg.vehicles)  # spawn: air
+    # [east, north, up] in the mission, north-east-down in the emulator
+    assert [v.start_vel_ned_m_s for v in cfg.vehicles] == [(-0.5, 0.25, -0.125), None]
     assert cfg.heartbeats == "spread"
     assert cfg.shared_port is None and cfg.base_port == 0
     shared = emulator_config(_mission(tmp_path, shared=True))
