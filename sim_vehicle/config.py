@@ -30,6 +30,14 @@ def _check(cond: bool, what: str) -> None:
         raise ValueError(what)
 
 
+def _check_speeds(name: str, v: tuple[float, ...]) -> None:
+    """``v`` is three finite speeds [m/s] each within 10 (a velocity, a bias)."""
+    _check(
+        len(v) == 3 and all(math.isfinite(c) and abs(c) <= 10.0 for c in v),
+        f"{name}: expected 3 finite m/s within 10, got {v}",
+    )
+
+
 @dataclass(frozen=True)
 class Impairment:
     """Seeded impairment of one link direction (applied per datagram).
@@ -104,11 +112,7 @@ class VehicleSpec:
             _check(self.start_ned_m[2] < 0.0, "start_ned_m: an airborne start needs z < 0 (NED)")
         if self.start_vel_ned_m_s is not None:
             _check(self.airborne, "start_vel_ned_m_s: only for an airborne start")
-            _check(
-                len(self.start_vel_ned_m_s) == 3
-                and all(math.isfinite(c) and abs(c) <= 10.0 for c in self.start_vel_ned_m_s),
-                f"start_vel_ned_m_s: expected 3 finite m/s within 10, got {self.start_vel_ned_m_s}",
-            )
+            _check_speeds("start_vel_ned_m_s", self.start_vel_ned_m_s)
 
     @property
     def key(self) -> int:
@@ -242,11 +246,7 @@ class EmulatorConfig:
             _check(self.shared_port is None, "tcp_base_port: not with shared_port")
         _check(self.noise_pos_m >= 0.0 and self.noise_vel_m_s >= 0.0, "noise: expected >= 0")
         if self.vel_bias_ned_m_s is not None:
-            _check(
-                len(self.vel_bias_ned_m_s) == 3
-                and all(math.isfinite(c) and abs(c) <= 10.0 for c in self.vel_bias_ned_m_s),
-                f"vel_bias_ned_m_s: expected 3 finite m/s within 10, got {self.vel_bias_ned_m_s}",
-            )
+            _check_speeds("vel_bias_ned_m_s", self.vel_bias_ned_m_s)
         if self.vel_bias_flip_s is not None:
             _check(
                 math.isfinite(self.vel_bias_flip_s) and self.vel_bias_flip_s >= 0.0,

@@ -56,6 +56,16 @@ _SYSID = Num(lo=1, hi=254, integer=True, note="255 is the ground station")
 
 
 # ---------------------------------------------------------------- vehicles:
+_SIM_ONLY = (
+    (
+        "origin",
+        "only a sim vehicle takes an origin; a real one reports its own (GPS_GLOBAL_ORIGIN)",
+    ),
+    ("start_velocity", "only a sim vehicle takes a start velocity; a real one flies from its own"),
+)
+"""A vehicle's keys only the emulator's vehicles take, and why a real one does not."""
+
+
 def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) -> Any:
     ok = True
     link, autopilot = v["link"], v["autopilot"]
@@ -68,20 +78,10 @@ def _build_vehicle(v: dict[str, Any], ctx: Context, node: yaml.Node, path: str) 
             f'expected sim or px4 for link sim (the bundled emulator), got "{autopilot}"',
         )
         ok = False
-    if v["origin"] is not None and link != "sim":
-        ctx.add(
-            ctx.line_of(f"{path}.origin"),
-            f"{path}.origin",
-            "only a sim vehicle takes an origin; a real one reports its own (GPS_GLOBAL_ORIGIN)",
-        )
-        ok = False
-    if v["start_velocity"] is not None and link != "sim":
-        ctx.add(
-            ctx.line_of(f"{path}.start_velocity"),
-            f"{path}.start_velocity",
-            "only a sim vehicle takes a start velocity; a real one flies from its own",
-        )
-        ok = False
+    for key, why in _SIM_ONLY:
+        if v[key] is not None and link != "sim":
+            ctx.add(ctx.line_of(f"{path}.{key}"), f"{path}.{key}", why)
+            ok = False
     if not ok:
         return INVALID
     q = v["q"] if v["q"] is not None else ctx.defaults.get("q", Gains().q_default)
