@@ -103,10 +103,11 @@ def _station_options(args: argparse.Namespace) -> str:
     st = bench_station
     st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
     st.SPREAD, st.PHASES, st.HEARTBEATS = args.spread, args.phases, args.heartbeats
-    st.EMULATORS, st.OVERRUN = args.emulators, args.overrun
+    st.EMULATORS, st.OVERRUN, st.HANDSHAKES = args.emulators, args.overrun, args.handshakes
     return (f"step {args.step}, cut-off {args.cutoff}, settle {args.settle:g} s, "
             f"spread {args.spread}, phases {args.phases}, heartbeats {args.heartbeats}, "
-            f"overrun {args.overrun}, emulator processes {args.emulators}")  # fmt: skip
+            f"overrun {args.overrun}, emulator processes {args.emulators}, "
+            f"handshakes per network {args.handshakes}")  # fmt: skip
 
 
 async def _realtime(

@@ -119,6 +119,9 @@ know nothing of each other fall: some close together, some apart."""
 STEP = "swarm"
 """``--step``: the mission's ``step`` (``network``: a step per network whose
 reports are all in, docs/formation-law.md section 3b)."""
+HANDSHAKES: int | None = None
+"""``--handshakes W``: the mission's ``startup.handshakes_per_network`` (at most
+W vehicles of a network in their start-up handshake at once)."""
 LEAVE = 0
 """``--leave K`` (with ``--networks``): K vehicles of each network leave the
 formation 0.5 s into it (mission events; the mission's end action, hold,
@@ -153,6 +156,9 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--overrun", choices=("catch_up", "skip"), default="catch_up",
                     help="an emulator behind the wall clock: each missed step's reports "
                          "(as SITL, default) or physics, then one (as an autopilot)")  # fmt: skip
+    ap.add_argument("--handshakes", type=int, default=None, metavar="W",
+                    help="mission.startup.handshakes_per_network: W vehicles of a network "
+                         "configure at once")  # fmt: skip
     ap.add_argument("--emulators", type=int, default=1, metavar="K",
                     help="host the networks in K emulator processes, all on core 0")  # fmt: skip
 
@@ -274,7 +280,9 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
     g = _gains()
     lines = [
         f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold,"
-        f" step: {STEP}}}",
+        f" step: {STEP}"
+        + (f", startup: {{handshakes_per_network: {HANDSHAKES}}}" if HANDSHAKES else "")
+        + "}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         f"gains: {{M: {g.M!r}, D: {g.D!r}, k: {g.k!r}, k_s: {g.k_s!r}, k_r: {g.k_r!r},"
         f" alpha: {g.alpha!r}, q: {g.q_default!r}{cut}}}",
@@ -611,6 +619,8 @@ def main() -> None:
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
     HEARTBEATS, EMULATORS, OVERRUN = args.heartbeats, args.emulators, args.overrun
+    global HANDSHAKES
+    HANDSHAKES = args.handshakes
     if args.emulator:
         host = tuple(int(j) for j in args.host.split(":")) if args.host else None
         asyncio.run(emulator_main(args.emulator, args.networks, host, args.epoch))  # type: ignore[arg-type]
@@ -627,6 +637,7 @@ def main() -> None:
     how += f", heartbeats {HEARTBEATS}, overrun {OVERRUN}"
     how += f", {EMULATORS} emulator processes" if EMULATORS > 1 else ""
     how += f", {LEAVE} of each network left at 0.5 s" if LEAVE else ""
+    how += f", {HANDSHAKES} handshakes per network at once" if HANDSHAKES else ""
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))
         how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))

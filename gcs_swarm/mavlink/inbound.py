@@ -12,6 +12,7 @@ the protocol and never reaches the law; the vehicle goes stale instead.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -36,6 +37,7 @@ __all__ = [
     "from_pymavlink",
     "plausible",
     "seen_key",
+    "with_key",
 ]
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
@@ -220,6 +222,14 @@ def _text(value: Any) -> str:
     if isinstance(value, bytes):
         value = value.decode("ascii", errors="replace")
     return str(value).split("\x00", 1)[0]
+
+
+def with_key(inbound: Inbound, key: int) -> Inbound:
+    """``inbound`` from a vehicle of a later network, told by its key
+    (``VehicleProtocol.sysid``: its network's base plus its system id)."""
+    if type(inbound) is LocalPositionNed:
+        return inbound._replace(sysid=key)
+    return dataclasses.replace(inbound, sysid=key)  # type: ignore[type-var]
 
 
 def from_pymavlink(msg: Any) -> Inbound | None:

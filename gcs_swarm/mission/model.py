@@ -135,7 +135,10 @@ class Startup:
     read_envelope: read each vehicle's position-controller limits
     (WPNAV_*, PSC_JERK_*, ANGLE_MAX) at start-up; None: for ``ardupilot``
     vehicles, not for ``sim`` ones; command_attempts: each command is sent at
-    most this many times, 1 s apart, before the vehicle fails. These defaults
+    most this many times, 1 s apart, before the vehicle fails;
+    handshakes_per_network: at most this many vehicles of one network in their
+    start-up handshake (CONFIGURING) at once, None: no bound
+    (``gcs_swarm.swarm.handshakes``). These defaults
     are the station's too (``ProtocolConfig``, ``StationConfig`` take theirs
     from here: one place for each).
     """
@@ -147,6 +150,7 @@ class Startup:
     start_speed_tolerance: float = 0.3
     read_envelope: bool | None = None
     command_attempts: int = 10
+    handshakes_per_network: int | None = None
 
 
 @dataclass(frozen=True)

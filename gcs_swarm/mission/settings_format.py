@@ -254,6 +254,13 @@ SETTINGS = Obj(
                         _ST.command_attempts,
                         "each command sent at most this many times, 1 s apart",
                     ),
+                    Key(
+                        "handshakes_per_network",
+                        Num(lo=1, hi=254, integer=True, nullable=True),
+                        _ST.handshakes_per_network,
+                        "at most this many vehicles of one network configure at once "
+                        "(streams, parameters); the others wait in the order heard",
+                    ),
                 ),
             ),
             Startup,

@@ -82,6 +82,10 @@ class StationConfig:
     """The reported velocity's bias: estimated, and corrected (docs/velocity-bias.md)."""
     command_attempts: int = ProtocolConfig.command_attempts
     """Each command sent at most this many times (``mission.startup.command_attempts``)."""
+    handshakes_per_network: int | None = Startup.handshakes_per_network
+    """At most this many vehicles of one network in their start-up handshake
+    (CONFIGURING) at once, the others waiting in the order heard; None: no
+    bound (``mission.startup.handshakes_per_network``, ``swarm.handshakes``)."""
     allow_rebind: bool = False
     """A well-signed new address may take over a vehicle silent for
     ``links.REBIND_S`` (needs ``signing_key``; ``mission.signing.allow_rebind``)."""

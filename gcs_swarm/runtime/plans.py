@@ -179,6 +179,7 @@ def station_config(
         ready_timeout_s=s.startup.ready_timeout,
         guid_timeout_s=s.startup.guid_timeout,
         command_attempts=s.startup.command_attempts,
+        handshakes_per_network=s.startup.handshakes_per_network,
         takeoff_alt_m=s.startup.takeoff_alt,
         start_tolerance_m=s.startup.start_tolerance,
         start_speed_tolerance_mps=s.startup.start_speed_tolerance,

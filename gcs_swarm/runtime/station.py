@@ -478,9 +478,16 @@ class Station:
 
 
 def _not_ready(what: str, vps: list[VehicleProtocol]) -> str:
-    return describe_states(what, [(vp.label, state_words(vp.phase, vp.failure)) for vp in vps])
+    return describe_states(what, [(vp.label, _words(vp)) for vp in vps])
 
 
 def _reasons(vps: list[VehicleProtocol]) -> dict[int, str]:
     """``StartupError.reasons``: each vehicle's phase, and its failure in its own words."""
-    return {vp.sysid: state_words(vp.phase, vp.failure) for vp in vps}
+    return {vp.sysid: _words(vp) for vp in vps}
+
+
+def _words(vp: VehicleProtocol) -> str:
+    if vp.phase is Phase.CONNECTING and vp.heartbeat is not None and not vp.enabled:
+        # Held by mission.startup.handshakes_per_network (swarm.handshakes).
+        return state_words(vp.phase, "heard, waiting for a handshake place on its network")
+    return state_words(vp.phase, vp.failure)

@@ -34,7 +34,6 @@ LOCAL_POSITION_NED is written into ``table`` by the link state, then
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import logging
 from collections import Counter, deque
@@ -46,12 +45,13 @@ from gcs_swarm.control.params import Envelope
 from gcs_swarm.control.tracking import VelocityReference
 from gcs_swarm.mavlink.codec import MessageSpec
 from gcs_swarm.mavlink.coordinates import GeoOrigin
-from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink
+from gcs_swarm.mavlink.inbound import Inbound, LocalPositionNed, from_pymavlink, with_key
 from gcs_swarm.mavlink.personality import personality_for
 from gcs_swarm.mavlink.states import Phase, ProtocolEvent
 from gcs_swarm.mavlink.telemetry_table import TelemetryTable
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 from gcs_swarm.swarm.departures import keep_out_lost
+from gcs_swarm.swarm.handshakes import HandshakeGate
 from gcs_swarm.swarm.step import READYING, FlyingOrder, Write, resolve_lookahead, run_step
 
 if TYPE_CHECKING:  # plain data of the layer above, for the types only
@@ -92,6 +92,7 @@ class SwarmCore:
                 personality=personality_for(p.autopilot),
                 label=p.label or None,
                 status_phase=phases[p.sysid],
+                enabled=config.handshakes_per_network is None,  # else ``gate`` (swarm.handshakes)
             )
             for p in config.vehicles
         }
@@ -111,6 +112,8 @@ class SwarmCore:
         self.link_of = {p.sysid: p.link for p in config.vehicles}
         self.base_of = {p.link: p.base for p in config.vehicles}
         """What each link's keys add to the system ids it carries (its network's)."""
+        window, nets = config.handshakes_per_network, {p.sysid: p.base for p in config.vehicles}
+        self.gate = None if window is None else HandshakeGate(window, nets)
         self.members = {p.sysid for p in config.vehicles if not p.reserve}
         self.velocity_tracked = {
             p.sysid for p in config.vehicles if p.setpoint == "velocity+acceleration"
@@ -180,7 +183,7 @@ class SwarmCore:
         inbound = from_pymavlink(msg)
         if inbound is not None:
             if base:
-                inbound = _keyed(inbound, sysid)
+                inbound = with_key(inbound, sysid)
             self._handle(vp, inbound, now, rx_s)
 
     def telemetry_written(self, now: float) -> None:
@@ -243,6 +246,10 @@ class SwarmCore:
         self._arm(vp)
         if events:
             self.changed = True
+        if self.gate is not None:
+            for sysid in self.gate.update(vp):  # places freed on its link
+                self.vehicles[sysid].enable(now)
+                self._service(self.vehicles[sysid], now)
 
     @property
     def origin(self) -> GeoOrigin | None:
@@ -490,11 +497,3 @@ class SwarmCore:
         _log.log(level, "%s", text)
         if level >= logging.INFO:
             self.log.append(text)
-
-
-def _keyed(inbound: Inbound, key: int) -> Inbound:
-    """``inbound`` from a vehicle of a later network, told by its key
-    (``VehicleProtocol.sysid``) instead of its system id."""
-    if type(inbound) is LocalPositionNed:
-        return inbound._replace(sysid=key)
-    return dataclasses.replace(inbound, sysid=key)  # type: ignore[type-var]

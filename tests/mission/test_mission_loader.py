@@ -83,6 +83,23 @@ def test_command_attempts_reach_the_station_and_default_to_its_own() -> None:
     ]
 
 
+def test_handshakes_per_network_reach_the_station_and_default_to_no_bound() -> None:
+    from gcs_swarm.runtime.run import station_config
+
+    links = {1: "sim", 2: "sim"}
+    assert station_config(parse_mission(TWO), links).handshakes_per_network is None
+    m = parse_mission("mission: {startup: {handshakes_per_network: 16}}\n" + TWO)
+    assert station_config(m, links).handshakes_per_network == 16
+    assert parse_mission("mission: {startup: {handshakes_per_network: null}}\n" + TWO) == (
+        parse_mission(TWO)
+    )
+    for bad, shown in (("0", "0"), ("255", "255"), ("1.5", "1.5"), ("two", '"two"')):
+        assert problems(f"mission: {{startup: {{handshakes_per_network: {bad}}}}}\n" + TWO) == [
+            "m.yaml:1: mission.startup.handshakes_per_network: expected an integer 1..254 "
+            f"or null, got {shown}"
+        ]
+
+
 def test_vehicle_charge_defaults_to_gains_q() -> None:
     m = parse_mission("gains: {q: 3}\n" + TWO + "  - {sysid: 3, start: [5, 5, 5], q: 7}\n")
     assert [v.q for v in m.vehicles] == [3, 3, 7]
