@@ -356,6 +356,58 @@ def test_killed_station_leaves_every_vehicle_landing(tmp_path: Path) -> None:
     assert all(d is not None and d <= timeout_s + 1.0 for d in delays), delays
 
 
+def _handshakes(tlog: Path) -> dict[int, tuple[float, float]]:
+    """Each vehicle's handshake as the station's own frames in its tlog show
+    it: from its first SET_MESSAGE_INTERVAL (the handshake's first command)
+    to its first DO_SET_MODE (the first command after it) [s, tlog time]."""
+    from pymavlink import mavutil
+
+    first: dict[tuple[int, int], float] = {}
+    log = mavutil.mavlink_connection(str(tlog))
+    while (msg := log.recv_match(type="COMMAND_LONG")) is not None:
+        if msg.get_srcSystem() == 255 and msg.command in (511, 176):
+            first.setdefault((msg.target_system, msg.command), msg._timestamp)
+    log.close()
+    return {s: (t, first[(s, 176)]) for (s, c), t in first.items() if c == 511}
+
+
+def test_start_up_in_waves_two_at_a_time(tmp_path: Path) -> None:
+    """``sitl_arducopter.yaml`` with ``mission.startup.handshakes_per_network:
+    2`` (and 30 s of formation) on four fresh instances: the station's own
+    frames (its tlog) show at most two vehicles in their handshake at any
+    moment and two at some moment, and the run completes."""
+    binary_or_skip()
+    text = (MISSIONS / "sitl_arducopter.yaml").read_text()
+    text = text.replace("  duration: 150 ", "  duration: 30 ", 1)
+    text = text.replace(
+        "    guid_timeout: 0.5\n", "    guid_timeout: 0.5\n    handshakes_per_network: 2\n", 1
+    )
+    assert "handshakes_per_network: 2" in text and "duration: 30 " in text
+    path = tmp_path / "sitl_waves.yaml"
+    path.write_text(text)
+    with sitl_swarm(4, tmp_path / "sitl"):
+        rc, out, folder = gcs_swarm_run(path, tmp_path / "runs", timeout_s=600)
+    assert rc == 0, out[-4000:]
+    assert folder is not None
+    s = summary_of(folder)
+    spans = _handshakes(folder / "flight.tlog")
+    t0 = min(a for a, _ in spans.values())
+    edges = sorted([(a, 1) for a, _ in spans.values()] + [(b, -1) for _, b in spans.values()])
+    inside = most = 0
+    for _, step in edges:  # an end before a start at the same instant
+        inside += step
+        most = max(most, inside)
+    figures = {
+        "handshakes_s": {str(k): (a - t0, b - t0) for k, (a, b) in sorted(spans.items())},
+        "most_at_once": most, "outcome": s["outcome"], "startup": s["startup"],
+        "time_to_form_s": s["overall"]["time_to_form_s"], "folder": str(folder),
+    }  # fmt: skip
+    write_figures(tmp_path, "sitl_waves", figures)
+    assert sorted(spans) == [1, 2, 3, 4]
+    assert most == 2
+    assert s["outcome"] == "completed", out[-4000:]
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-s", "-v"]))
 
