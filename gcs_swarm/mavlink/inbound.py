@@ -227,7 +227,7 @@ def _text(value: Any) -> str:
 def with_key(inbound: Inbound, key: int) -> Inbound:
     """``inbound`` from a vehicle of a later network, told by its key
     (``VehicleProtocol.sysid``: its network's base plus its system id)."""
-    if type(inbound) is LocalPositionNed:  # built, not ``_replace``d: 3 times cheaper
+    if type(inbound) is LocalPositionNed:  # built: 0.7 us, ``_replace`` 1.7 us
         return LocalPositionNed(key, *inbound[1:])
     return dataclasses.replace(inbound, sysid=key)  # type: ignore[type-var]
 

@@ -247,7 +247,7 @@ class SwarmCore:
         if events:
             self.changed = True
         if self.gate is not None:
-            for sysid in self.gate.update(vp):  # places freed on its link
+            for sysid in self.gate.update(vp):  # places freed in its network
                 self.vehicles[sysid].enable(now)
                 self._service(self.vehicles[sysid], now)
 
