@@ -36,6 +36,7 @@ from gcs_swarm.runtime.lifetime import close_task_group
 from gcs_swarm.runtime.links import Link
 from gcs_swarm.runtime.worker import run_lookahead
 from gcs_swarm.swarm.core import SwarmCore
+from gcs_swarm.swarm.handshakes import held
 from gcs_swarm.swarm.link_state import OnFrame
 from gcs_swarm.swarm.status import StatusLine
 from gcs_swarm.swarm.step import SetpointBatch, Write
@@ -487,7 +488,6 @@ def _reasons(vps: list[VehicleProtocol]) -> dict[int, str]:
 
 
 def _words(vp: VehicleProtocol) -> str:
-    if vp.phase is Phase.CONNECTING and vp.heartbeat is not None and not vp.enabled:
-        # Held by mission.startup.handshakes_per_network (swarm.handshakes).
+    if held(vp):  # by mission.startup.handshakes_per_network
         return state_words(vp.phase, "heard, waiting for a handshake place on its network")
     return state_words(vp.phase, vp.failure)

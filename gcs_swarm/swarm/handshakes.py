@@ -34,7 +34,13 @@ from collections import deque
 from gcs_swarm.mavlink.states import Phase
 from gcs_swarm.mavlink.vehicle import VehicleProtocol
 
-__all__ = ["HandshakeGate"]
+__all__ = ["HandshakeGate", "held"]
+
+
+def held(vp: VehicleProtocol) -> bool:
+    """Heard (its HEARTBEAT is in) but not let into its handshake: a vehicle
+    created ``enabled=False`` that the gate has not started yet."""
+    return not vp.enabled and vp.phase is Phase.CONNECTING and vp.heartbeat is not None
 
 
 class HandshakeGate:
@@ -67,12 +73,7 @@ class HandshakeGate:
             inside.add(key)
         else:
             inside.discard(key)
-            if (
-                not vp.enabled
-                and vp.phase is Phase.CONNECTING
-                and vp.heartbeat is not None
-                and key not in self._queued
-            ):
+            if held(vp) and key not in self._queued:
                 self._queued.add(key)
                 self._queue[net].append(key)
         start: list[int] = []

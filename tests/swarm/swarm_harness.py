@@ -23,8 +23,9 @@ around the same core, without its sockets and clock task.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections import Counter
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,41 @@ def mission_from(name: str, *, duration: float) -> Mission:
     """A shipped mission given a ``duration`` [s] of formation flight."""
     m = load_mission(MISSIONS / name)
     return dataclasses.replace(m, settings=dataclasses.replace(m.settings, duration=duration))
+
+
+def in_waves(window: int | None, *, duration: float) -> Mission:
+    """Example 1 on two networks (blue 1-3, red 1-3) with ``window`` vehicles
+    of each network in their start-up handshake at once
+    (``mission.startup.handshakes_per_network``; None: no bound)."""
+    m = mission_from("example1_networks.yaml", duration=duration)
+    startup = dataclasses.replace(m.settings.startup, handshakes_per_network=window)
+    return dataclasses.replace(m, settings=dataclasses.replace(m.settings, startup=startup))
+
+
+PHASE_LINE = re.compile(r"^vehicle (\S+): ([a-z_]+)$")
+"""A phase change in a core's log: (label, ``Phase`` value)."""
+
+
+def handshakes_at_once(log: Iterable[str]) -> tuple[dict[str, int], list[str]]:
+    """From a core's log, in order: the most vehicles of each network
+    (label before ``:``) in CONFIGURING at once, however briefly (a vehicle
+    is in it from its ``configuring`` line to its next phase line), and the
+    labels in the order they began it."""
+    inside: dict[str, set[str]] = {}
+    most: dict[str, int] = {}
+    began: list[str] = []
+    for line in log:
+        if (m := PHASE_LINE.match(line)) is None:
+            continue
+        label, net = m[1], m[1].split(":")[0]
+        now = inside.setdefault(net, set())
+        if m[2] == Phase.CONFIGURING.value:
+            now.add(label)
+            began.append(label)
+        else:
+            now.discard(label)
+        most[net] = max(most.get(net, 0), len(now))
+    return most, began
 
 
 def address(sysid: int) -> tuple[str, int]:

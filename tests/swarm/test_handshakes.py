@@ -11,57 +11,23 @@ however briefly."""
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-import re
 
-from swarm_harness import Sky, mission_from
+from swarm_harness import PHASE_LINE, Sky, handshakes_at_once, in_waves
 
 from gcs_swarm.mavlink.states import Phase
-from gcs_swarm.mission import Mission
 from gcs_swarm.runtime.station import _not_ready
-
-_PHASE = re.compile(r"^vehicle (\S+): ([a-z_]+)$")
-
-
-def _mission(window: int | None, duration: float = 1.0) -> Mission:
-    """Example 1 on two networks (blue 1-3, red 1-3), ``window`` handshakes each."""
-    m = mission_from("example1_networks.yaml", duration=duration)
-    startup = dataclasses.replace(m.settings.startup, handshakes_per_network=window)
-    return dataclasses.replace(m, settings=dataclasses.replace(m.settings, startup=startup))
-
-
-def _configuring(log: list[str]) -> tuple[dict[str, int], list[str]]:
-    """From the log's phase lines: the most vehicles of each network
-    configuring at once, and the order in which vehicles began to."""
-    inside: dict[str, set[str]] = {}
-    most: dict[str, int] = {}
-    began: list[str] = []
-    for line in log:
-        m = _PHASE.match(line)
-        if m is None:
-            continue
-        label, phase = m[1], m[2]
-        net = label.split(":")[0]
-        now = inside.setdefault(net, set())
-        if phase == Phase.CONFIGURING.value:
-            now.add(label)
-            began.append(label)
-        else:
-            now.discard(label)
-        most[net] = max(most.get(net, 0), len(now))
-    return most, began
 
 
 def test_at_most_the_window_of_a_network_configure_and_the_formation_flies() -> None:
-    free = Sky(_mission(None))
+    free = Sky(in_waves(None, duration=1.0))
     free.ready()
-    free_most, _ = _configuring(list(free.core.log))
+    free_most, _ = handshakes_at_once(free.core.log)
     assert free_most == {"blue": 3, "red": 3}  # unbounded: all three at once
 
-    sky = Sky(_mission(2))
+    sky = Sky(in_waves(2, duration=1.0))
     sky.ready()
-    most, began = _configuring(list(sky.core.log))
+    most, began = handshakes_at_once(sky.core.log)
     assert most == {"blue": 2, "red": 2}
     assert sky.core.gate is not None and sky.core.gate.most == 2
     # The third of each network started only once a place was free: after one
@@ -75,13 +41,13 @@ def test_at_most_the_window_of_a_network_configure_and_the_formation_flies() -> 
 
 
 def test_with_one_place_a_network_configures_one_vehicle_after_another() -> None:
-    sky = Sky(_mission(1))
+    sky = Sky(in_waves(1, duration=1.0))
     sky.ready()
     for net in ("blue", "red"):
         phases = [
             (m[1], m[2])
             for line in sky.core.log
-            if (m := _PHASE.match(line)) is not None and m[1].startswith(net + ":")
+            if (m := PHASE_LINE.match(line)) is not None and m[1].startswith(net + ":")
         ]
         # Each vehicle's configuring is followed by its own next phase before
         # the next vehicle of the network begins.
@@ -93,7 +59,7 @@ def test_with_one_place_a_network_configures_one_vehicle_after_another() -> None
 
 
 def test_a_vehicle_never_heard_takes_no_place() -> None:
-    mission = _mission(1)
+    mission = in_waves(1, duration=1.0)
     sky = Sky(mission)
     silent = next(k for k, vp in sky.core.vehicles.items() if vp.label == "blue:1")
     sky.set_silent(silent)
@@ -107,7 +73,7 @@ def test_a_vehicle_never_heard_takes_no_place() -> None:
 
 
 def test_a_vehicle_lost_while_configuring_frees_its_place_and_waiting_ones_say_so() -> None:
-    sky = Sky(_mission(1))
+    sky = Sky(in_waves(1, duration=1.0))
     vps = sky.core.vehicles
     blue = [k for k, vp in vps.items() if vp.label.startswith("blue:")]
     # A vehicle of blue stops answering while it configures: the one behind it
