@@ -60,12 +60,18 @@ def only_loopback() -> bool:
     return [name for _, name in socket.if_nameindex()] == ["lo"]
 
 
-def in_private_namespace_or_rerun(nodeid: str) -> bool:
+def in_private_namespace_or_rerun(nodeid: str, keep: Path) -> bool:
     """True when the caller may start PX4 here (a namespace with only
     loopback). Otherwise the test ``nodeid`` is run again inside ``unshare
     -n`` (loopback up), this call fails if it failed there, and returns
     False: the caller then returns at once. Skipped when ``unshare -n`` is
-    not allowed here."""
+    not allowed here.
+
+    ``keep`` (the calling test's ``tmp_path``) holds what the re-run leaves:
+    its temporary folders (``inside/``: the PX4 instances' folders and
+    consoles, the station's run folders) and the station's whole log at
+    INFO (``inside.log``), kept as pytest keeps the outer run's folder
+    (its last three runs), not cleaned by the next re-run."""
     if only_loopback():
         return True
     if os.environ.get(ENV_INSIDE):
@@ -77,13 +83,15 @@ def in_private_namespace_or_rerun(nodeid: str) -> bool:
         pytest.skip(f"unshare -n not permitted here: {probe.stderr.decode().strip()}")
     root = Path(__file__).resolve().parents[2]
     cmd = (f"ip link set lo up && exec {sys.executable} -m pytest -x -q -p no:cacheprovider "
-           f"--show-capture=no -m px4_sitl '{nodeid}'")  # fmt: skip
+           f"--show-capture=no -m px4_sitl --basetemp='{keep / 'inside'}' "
+           f"--log-file='{keep / 'inside.log'}' --log-file-level=INFO '{nodeid}'")  # fmt: skip
     env = dict(os.environ, **{ENV_INSIDE: "1"})
     run = subprocess.run(["unshare", "-n", "sh", "-c", cmd], cwd=root, env=env,
                          capture_output=True, text=True)  # fmt: skip
     sys.stdout.write(run.stdout[-20000:])
     if run.returncode != 0:
-        pytest.fail(f"{nodeid} failed inside unshare -n (exit {run.returncode}):\n"
+        pytest.fail(f"{nodeid} failed inside unshare -n (exit {run.returncode}; its folders"
+                    f" and log: {keep}):\n"
                     f"{run.stdout[-6000:]}\n{run.stderr[-3000:]}")  # fmt: skip
     return False
 

@@ -52,7 +52,7 @@ def test_mixed_arducopter_and_px4_form_one_tetrahedron(
     the configured 6 m, no vehicle lost; the emulator beside it."""
     px4 = binary_or_skip()
     sitl_harness.binary_or_skip()
-    if not in_private_namespace_or_rerun(request.node.nodeid):
+    if not in_private_namespace_or_rerun(request.node.nodeid, tmp_path):
         return
     mission = load(MISSION)
     r_eq = _equilibrium_radius(mission)

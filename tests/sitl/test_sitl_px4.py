@@ -120,7 +120,7 @@ def _equilibrium_radius(mission: Mission) -> float:
 def test_px4_startup_first_try_three_times(tmp_path: Path, request: pytest.FixtureRequest) -> None:
     """Fresh PX4 SITL x 4, three times: the start-up completes first try each time."""
     binary = binary_or_skip()
-    if not in_private_namespace_or_rerun(request.node.nodeid):
+    if not in_private_namespace_or_rerun(request.node.nodeid, tmp_path):
         return
     mission = _short(load(MISSION), 10.0)
     runs = []
@@ -138,7 +138,7 @@ def test_px4_formation_and_emulator_twin(tmp_path: Path, request: pytest.Fixture
     equilibrium, separation never below the configured value; the emulator's
     PX4 personality flies the same mission beside it."""
     binary = binary_or_skip()
-    if not in_private_namespace_or_rerun(request.node.nodeid):
+    if not in_private_namespace_or_rerun(request.node.nodeid, tmp_path):
         return
     mission = load(MISSION)
     r_eq = _equilibrium_radius(mission)
@@ -221,7 +221,7 @@ def test_px4_paused_vehicle_rejoins_the_moving_formation(
     and 20.0 s later; no AUTO.LAND until the mission's end (the station put
     it in Hold 1.65 s after it was heard again, then OFFBOARD 2.0 s later)."""
     binary = binary_or_skip()
-    if not in_private_namespace_or_rerun(request.node.nodeid):
+    if not in_private_namespace_or_rerun(request.node.nodeid, tmp_path):
         return
     mission = _moving(_short(load(MISSION), 75.0), 1.2)  # 1.2 N / 1.6 N s/m = 0.75 m/s
     with px4_swarm(binary, 4, tmp_path / "px4") as swarm:
@@ -271,7 +271,7 @@ def test_px4_station_killed_every_vehicle_lands(
     """SIGKILL the station in flight: every PX4 is in AUTO.LAND (the
     COM_OBL_RC_ACT the station set) within COM_OF_LOSS_T + 0.5 s."""
     binary = binary_or_skip()
-    if not in_private_namespace_or_rerun(request.node.nodeid):
+    if not in_private_namespace_or_rerun(request.node.nodeid, tmp_path):
         return
     loss_t = 1.0  # COM_OF_LOSS_T as the station sets it
     path = tmp_path / "mission.yaml"
