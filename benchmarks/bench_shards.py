@@ -104,10 +104,12 @@ def _station_options(args: argparse.Namespace) -> str:
     st.STEP, st.CUTOFF, st.SETTLE_S = args.step, args.cutoff, args.settle
     st.SPREAD, st.PHASES, st.HEARTBEATS = args.spread, args.phases, args.heartbeats
     st.EMULATORS, st.OVERRUN, st.HANDSHAKES = args.emulators, args.overrun, args.handshakes
+    st.READY_TIMEOUT_S = rt = args.ready_timeout
     return (f"step {args.step}, cut-off {args.cutoff}, settle {args.settle:g} s, "
             f"spread {args.spread}, phases {args.phases}, heartbeats {args.heartbeats}, "
             f"overrun {args.overrun}, emulator processes {args.emulators}, "
-            f"handshakes per network {args.handshakes}")  # fmt: skip
+            f"handshakes per network {args.handshakes}, ready timeout "
+            f"{'90 (default)' if rt is None else f'{rt:g}'} s")  # fmt: skip
 
 
 async def _realtime(

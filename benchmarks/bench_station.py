@@ -122,6 +122,9 @@ reports are all in, docs/formation-law.md section 3b)."""
 HANDSHAKES: int | None = None
 """``--handshakes W``: the mission's ``startup.handshakes_per_network`` (at most
 W vehicles of a network in their start-up handshake at once)."""
+READY_TIMEOUT_S: float | None = None
+"""``--ready-timeout S``: the mission's ``startup.ready_timeout`` (its default,
+90 s, when None): start-up in waves of a large fleet takes longer."""
 LEAVE = 0
 """``--leave K`` (with ``--networks``): K vehicles of each network leave the
 formation 0.5 s into it (mission events; the mission's end action, hold,
@@ -159,8 +162,18 @@ def mission_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--handshakes", type=int, default=None, metavar="W",
                     help="mission.startup.handshakes_per_network: W vehicles of a network "
                          "configure at once")  # fmt: skip
+    ap.add_argument("--ready-timeout", type=float, default=None, metavar="S",
+                    help="mission.startup.ready_timeout [s], default 90")  # fmt: skip
     ap.add_argument("--emulators", type=int, default=1, metavar="K",
                     help="host the networks in K emulator processes, all on core 0")  # fmt: skip
+
+
+def _startup_yaml() -> str:
+    """The mission's ``startup`` from ``--handshakes`` and ``--ready-timeout``
+    ("" when neither is given)."""
+    keys = [f"handshakes_per_network: {HANDSHAKES}"] if HANDSHAKES else []
+    keys += [f"ready_timeout: {READY_TIMEOUT_S!r}"] if READY_TIMEOUT_S is not None else []
+    return f", startup: {{{', '.join(keys)}}}" if keys else ""
 
 
 def emulator_child(
@@ -280,9 +293,7 @@ def mission_yaml(n: int, networks: bool = False, duration: float = 14400.0) -> s
     g = _gains()
     lines = [
         f"mission: {{name: bench, duration: {duration:g}, rate: {RATE_HZ:g}, end: hold,"
-        f" step: {STEP}"
-        + (f", startup: {{handshakes_per_network: {HANDSHAKES}}}" if HANDSHAKES else "")
-        + "}",
+        f" step: {STEP}" + _startup_yaml() + "}",
         "emulator: {dynamics: ideal, spawn: air, shared: true}",
         f"gains: {{M: {g.M!r}, D: {g.D!r}, k: {g.k!r}, k_s: {g.k_s!r}, k_r: {g.k_r!r},"
         f" alpha: {g.alpha!r}, q: {g.q_default!r}{cut}}}",
@@ -619,8 +630,8 @@ def main() -> None:
     RATE_HZ, GROUP, CUTOFF, STEP = args.rate, args.group, args.cutoff, args.step
     SETTLE_S, SPREAD, PHASES = args.settle, args.spread, args.phases
     HEARTBEATS, EMULATORS, OVERRUN = args.heartbeats, args.emulators, args.overrun
-    global HANDSHAKES
-    HANDSHAKES = args.handshakes
+    global HANDSHAKES, READY_TIMEOUT_S
+    HANDSHAKES, READY_TIMEOUT_S = args.handshakes, args.ready_timeout
     if args.emulator:
         host = tuple(int(j) for j in args.host.split(":")) if args.host else None
         asyncio.run(emulator_main(args.emulator, args.networks, host, args.epoch))  # type: ignore[arg-type]
@@ -638,6 +649,7 @@ def main() -> None:
     how += f", {EMULATORS} emulator processes" if EMULATORS > 1 else ""
     how += f", {LEAVE} of each network left at 0.5 s" if LEAVE else ""
     how += f", {HANDSHAKES} handshakes per network at once" if HANDSHAKES else ""
+    how += f", ready timeout {READY_TIMEOUT_S:g} s" if READY_TIMEOUT_S is not None else ""
     if PHASES is not None:
         most = len(groups(max(int(c) for c in args.counts.split(","))))
         how += f", phases (seed {PHASES}): " + " ".join(f"{p:.2f}" for p in _phases(most))
