@@ -87,14 +87,23 @@ def test_two_networks_on_two_shards_are_stepped_each_on_its_shard_s_batch(tmp_pa
     shard's batch as it comes (tests/swarm/test_shard_step_per_network.py,
     the rule on the hand clock), never waiting for the other network."""
     summary, run = _fly_sharded(tmp_path, 2)
-    # A step for each shard's batch: two a period, 1,200 over the mission
-    # (measured 1,201; a batch a real-time shard drops on a congested link is
-    # replaced by its next: 1.6 per period leaves 20 % for that). A step of
-    # the whole swarm would be one a period (601 with the rule removed). The
-    # fallback steps only while a shard's states have not come yet, at the
+    # Each shard sends a batch a period: 1,200 over the mission (a batch a
+    # real-time shard drops on a congested link is replaced by its next: 1.6
+    # per period leaves 20 % for that). The controller steps each as it
+    # comes: about a step per batch (measured 1,095 and 1,185 steps of 1,204
+    # batches idle, 1,096 and 1,188 beside two busy loops), and
+    # on a loaded one a late loop takes the batches already queued behind
+    # the first in one step (docs/architecture.md, "A step"), which the
+    # machine's load decides. A step of the whole swarm, waiting for the
+    # other shard, would answer two batches every time: at most half as many
+    # steps as batches (601 with the rule removed); 0.6 of the batches is
+    # above that and leaves a loaded machine 80 % of the periods merged.
+    b = run.bytes_per_step
+    assert b["batches"] >= 1.6 * 50 * DURATION_S, b
+    assert summary.steps >= 0.6 * b["batches"], (summary.steps, b)
+    # The fallback steps only while a shard's states have not come yet, at the
     # start (measured 0; 5 allows a shard starting 0.1 s late on a loaded
     # machine).
-    assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
     assert run.core.fallbacks <= 5
     # Each shard's report measures the formation's last WINDOW_S (from the
     # first reply at or past 2 s of mission time: a step later, 0.02 s, on an
@@ -120,7 +129,14 @@ def test_one_shard_of_both_networks_sends_the_rows_that_changed(tmp_path: Path) 
     summary, run = _fly_sharded(tmp_path, 1)
     assert run.core.unplaced == 0
     b = run.bytes_per_step
-    assert summary.steps >= 1.6 * 50 * DURATION_S, summary.steps
+    # At least a step a period, as one station (the test above). Two when the
+    # networks' reports reach the shard apart, which their emulators' phases
+    # (their start times) and the machine's load decide: a shard that reads
+    # both networks' reports in one go steps them together (measured 1,195
+    # and 1,201 steps idle, 1,188 and 1,201 beside two busy loops, 751 in one
+    # fresh-clone CI run beside a busy loop). That it did step them apart is
+    # what the bytes below show: batches of one network's rows.
+    assert summary.steps >= 0.9 * 50 * DURATION_S, summary.steps
     # A whole batch is 744 bytes, one network's rows 384: measured 385-518 on
     # average (the other network's rows go too when its reports came before
     # the answer). How many go depends on the timing; that some batches went
