@@ -17,7 +17,11 @@ import numpy as np
 
 from gcs_swarm.mavlink import builders as b
 from gcs_swarm.mavlink.commands import MAV_RESULT_NAMES
-from gcs_swarm.mavlink.coordinates import GeoOrigin
+from gcs_swarm.mavlink.coordinates import (
+    GeoOrigin,
+    mission_to_ned_floats,
+    vector_mission_to_ned_floats,
+)
 from gcs_swarm.mavlink.inbound import GpsGlobalOrigin
 from gcs_swarm.mavlink.states import READYING_PHASES, Phase
 from gcs_swarm.mavlink.vehicle_base import _vec, _VehicleBase
@@ -325,17 +329,13 @@ class _Startup(_VehicleBase):
     def _answer_hold(self) -> None:
         """Position setpoint to the goto point, sent in answer to each telemetry
         (with the point's velocity as the feed-forward when it moves)."""
-        o = self.offset_m
-        if o is not None:
-            # coordinates.mission_to_ned(goto, o), written out as floats: the
-            # same operations, run for every report of a holding vehicle.
-            g = self._goto_m
-            ned = (float(g[1] - o[1]), float(g[0] - o[0]), -float(g[2] - o[2]))
+        if self.offset_m is not None:
+            ned = mission_to_ned_floats(self._goto_m, self.offset_m)  # at every report
             self.last_accel_ned = np.zeros(3)
             v = self._goto_vel
             if v is None:
                 spec = b.position_setpoint(self.sysid, self.compid, self.boot_ms(), ned)
-            else:  # coordinates.vector_mission_to_ned
-                vel = (float(v[1]), float(v[0]), -float(v[2]))
+            else:
+                vel = vector_mission_to_ned_floats(v)
                 spec = b.posvel_setpoint(self.sysid, self.compid, self.boot_ms(), ned, vel)
             self._out.append(spec)

@@ -16,6 +16,7 @@ from gcs_swarm.mavlink import (
     vector_mission_to_ned,
 )
 from gcs_swarm.mavlink import builders as b
+from gcs_swarm.mavlink.coordinates import mission_to_ned_floats, vector_mission_to_ned_floats
 from gcs_swarm.mavlink.inbound import LocalPositionNed
 
 
@@ -109,3 +110,10 @@ def test_two_origins_see_one_mission_point_alike() -> None:
     np.testing.assert_allclose(ned_to_mission(ned, offsets), [point, point])
     # Accelerations carry no offset: a_ned = (a_y, a_x, -a_z).
     np.testing.assert_array_equal(vector_mission_to_ned([1.0, 2.0, 3.0]), [2.0, 1.0, -3.0])
+
+
+def test_one_point_as_floats_is_the_array_form_bit_for_bit() -> None:
+    rng = np.random.default_rng(7)
+    for p, o in rng.normal(0.0, 300.0, (200, 2, 3)):
+        assert mission_to_ned_floats(p, o) == tuple(mission_to_ned(p, o).tolist())
+        assert vector_mission_to_ned_floats(p) == tuple(vector_mission_to_ned(p).tolist())
